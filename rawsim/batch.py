@@ -1,0 +1,212 @@
+"""Running a job over many files: discovery, output paths, per-file seeds, skipping,
+sharding, parallel workers, failures and the summary.
+
+The job itself is a plain function ``job(task, **kwargs) -> dict`` that knows nothing
+of batches; it raises :class:`~rawsim.errors.RawsimError` for bad inputs. Every task
+gets its outcome in a :class:`Result`; one failure never stops the others.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+from rawsim.errors import ParameterError, RawsimError
+from rawsim.seeds import derive_seed
+
+#: Exit statuses of the batch commands.
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Task:
+    """One input file and where its outputs go.
+
+    Attributes:
+        source: the input file.
+        key: its path relative to the input root given on the command line (POSIX
+            form); names outputs and seeds the file's randomness.
+        outputs: output kind → path.
+        seed: the file's seed, derived from the run's seed and ``key``.
+    """
+
+    source: Path
+    key: str
+    outputs: dict[str, Path]
+    seed: int
+
+
+@dataclass
+class Result:
+    """The outcome of one task: ``done``, ``skipped`` or ``failed``."""
+
+    task: Task
+    status: str
+    message: str = ""
+    record: dict = field(default_factory=dict)
+    detail: str = ""
+    seconds: float = 0.0
+
+
+def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> tuple[list, list]:
+    """Find input files. Folders are searched recursively for ``extensions``.
+
+    Returns ``(found, missing)``: ``found`` is a sorted list of (path, key) pairs,
+    ``missing`` the inputs that do not exist.
+    """
+    exts = tuple(e.lower() for e in extensions)
+    found: dict[Path, str] = {}
+    missing = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            for p in sorted(path.rglob("*")):
+                if p.is_file() and p.suffix.lower() in exts and not p.name.startswith("."):
+                    found.setdefault(p, p.relative_to(path).as_posix())
+        elif path.exists():
+            found.setdefault(path, path.name)
+        else:
+            missing.append(str(item))
+    return sorted(found.items(), key=lambda kv: (kv[1], str(kv[0]))), missing
+
+
+def parse_shard(text: str | None) -> tuple[int, int]:
+    """Parse ``"K/N"`` (1-based K) into (K, N); None means the whole run (1/1)."""
+    if not text:
+        return 1, 1
+    try:
+        k, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise ParameterError(f"shard must look like K/N, e.g. 2/8; got {text!r}") from None
+    if not 1 <= k <= n:
+        raise ParameterError(f"shard K/N needs 1 ≤ K ≤ N, got {text!r}")
+    return k, n
+
+
+def plan(
+    found: Sequence[tuple[Path, str]],
+    out_dir: str | Path,
+    suffixes: dict[str, str],
+    seed: int,
+    shard: tuple[int, int] = (1, 1),
+) -> tuple[list[Task], list[Result]]:
+    """Map inputs to tasks, mirroring each key's folders under ``out_dir``.
+
+    ``suffixes`` maps output kinds to suffixes (``{"dng": ".dng"}``). The shard keeps
+    every N-th file of the sorted list, so shards of one run never overlap and
+    together cover it. Returns the tasks and failed results for inputs whose outputs
+    clash with another input's or would overwrite an input.
+    """
+    k, n = shard
+    out_dir = Path(out_dir)
+    tasks = []
+    for path, key in found:
+        rel = Path(key)
+        stem = out_dir / rel.parent / rel.stem
+        outputs = {kind: stem.with_name(stem.name + sfx) for kind, sfx in suffixes.items()}
+        tasks.append(Task(path, key, outputs, derive_seed(seed, key)))
+    owners: dict[Path, list[Task]] = {}
+    for t in tasks:
+        for p in t.outputs.values():
+            owners.setdefault(p.resolve(), []).append(t)
+    inputs = {t.source.resolve() for t in tasks}
+    bad: dict[str, str] = {}
+    for p, ts in owners.items():
+        if len(ts) > 1:
+            names = " and ".join(str(t.source) for t in ts)
+            for t in ts:
+                bad.setdefault(t.key, f"output name clash: {names} would both write {p}")
+        if p in inputs:
+            for t in ts:
+                bad.setdefault(t.key, f"refusing to write {p}: it is an input")
+    mine = [t for i, t in enumerate(tasks) if i % n == k - 1]
+    failed = [Result(t, "failed", f"{t.source}: {bad[t.key]}") for t in mine if t.key in bad]
+    return [t for t in mine if t.key not in bad], failed
+
+
+def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: dict) -> Result:
+    if not overwrite and all(p.exists() for p in task.outputs.values()):
+        return Result(task, "skipped", f"{task.source}: outputs exist (use --overwrite)")
+    start = time.perf_counter()
+    try:
+        record = job(task, **kwargs)
+    except RawsimError as err:
+        detail = traceback.format_exc() if debug else ""
+        return Result(task, "failed", _one_line(err, task), detail=detail)
+    except Exception as err:  # a bug, or an error a library raised on a bad file
+        detail = traceback.format_exc() if debug else ""
+        msg = f"{task.source}: {type(err).__name__}: {_one_line(err, None)}"
+        return Result(task, "failed", msg, detail=detail)
+    return Result(task, "done", record=record, seconds=time.perf_counter() - start)
+
+
+def _one_line(err: BaseException, task: Task | None) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    if task is not None and str(task.source) not in text:
+        text = f"{task.source}: {text}"
+    return text
+
+
+def _init_worker(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def run(
+    tasks: Sequence[Task],
+    job: Callable,
+    *,
+    jobs: int = 1,
+    overwrite: bool = False,
+    debug: bool = False,
+    **kwargs,
+) -> Iterator[Result]:
+    """Run ``job`` on every task, yielding results as they finish.
+
+    With ``jobs`` > 1, tasks run in that many worker processes (spawned, each with
+    an equal share of the CPU threads). Results do not depend on ``jobs``.
+    """
+    if jobs < 1:
+        raise ParameterError(f"--jobs must be ≥ 1, got {jobs}")
+    if jobs == 1 or len(tasks) <= 1:
+        for t in tasks:
+            yield _run_one(job, t, overwrite, debug, kwargs)
+        return
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"),
+                             initializer=_init_worker, initargs=(threads,)) as pool:
+        futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
+        for fut in as_completed(futures):
+            try:
+                yield fut.result()
+            except Exception as err:  # the worker died (killed, out of memory)
+                task = futures[fut]
+                yield Result(task, "failed", f"{task.source}: worker failed: {err}")
+
+
+@dataclass
+class Summary:
+    """Counts of a finished batch and its exit status."""
+
+    done: int = 0
+    skipped: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+
+    def add(self, result: Result) -> None:
+        setattr(self, result.status, getattr(self, result.status) + 1)
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_FAILED if self.failed else EXIT_OK
+
+    def __str__(self) -> str:
+        return (f"{self.done} done, {self.skipped} skipped, {self.failed} failed "
+                f"in {self.seconds:.1f} s")

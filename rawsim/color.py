@@ -1,0 +1,79 @@
+"""Colour constants and camera-matrix maths (no image tensors here).
+
+Matrices act on column vectors: ``out = M @ rgb``. For images (B, 3, H, W)
+use :func:`rawsim.isp.color_matrix.apply_color_matrix`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from rawsim.errors import ParameterError
+
+#: Linear sRGB → CIE XYZ, D65 white (IEC 61966-2-1).
+SRGB_TO_XYZ = torch.tensor(
+    [
+        [0.4124564, 0.3575761, 0.1804375],
+        [0.2126729, 0.7151522, 0.0721750],
+        [0.0193339, 0.1191920, 0.9503041],
+    ],
+    dtype=torch.float64,
+)
+#: CIE XYZ of the D65 white point (Y = 1), the row sums of :data:`SRGB_TO_XYZ`.
+XYZ_D65 = SRGB_TO_XYZ.sum(dim=1)
+#: DNG CalibrationIlluminant code of D65 (EXIF LightSource 21).
+ILLUMINANT_D65 = 21
+
+
+def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> torch.Tensor:
+    """Convert nested lists or a tensor to a float64 matrix of ``shape``, checking it."""
+    m = torch.as_tensor(values, dtype=torch.float64)
+    if tuple(m.shape) != shape:
+        raise ParameterError(f"{name} must be {shape[0]}×{shape[1]}, got {tuple(m.shape)}")
+    if not bool(torch.isfinite(m).all()):
+        raise ParameterError(f"{name} contains NaN or infinite values")
+    return m
+
+
+def camera_from_srgb(xyz_to_camera) -> torch.Tensor:
+    """Linear sRGB → white-balanced camera RGB, the way dcraw/LibRaw build it.
+
+    ``rgb2cam = xyz2cam @ srgb2xyz`` with each row scaled to sum to 1, so that
+    sRGB white maps to camera white (1, 1, 1) once white balance is applied.
+
+    Args:
+        xyz_to_camera: (3, 3) XYZ → camera matrix (DNG ``ColorMatrix``, LibRaw
+            ``rgb_xyz_matrix``).
+
+    Returns:
+        (3, 3) float64 matrix.
+    """
+    m = as_matrix(xyz_to_camera, "xyz_to_camera") @ SRGB_TO_XYZ
+    sums = m.sum(dim=1, keepdim=True)
+    if bool((sums.abs() < 1e-8).any()):
+        raise ParameterError("xyz_to_camera maps white to zero in some channel")
+    return m / sums
+
+
+def srgb_from_camera(xyz_to_camera) -> torch.Tensor:
+    """White-balanced camera RGB → linear sRGB: the inverse of :func:`camera_from_srgb`."""
+    return torch.linalg.inv(camera_from_srgb(xyz_to_camera))
+
+
+def xyz_to_camera_from_ccm(camera_to_srgb) -> torch.Tensor:
+    """XYZ → camera matrix equivalent to a camera → linear sRGB CCM (rows normalised)."""
+    rgb2cam = torch.linalg.inv(as_matrix(camera_to_srgb, "color matrix"))
+    m = rgb2cam @ torch.linalg.inv(SRGB_TO_XYZ)
+    return m / m.sum(dim=1, keepdim=True).mean()
+
+
+def daylight_gains(xyz_to_camera) -> torch.Tensor:
+    """White-balance gains (R, G, B), G = 1, that neutralise a D65 white for this camera.
+
+    The camera's raw response to D65 white is ``xyz2cam @ XYZ_D65``; the gains are
+    its reciprocal normalised to green. Returns a (3,) float64 tensor.
+    """
+    response = as_matrix(xyz_to_camera, "xyz_to_camera") @ XYZ_D65
+    if bool((response <= 0).any()):
+        raise ParameterError("xyz_to_camera gives a non-positive response to D65 white")
+    return response[1] / response

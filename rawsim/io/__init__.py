@@ -1,0 +1,1 @@
+"""File input/output at the edges of rawsim: images (OpenImageIO), DNG (tifffile)."""

@@ -1,0 +1,119 @@
+"""Reading images with OpenImageIO into arrays ready for unprocessing.
+
+Handles 8/16-bit integer files (PNG, JPEG, TIFF, …: display-referred codes) and
+float files (EXR half/float, scanline or tiled, Radiance HDR, float TIFF:
+scene-linear). Alpha and extra channels are dropped, grey is replicated to RGB,
+odd sizes are cropped to even (the crop is reported).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rawsim.errors import UnsupportedInputError
+
+#: Extensions picked up when scanning folders (files named explicitly are always tried).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".bmp", ".webp")
+#: Camera raw extensions: these go through ``rawsim process``, not here.
+RAW_EXTENSIONS = (".dng", ".cr2", ".cr3", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf",
+                  ".orf", ".rw2", ".pef", ".srw", ".kdc", ".dcr", ".mrw", ".3fr", ".iiq", ".x3f")
+
+
+@dataclass(frozen=True)
+class DecodedImage:
+    """An image ready for unprocessing.
+
+    Attributes:
+        pixels: (H, W, 3) array, H and W even; uint8/uint16 codes or float32 values.
+        code_max: full-scale code of integer pixels (255 or 65535), None for float.
+        orientation: EXIF/TIFF orientation (1–8) of the file, 1 if absent.
+        source_size: (width, height) of the file before cropping.
+        dropped_channels: names of channels that were not used (alpha, …).
+        format_name: OpenImageIO's name of the file format.
+    """
+
+    pixels: np.ndarray
+    code_max: int | None
+    orientation: int
+    source_size: tuple[int, int]
+    dropped_channels: tuple[str, ...]
+    format_name: str
+
+    @property
+    def is_float(self) -> bool:
+        return self.code_max is None
+
+    @property
+    def crop(self) -> dict:
+        """The kept region of the source, in pixels (cropping only removes odd edges)."""
+        h, w = self.pixels.shape[:2]
+        return {"x": 0, "y": 0, "width": w, "height": h,
+                "source_width": self.source_size[0], "source_height": self.source_size[1]}
+
+
+def read_image(path: str | Path) -> DecodedImage:
+    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    if path.suffix.lower() in RAW_EXTENSIONS:
+        raise UnsupportedInputError(
+            f"{path}: camera raw files are not unprocessing inputs (use 'rawsim process')"
+        )
+    if not path.is_file():
+        raise UnsupportedInputError(f"{path}: not a file")
+    if path.stat().st_size == 0:
+        raise UnsupportedInputError(f"{path}: empty file (0 bytes)")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        reason = oiio.geterror().strip().splitlines()
+        raise UnsupportedInputError(
+            f"{path}: not a readable image ({reason[-1] if reason else 'unknown format'})"
+        )
+    try:
+        spec = inp.spec()
+        base = spec.format.basetype
+        if base == oiio.UINT8:
+            fmt, code_max = oiio.UINT8, 255
+        elif base == oiio.UINT16:
+            fmt, code_max = oiio.UINT16, 65535
+        elif base in (oiio.HALF, oiio.FLOAT, oiio.DOUBLE):
+            fmt, code_max = oiio.FLOAT, None
+        else:
+            raise UnsupportedInputError(
+                f"{path}: unsupported sample type {spec.format} (need 8/16-bit or float)"
+            )
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+        error = inp.geterror()
+        format_name = inp.format_name()
+    finally:
+        inp.close()
+    if pixels is None or error:
+        raise UnsupportedInputError(f"{path}: cannot decode pixels ({error.strip() or 'truncated?'})")
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    names = tuple(spec.channelnames) or tuple(f"ch{i}" for i in range(spec.nchannels))
+    if spec.nchannels >= 3:
+        rgb, dropped = pixels[:, :, :3], names[3:]
+    else:  # grey, or grey + alpha
+        rgb, dropped = np.repeat(pixels[:, :, :1], 3, axis=2), names[1:]
+    height, width = rgb.shape[:2]
+    if height < 2 or width < 2:
+        raise UnsupportedInputError(f"{path}: image is too small ({width}×{height})")
+    rgb = np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
+    if code_max is None:
+        rgb = rgb.astype(np.float32, copy=False)
+        if not np.isfinite(rgb).all():
+            raise UnsupportedInputError(f"{path}: image contains NaN or infinite values")
+    return DecodedImage(
+        pixels=rgb,
+        code_max=code_max,
+        orientation=int(spec.get_int_attribute("Orientation", 1)),
+        source_size=(width, height),
+        dropped_channels=tuple(dropped),
+        format_name=format_name,
+    )

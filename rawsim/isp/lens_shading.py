@@ -1,0 +1,68 @@
+"""Lens shading: a radial gain V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶ (r = 1 at the corners).
+
+``forward`` corrects shading (multiplies by the gain); ``reverse`` divides by it,
+which adds vignetting — the unprocessing direction. The gain is evaluated at
+each pixel's own position, so on a mosaic every CFA site gets its own value.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from rawsim.errors import ParameterError, check_image
+
+DEFAULT_K = (0.3, 0.15, 0.05)
+
+
+def radial_gain(
+    height: int,
+    width: int,
+    k=DEFAULT_K,
+    strength: float = 1.0,
+    device=None,
+    dtype=torch.float32,
+) -> torch.Tensor:
+    """Gain map (1, 1, H, W): ``1 + strength · (V(r) − 1)``, ≥ 1 for k ≥ 0, 1 at the centre."""
+    k1, k2, k3 = (float(v) for v in k)
+    if strength < 0:
+        raise ParameterError(f"lens shading strength must be ≥ 0, got {strength}")
+    y = torch.arange(height, device=device, dtype=torch.float64) - (height - 1) / 2
+    x = torch.arange(width, device=device, dtype=torch.float64) - (width - 1) / 2
+    r2 = (y[:, None] ** 2 + x[None, :] ** 2) / (((height - 1) / 2) ** 2 + ((width - 1) / 2) ** 2)
+    v = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    gain = 1 + strength * (v - 1)
+    if bool((gain <= 0).any()):
+        raise ParameterError(f"lens shading gain must stay positive (k={k}, strength={strength})")
+    return gain.to(dtype)[None, None]
+
+
+def apply_lens_shading(x: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+    """Correct shading: (B, C, H, W) · gain (1, 1, H, W)."""
+    check_image(x, "image")
+    return x * gain.to(x.dtype)
+
+
+def invert_lens_shading(x: torch.Tensor, gain: torch.Tensor) -> torch.Tensor:
+    """Add vignetting: (B, C, H, W) / gain (1, 1, H, W)."""
+    check_image(x, "image")
+    return x / gain.to(x.dtype)
+
+
+class LensShading(nn.Module):
+    """Lens-shading stage with the radial model (or an explicit gain map)."""
+
+    def __init__(self, k=DEFAULT_K, strength: float = 1.0, gain_map: torch.Tensor | None = None):
+        super().__init__()
+        self.k, self.strength, self.gain_map = tuple(k), strength, gain_map
+
+    def _gain(self, x: torch.Tensor) -> torch.Tensor:
+        if self.gain_map is not None:
+            return self.gain_map
+        return radial_gain(*x.shape[-2:], self.k, self.strength, x.device, x.dtype)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return apply_lens_shading(x, self._gain(x))
+
+    def reverse(self, x: torch.Tensor) -> torch.Tensor:
+        return invert_lens_shading(x, self._gain(x))

@@ -1,0 +1,114 @@
+"""Transfer functions (OETFs): exact sRGB (IEC 61966-2-1), power gamma, linear.
+
+``forward`` encodes linear light for display; ``reverse`` decodes display values
+back to linear light. Nominal domain [0, 1]; values outside it are not clipped:
+both curves are extended as odd functions (sRGB's linear toe continues below 0,
+its power segment above 1), so every value keeps an exact inverse.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from rawsim.errors import ParameterError
+
+# IEC 61966-2-1 constants.
+_SRGB_DECODE_KNEE = 0.04045
+_SRGB_ENCODE_KNEE = 0.0031308
+_SRGB_SLOPE = 12.92
+_SRGB_A = 0.055
+_SRGB_GAMMA = 2.4
+
+
+def _signed_pow(x: torch.Tensor, exponent: float) -> torch.Tensor:
+    # Clamp inside the power so the gradient stays finite at 0.
+    return torch.sign(x) * x.abs().clamp_min(1e-12).pow(exponent)
+
+
+def srgb_decode(v: torch.Tensor) -> torch.Tensor:
+    """sRGB-encoded values → linear light. Any shape; odd-symmetric outside [0, 1]."""
+    a = v.abs()
+    power = ((a.clamp_min(_SRGB_DECODE_KNEE) + _SRGB_A) / (1 + _SRGB_A)).pow(_SRGB_GAMMA)
+    return torch.sign(v) * torch.where(a <= _SRGB_DECODE_KNEE, a / _SRGB_SLOPE, power)
+
+
+def srgb_encode(x: torch.Tensor) -> torch.Tensor:
+    """Linear light → sRGB-encoded values. Any shape; odd-symmetric outside [0, 1]."""
+    a = x.abs()
+    power = (1 + _SRGB_A) * a.clamp_min(_SRGB_ENCODE_KNEE).pow(1 / _SRGB_GAMMA) - _SRGB_A
+    return torch.sign(x) * torch.where(a <= _SRGB_ENCODE_KNEE, a * _SRGB_SLOPE, power)
+
+
+def gamma_decode(v: torch.Tensor, gamma: float = 2.2) -> torch.Tensor:
+    """Power-law decode ``sign(v)·|v|^gamma`` (the seed's ``gamma_param``)."""
+    _check_gamma(gamma)
+    return _signed_pow(v, gamma)
+
+
+def gamma_encode(x: torch.Tensor, gamma: float = 2.2) -> torch.Tensor:
+    """Power-law encode ``sign(x)·|x|^(1/gamma)``."""
+    _check_gamma(gamma)
+    return _signed_pow(x, 1.0 / gamma)
+
+
+def _check_gamma(gamma: float) -> None:
+    if not gamma > 0:
+        raise ParameterError(f"gamma must be > 0, got {gamma}")
+
+
+@dataclass(frozen=True)
+class TransferSpec:
+    """A parsed transfer name: ``srgb``, ``linear`` or ``gamma:G``."""
+
+    kind: str
+    gamma: float = 1.0
+
+    @classmethod
+    def parse(cls, text: str) -> TransferSpec:
+        """Parse ``"srgb"``, ``"linear"`` or ``"gamma:2.2"``."""
+        text = str(text).strip().lower()
+        if text in ("srgb", "linear"):
+            return cls(text)
+        if text.startswith("gamma:"):
+            try:
+                gamma = float(text.split(":", 1)[1])
+            except ValueError:
+                gamma = float("nan")
+            if not gamma > 0:
+                raise ParameterError(f"bad transfer {text!r}: gamma must be a number > 0")
+            return cls("gamma", gamma)
+        raise ParameterError(f"unknown transfer {text!r}; valid: srgb, linear, gamma:G")
+
+    def __str__(self) -> str:
+        return f"gamma:{self.gamma:g}" if self.kind == "gamma" else self.kind
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        if self.kind == "srgb":
+            return srgb_encode(x)
+        if self.kind == "gamma":
+            return gamma_encode(x, self.gamma)
+        return x
+
+    def decode(self, v: torch.Tensor) -> torch.Tensor:
+        if self.kind == "srgb":
+            return srgb_decode(v)
+        if self.kind == "gamma":
+            return gamma_decode(v, self.gamma)
+        return v
+
+
+class Transfer(nn.Module):
+    """Output transfer stage: ``forward`` encodes linear → display, ``reverse`` decodes."""
+
+    def __init__(self, transfer: str = "srgb") -> None:
+        super().__init__()
+        self.spec = TransferSpec.parse(transfer)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.spec.encode(x)
+
+    def reverse(self, v: torch.Tensor) -> torch.Tensor:
+        return self.spec.decode(v)

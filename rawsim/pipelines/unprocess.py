@@ -1,0 +1,285 @@
+"""Unprocessing: an sRGB or scene-linear image → a noisy Bayer mosaic (and a clean one).
+
+:func:`unprocess_tensor` is the tensor core, used by the files job here and by
+the Python API. It runs the sensor's stages over strips of
+:data:`STRIP_ROWS` rows, so that temporaries stay small and cache-resident; the
+strip height is fixed, because it orders the random draws: the same generator
+state gives the same noise on every machine, job count and run split.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rawsim._version import __version__
+from rawsim.batch import Task
+from rawsim.cfa import PACKED_PLANES
+from rawsim.errors import ParameterError, check_choice, check_image, values_checked
+from rawsim.io.atomic import atomic_output
+from rawsim.io.dng import DngInfo, write_dng
+from rawsim.io.images import read_image
+from rawsim.isp.lens_shading import radial_gain
+from rawsim.isp.levels import quantize, saturate
+from rawsim.noise import NOISE_MODELS
+from rawsim.params import UnprocessParams, sample_params
+from rawsim.profiles import SensorProfile
+from rawsim.seeds import derive_seed
+from rawsim.sensors import RGBSensor, display_to_linear
+
+STRIP_ROWS = 128
+INTEGER_DTYPES = (torch.uint8, torch.int16, torch.int32, torch.uint16)
+
+
+@torch.no_grad()
+def unprocess_tensor(
+    sensor: RGBSensor,
+    image: torch.Tensor,
+    params: UnprocessParams,
+    *,
+    noise: str = "poisson-gaussian",
+    generator: torch.Generator | None = None,
+    display_referred: bool = True,
+    code_max: int | None = None,
+    clean: bool = False,
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Simulate the raw capture of ``image`` by ``sensor``.
+
+    Args:
+        image: (B, 3, H, W), H and W even. Either integer codes (uint8/uint16/…,
+            decoded through a lookup table of the display transform, with
+            ``code_max`` the full-scale code, default the dtype's maximum), or float
+            values: display-referred in [0, 1] if ``display_referred``, else
+            scene-linear (1.0 = white level before exposure).
+        params: the image's :class:`UnprocessParams` (ISO, matrix, gains, …).
+        noise: noise model name (``none``, ``gaussian``, ``poisson-gaussian``).
+        generator: randomness for the noise; must live on ``image``'s device.
+        clean: also return the noise-free mosaic.
+
+    Returns:
+        ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white], ``clean``
+        None unless asked for. Not differentiable (use the sensor's stage methods
+        for gradients).
+    """
+    check_choice("noise model", noise, NOISE_MODELS)
+    if image.ndim != 4 or image.shape[1] != 3:
+        raise ParameterError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
+    b, _, h, w = image.shape
+    if h % 2 or w % 2:
+        raise ParameterError(f"image height and width must be even, got {h}×{w}")
+    lut = None
+    if image.dtype in INTEGER_DTYPES:
+        top = code_max or int(torch.iinfo(image.dtype).max)
+        codes = torch.arange(top + 1, dtype=torch.float32, device=image.device) / top
+        lut = display_to_linear(codes, params.tone, params.transfer)
+    elif image.is_floating_point():
+        check_image(image, "image", channels=3)
+    else:
+        raise ParameterError(f"unsupported image dtype {image.dtype}")
+    shading = None
+    if params.vignetting > 0:
+        shading = radial_gain(h, w, strength=params.vignetting, device=image.device)
+    sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
+    noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
+    clean_out = torch.empty_like(noisy) if clean else None
+    with values_checked(False):
+        _run_strips(sensor, image, params, noise, generator, display_referred, lut, shading,
+                    noisy, clean_out)
+    return noisy, clean_out
+
+
+def _run_strips(sensor, image, params, noise, generator, display_referred, lut, shading,
+                noisy, clean_out) -> None:
+    h = image.shape[-2]
+    for top_row in range(0, h, STRIP_ROWS):
+        rows = slice(top_row, top_row + STRIP_ROWS)
+        strip = image[:, :, rows]
+        if lut is not None:
+            linear, in_type = lut[strip.int()], "linear_rgb"
+        else:
+            linear = strip.float()
+            in_type = "rgb" if display_referred else "linear_rgb"
+        camera = sensor.unprocess(linear, in_type, params)
+        dn = sensor.linrgb2raw(camera, params, None if shading is None else shading[..., rows, :])
+        if clean_out is not None:
+            clean_out[:, :, rows] = saturate(quantize(dn), sensor.white_level)
+        noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, generator)
+
+
+@dataclass(frozen=True)
+class UnprocessOptions:
+    """Options of the files job, the same for every file of a run.
+
+    Attributes:
+        profile: the sensor profile.
+        iso: fixed ISO, or None when ``iso_range`` is given.
+        iso_range: (min, max) for log-uniform ISO per file.
+        randomize: sample Brooks et al.'s matrix, gains and brightness per file.
+        clean: also write the noise-free mosaic.
+        formats: output formats, a subset of ("dng", "npz").
+        noise: noise model name.
+        tone, transfer: display decoding of 8/16-bit inputs.
+        exposure_ev: exposure in stops applied to linear light (all inputs).
+        vignetting: strength of the added lens shading (0 = none).
+        safe_white_balance: highlight-preserving inverse white balance.
+        device: ``cpu``, ``cuda`` or ``auto``.
+        seed: the run's seed (recorded in the sidecar).
+    """
+
+    profile: SensorProfile
+    iso: float | None = None
+    iso_range: tuple[float, float] | None = None
+    randomize: bool = False
+    clean: bool = False
+    formats: tuple[str, ...] = ("dng",)
+    noise: str = "poisson-gaussian"
+    tone: str = "none"
+    transfer: str = "srgb"
+    exposure_ev: float = 0.0
+    vignetting: float = 0.0
+    safe_white_balance: bool = True
+    device: str = "cpu"
+    seed: int = 0
+
+    def output_suffixes(self) -> dict[str, str]:
+        """Output kinds of every file → file-name suffixes."""
+        out = {"json": ".json"}
+        if "dng" in self.formats:
+            out["dng"] = ".dng"
+            if self.clean:
+                out["clean_dng"] = ".clean.dng"
+        if "npz" in self.formats:
+            out["npz"] = ".npz"
+        return out
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` → CUDA when available, else CPU; ``cuda`` without a GPU is an error."""
+    check_choice("device", name, ("auto", "cpu", "cuda"))
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ParameterError("--device cuda: no CUDA device is available")
+    return torch.device(name)
+
+
+def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
+    """Unprocess one image file into the outputs named by ``task``.
+
+    Each output is written atomically. Returns the sidecar's metadata.
+    """
+    decoded = read_image(task.source)
+    device = resolve_device(options.device)
+    sensor = RGBSensor(options.profile)
+    params_gen = torch.Generator().manual_seed(derive_seed(task.seed, "params"))
+    linear_input = decoded.is_float
+    params = sample_params(
+        options.profile,
+        iso=options.iso,
+        iso_range=options.iso_range,
+        randomize=options.randomize,
+        generator=params_gen,
+        exposure_ev=options.exposure_ev,
+        tone="none" if linear_input else options.tone,
+        transfer="linear" if linear_input else options.transfer,
+        vignetting=options.vignetting,
+        safe_white_balance=options.safe_white_balance,
+    )
+    image = torch.from_numpy(decoded.pixels).to(device).permute(2, 0, 1).unsqueeze(0)
+    if image.dtype == torch.uint16:  # few kernels take uint16; codes fit in int32
+        image = image.to(torch.int32)
+    noise_gen = torch.Generator(device=device).manual_seed(derive_seed(task.seed, "noise"))
+    noisy, clean = unprocess_tensor(
+        sensor, image, params, noise=options.noise, generator=noise_gen,
+        display_referred=not linear_input, code_max=decoded.code_max, clean=options.clean,
+    )
+    levels = sensor.noise_levels(params.iso, options.noise)
+    metadata = _metadata(task, options, decoded, params, levels)
+    noisy_np = noisy[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
+    clean_np = None if clean is None else clean[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
+    info = _dng_info(options.profile, params, levels, decoded.orientation)
+    if "dng" in task.outputs:
+        with atomic_output(task.outputs["dng"]) as tmp:
+            write_dng(tmp, noisy_np, info)
+    if "clean_dng" in task.outputs:
+        with atomic_output(task.outputs["clean_dng"]) as tmp:
+            write_dng(tmp, clean_np, replace(info, noise_profile=None))
+    if "npz" in task.outputs:
+        cfa = options.profile.cfa
+        arrays = {"mosaic": _pack(cfa, noisy_np)}
+        if clean_np is not None:
+            arrays["clean"] = _pack(cfa, clean_np)
+        with atomic_output(task.outputs["npz"]) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays, planes=np.array(PACKED_PLANES),
+                     metadata=np.array(json.dumps(metadata)))
+    with atomic_output(task.outputs["json"]) as tmp:
+        Path(tmp).write_text(json.dumps(metadata, indent=2) + "\n")
+    return metadata
+
+
+def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
+    """(H, W) → (4, H/2, W/2) planes in R, Gr, Gb, B order (see :meth:`CFA.pack`)."""
+    planes = cfa.pack(torch.from_numpy(mosaic.astype(np.float32))[None, None])
+    return planes[0].numpy().astype(np.uint16)
+
+
+def _dng_info(profile: SensorProfile, params: UnprocessParams, levels, orientation) -> DngInfo:
+    return DngInfo(
+        cfa=profile.cfa,
+        black_level=profile.black_level,
+        white_level=profile.white_level,
+        xyz_to_camera=params.xyz_to_camera,
+        as_shot_neutral=tuple(1.0 / g for g in params.wb_gains),
+        make=profile.make,
+        model=profile.model,
+        unique_model=f"{profile.make} {profile.model}",
+        iso=params.iso,
+        noise_profile=None if levels.model == "none" else levels.noise_profile(
+            profile.black_level, profile.white_level),
+        baseline_exposure=params.baseline_exposure,
+        orientation=orientation if 1 <= orientation <= 8 else 1,
+        software=f"rawsim {__version__}",
+    )
+
+
+def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) -> dict:
+    profile = options.profile
+    h, w = decoded.pixels.shape[:2]
+    meta = {
+        "rawsim_version": __version__,
+        "input": task.key,
+        "input_kind": "scene-linear" if decoded.is_float else "display-referred",
+        "input_format": decoded.format_name,
+        "code_max": decoded.code_max,
+        "crop": decoded.crop,
+        "dropped_channels": list(decoded.dropped_channels),
+        "orientation": decoded.orientation,
+        "width": w,
+        "height": h,
+        "profile": {"name": profile.name, "make": profile.make, "model": profile.model,
+                    "path": profile.path},
+        "cfa_pattern": profile.cfa.pattern,
+        "packed_planes": list(PACKED_PLANES),
+        "bit_depth": profile.bit_depth,
+        "black_level": profile.black_level,
+        "white_level": profile.white_level,
+        "seed": options.seed,
+        "file_seed": task.seed,
+        "randomize": options.randomize,
+        "params": params.to_dict(),
+        "baseline_exposure": params.baseline_exposure,
+        "as_shot_neutral": [1.0 / g for g in params.wb_gains],
+        "noise": levels.to_dict(),
+        "outputs": {k: p.name for k, p in task.outputs.items()},
+    }
+    if levels.model != "none":
+        span = profile.white_level - profile.black_level
+        a, b = levels.affine_variance(span)
+        meta["noise"]["variance_dn2"] = {"per_dn_above_black": a, "offset": b}
+        meta["noise"]["noise_profile"] = list(levels.noise_profile(profile.black_level,
+                                                                   profile.white_level))
+    return meta

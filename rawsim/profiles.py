@@ -1,0 +1,385 @@
+"""Sensor profiles: JSON descriptions of real cameras, loaded into frozen, validated objects.
+
+A profile is found by name in the bundled ``sensor_profiles/`` folder or read
+from a path. Two formats are accepted: rawsim's own (see README, "Sensor
+profiles") and the seed's flat config keys (``bayer_pattern``, ``bit``,
+``color_matrix_d50``, …). Every error names the file and the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from rawsim.cfa import CFA
+from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
+from rawsim.errors import ParameterError, ProfileError
+from rawsim.isp.color_matrix import split_seed_matrix
+from rawsim.noise import GainCurve, NoiseSpec, SeedGaussian, SigmaCurve
+
+#: Keys of rawsim's format whose numbers must cite a source.
+SOURCED_KEYS = ("xyz_to_camera", "black_level", "white_level", "iso_range", "noise.gain",
+                "noise.read_sigma")
+SEED_KEYS = ("sensor_size", "sensor_res", "bit", "black_level", "bayer_pattern",
+             "white_balance_d50", "color_matrix_d50", "gamma_param", "iso_base",
+             "read_noise_std", "shot_noise_std_alpha", "shot_noise_std_beta", "wavelengths",
+             "red_spectral_response", "green_spectral_response", "blue_spectral_response")
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    """A camera sensor: CFA, levels (DN), colour, ISO range and noise.
+
+    ``xyz_to_camera`` is the D65 XYZ → camera matrix (DNG ColorMatrix);
+    ``white_balance`` the daylight gains (R, G, B) with G = 1; ``ccm_bias`` the
+    bias row of a seed 4×3 colour matrix (camera → sRGB), if any.
+    """
+
+    name: str
+    make: str
+    model: str
+    cfa: CFA
+    bit_depth: int
+    black_level: float
+    white_level: float
+    xyz_to_camera: tuple[tuple[float, float, float], ...]
+    white_balance: tuple[float, float, float]
+    iso_range: tuple[float, float] | None
+    noise: NoiseSpec
+    gamma: float = 2.2
+    ccm_bias: tuple[float, float, float] | None = None
+    size_mm: tuple[float, float] | None = None
+    resolution: tuple[int, int] | None = None
+    spectral: dict | None = None
+    source: dict = field(default_factory=dict)
+    path: str | None = None
+
+    def check_iso(self, iso: float) -> float:
+        """Return ``iso`` if the profile allows it, else raise a clear error."""
+        if not iso > 0:
+            raise ParameterError(f"ISO must be > 0, got {iso:g}")
+        if self.iso_range is not None and not self.iso_range[0] <= iso <= self.iso_range[1]:
+            lo, hi = self.iso_range
+            raise ParameterError(
+                f"ISO {iso:g} is outside the range of profile {self.name!r} ({lo:g}–{hi:g})"
+            )
+        return iso
+
+    def to_dict(self) -> dict:
+        """A JSON-ready summary (rawsim's format)."""
+        return {
+            "name": self.name,
+            "make": self.make,
+            "model": self.model,
+            "cfa_pattern": self.cfa.pattern,
+            "bit_depth": self.bit_depth,
+            "black_level": self.black_level,
+            "white_level": self.white_level,
+            "xyz_to_camera": [list(r) for r in self.xyz_to_camera],
+            "white_balance": list(self.white_balance),
+            "iso_range": None if self.iso_range is None else list(self.iso_range),
+            "noise": {
+                "gain": _curve_dict(self.noise.gain),
+                "read_sigma": _curve_dict(self.noise.read_sigma),
+                "gaussian": vars(self.noise.gaussian).copy(),
+            },
+            "gamma": self.gamma,
+            "ccm_bias": None if self.ccm_bias is None else list(self.ccm_bias),
+            "sensor_size_mm": self.size_mm,
+            "resolution": self.resolution,
+            "source": dict(self.source),
+            "path": self.path,
+        }
+
+
+def _curve_dict(curve) -> dict:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(curve).items()
+            if v not in ((), None)}
+
+
+def profile_dir() -> Path:
+    """The folder of bundled profiles."""
+    return Path(str(resources.files("rawsim") / "sensor_profiles"))
+
+
+def list_profiles() -> list[str]:
+    """Names of the bundled profiles, sorted."""
+    return sorted(p.stem for p in profile_dir().glob("*.json"))
+
+
+def load_profile(name_or_path: str | Path) -> SensorProfile:
+    """Load a bundled profile by name (``"sony_a7s2"``) or a profile JSON by path."""
+    text = str(name_or_path)
+    path = Path(text)
+    if not (path.suffix == ".json" or path.exists() or "/" in text):
+        path = profile_dir() / f"{text}.json"
+        if not path.exists():
+            raise ProfileError(
+                f"unknown sensor profile {text!r}; bundled: {', '.join(list_profiles())} "
+                "(or give a path to a JSON file)"
+            )
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ProfileError(f"{path}: profile file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ProfileError(f"{path}: cannot read profile ({err})") from None
+    except json.JSONDecodeError as err:
+        raise ProfileError(f"{path}: not valid JSON (line {err.lineno}: {err.msg})") from None
+    return profile_from_dict(data, str(path))
+
+
+def profile_from_dict(data: Any, origin: str = "<profile>") -> SensorProfile:
+    """Validate a parsed profile (either format) into a :class:`SensorProfile`."""
+    r = _Reader(data, origin)
+    if not isinstance(data, dict):
+        raise ProfileError(f"{origin}: a profile must be a JSON object")
+    if "bayer_pattern" in data or "bit" in data:
+        return _from_seed(r)
+    return _from_rawsim(r)
+
+
+class _Reader:
+    """Typed access to a profile's keys; every error names the file and the key path."""
+
+    def __init__(self, data: Any, origin: str) -> None:
+        self.data, self.origin = data, origin
+
+    def fail(self, key: str, why: str):
+        raise ProfileError(f"{self.origin}: key {key!r}: {why}")
+
+    def has(self, key: str) -> bool:
+        try:
+            self.raw(key)
+        except ProfileError:
+            return False
+        return True
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        node = self.data
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                if default is not ...:
+                    return default
+                self.fail(key, "missing")
+            node = node[part]
+        return node
+
+    def number(self, key: str, default: Any = ..., positive=False, minimum=None) -> float:
+        value = self.raw(key, default)
+        if value is None and default is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            self.fail(key, f"expected a finite number, got {value!r}")
+        if positive and not value > 0:
+            self.fail(key, f"must be > 0, got {value!r}")
+        if minimum is not None and value < minimum:
+            self.fail(key, f"must be ≥ {minimum}, got {value!r}")
+        return float(value)
+
+    def numbers(self, key: str, length: int | None = None, default: Any = ..., positive=False):
+        value = self.raw(key, default)
+        if value is None and default is None:
+            return None
+        if not isinstance(value, list) or (length is not None and len(value) != length):
+            want = f"a list of {length} numbers" if length else "a list of numbers"
+            self.fail(key, f"expected {want}, got {value!r}")
+        out = []
+        for i, v in enumerate(value):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                self.fail(f"{key}[{i}]", f"expected a finite number, got {v!r}")
+            if positive and not v > 0:
+                self.fail(f"{key}[{i}]", f"must be > 0, got {v!r}")
+            out.append(float(v))
+        return tuple(out)
+
+    def matrix(self, key: str, rows: int) -> tuple:
+        value = self.raw(key)
+        if not isinstance(value, list) or len(value) != rows:
+            self.fail(key, f"expected {rows} rows of 3 numbers, got {value!r}")
+        return tuple(_row(self, key, i, row) for i, row in enumerate(value))
+
+    def string(self, key: str, default: Any = ...) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str) or not value:
+            self.fail(key, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def cfa(self, key: str) -> CFA:
+        try:
+            return CFA(self.string(key))
+        except ParameterError as err:
+            self.fail(key, str(err))
+
+    def curve(self, key: str, kind: str):
+        model = self.string(f"{key}.model")
+        if kind == "gain":
+            if model == "linear":
+                return GainCurve("linear", slope=self.number(f"{key}.slope"),
+                                 intercept=self.number(f"{key}.intercept", 0.0))
+            if model == "table":
+                iso, k = self._table(key, "k")
+                return GainCurve("table", iso=iso, k=k)
+            self.fail(f"{key}.model", f"unknown gain model {model!r}; valid: linear, table")
+        if model == "loglinear":
+            return SigmaCurve("loglinear", slope=self.number(f"{key}.slope"),
+                              bias=self.number(f"{key}.bias"))
+        if model == "table":
+            iso, sigma = self._table(key, "sigma")
+            return SigmaCurve("table", iso=iso, sigma=sigma)
+        self.fail(f"{key}.model", f"unknown sigma model {model!r}; valid: loglinear, table")
+
+    def _table(self, key: str, values: str):
+        iso = self.numbers(f"{key}.iso", positive=True)
+        vals = self.numbers(f"{key}.{values}", len(iso), positive=True)
+        if not iso or any(b <= a for a, b in zip(iso, iso[1:])):
+            self.fail(f"{key}.iso", "must be a non-empty, strictly increasing list")
+        return iso, vals
+
+
+def _row(r: _Reader, key: str, i: int, row: Any) -> tuple:
+    if not isinstance(row, list) or len(row) != 3:
+        r.fail(f"{key}[{i}]", f"expected 3 numbers, got {row!r}")
+    for v in row:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            r.fail(f"{key}[{i}]", f"expected finite numbers, got {row!r}")
+    return tuple(float(v) for v in row)
+
+
+def _levels(r: _Reader, bits_key: str, black_key: str, white_key: str | None):
+    bits = r.number(bits_key)
+    if bits != int(bits) or not 1 <= bits <= 16:
+        r.fail(bits_key, f"must be an integer in 1..16, got {bits:g}")
+    bits = int(bits)
+    black = r.number(black_key, minimum=0)
+    white = r.number(white_key, 2**bits - 1) if white_key else float(2**bits - 1)
+    if white > 2**bits - 1:
+        r.fail(white_key, f"{white:g} does not fit in {bits} bits")
+    if not white > black:
+        r.fail(white_key or black_key, f"white level {white:g} must exceed black level {black:g}")
+    return bits, black, white
+
+
+def _gains(r: _Reader, key: str, xyz_to_camera) -> tuple[float, float, float]:
+    if r.has(key):
+        return r.numbers(key, 3, positive=True)
+    try:
+        return tuple(float(v) for v in daylight_gains(xyz_to_camera))
+    except ParameterError as err:
+        r.fail("xyz_to_camera", str(err))
+
+
+def _check_invertible(r: _Reader, key: str, m) -> None:
+    try:
+        if abs(float(as_matrix(m, key).det())) < 1e-9:
+            r.fail(key, "matrix is singular")
+    except ParameterError as err:
+        r.fail(key, str(err))
+
+
+def _from_rawsim(r: _Reader) -> SensorProfile:
+    name = r.string("name")
+    bits, black, white = _levels(r, "bit_depth", "black_level", "white_level")
+    xyz = r.matrix("xyz_to_camera", 3)
+    _check_invertible(r, "xyz_to_camera", xyz)
+    iso_range = r.numbers("iso_range", 2, positive=True)
+    if iso_range[1] < iso_range[0]:
+        r.fail("iso_range", f"minimum {iso_range[0]:g} exceeds maximum {iso_range[1]:g}")
+    gain = r.curve("noise.gain", "gain")
+    read = r.curve("noise.read_sigma", "sigma")
+    base = r.number("base_iso", iso_range[0], positive=True)
+    try:
+        for iso in iso_range:
+            gain(iso)
+        k_base = gain(base)
+    except ParameterError as err:
+        r.fail("noise.gain", str(err))
+    if r.has("noise.gaussian"):
+        gaussian = SeedGaussian(
+            iso_base=r.number("noise.gaussian.iso_base", positive=True),
+            read_noise_std=r.number("noise.gaussian.read_noise_std", minimum=0),
+            shot_noise_std_alpha=r.number("noise.gaussian.shot_noise_std_alpha", minimum=0),
+            shot_noise_std_beta=r.number("noise.gaussian.shot_noise_std_beta", 0.0, minimum=0),
+        )
+    else:  # the seed model matching K and read σ at the base ISO
+        gaussian = SeedGaussian(base, read(base, k_base), math.sqrt(k_base), 0.0)
+    source = r.raw("source")
+    if not isinstance(source, dict):
+        r.fail("source", "expected an object mapping keys to their sources")
+    for key in SOURCED_KEYS:
+        if not isinstance(source.get(key), str) or not source[key].strip():
+            r.fail(f"source.{key}", "missing: every number needs a source")
+    return SensorProfile(
+        name=name,
+        make=r.string("make"),
+        model=r.string("model"),
+        cfa=r.cfa("cfa_pattern"),
+        bit_depth=bits,
+        black_level=black,
+        white_level=white,
+        xyz_to_camera=xyz,
+        white_balance=_gains(r, "white_balance", xyz),
+        iso_range=(iso_range[0], iso_range[1]),
+        noise=NoiseSpec(gain, read, gaussian),
+        gamma=r.number("gamma", 2.2, positive=True),
+        size_mm=r.numbers("sensor_size_mm", 2, None, positive=True),
+        resolution=r.numbers("resolution", 2, None, positive=True),
+        source=dict(source),
+        path=None if r.origin.startswith("<") else r.origin,
+    )
+
+
+def _from_seed(r: _Reader) -> SensorProfile:
+    """The seed's flat config keys (SPEC, RGBSensor); defaults are the seed's."""
+    data = r.data
+    unknown = sorted(set(data) - set(SEED_KEYS) - {"name", "make", "model", "iso_range"})
+    if unknown:
+        r.fail(unknown[0], f"unknown key; valid: {', '.join(SEED_KEYS)}")
+    data = {"bit": 10, "black_level": 64, "bayer_pattern": "rggb", **data}
+    r = _Reader(data, r.origin)
+    bits, black, white = _levels(r, "bit", "black_level", None)
+    ccm = data.get("color_matrix_d50", [[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    try:
+        matrix, bias = split_seed_matrix(ccm)
+        xyz = tuple(tuple(float(v) for v in row) for row in xyz_to_camera_from_ccm(matrix))
+    except ParameterError as err:
+        r.fail("color_matrix_d50", str(err))
+    gaussian = SeedGaussian(
+        iso_base=r.number("iso_base", 100.0, positive=True),
+        read_noise_std=r.number("read_noise_std", 0.5, minimum=0),
+        shot_noise_std_alpha=r.number("shot_noise_std_alpha", 0.4, minimum=0),
+        shot_noise_std_beta=r.number("shot_noise_std_beta", 0.0, minimum=0),
+    )
+    spectral = None
+    if "wavelengths" in data:
+        wl = r.numbers("wavelengths", positive=True)
+        spectral = {"wavelengths": wl}
+        for c in ("red", "green", "blue"):
+            spectral[c] = r.numbers(f"{c}_spectral_response", len(wl))
+    iso_range = r.numbers("iso_range", 2, None, positive=True)
+    size = r.numbers("sensor_size", 2, (36.0, 24.0), positive=True)
+    res = r.numbers("sensor_res", 2, (5472, 3648), positive=True)
+    return SensorProfile(
+        name=str(data.get("name", Path(r.origin).stem)),
+        make=str(data.get("make", "rawsim")),
+        model=str(data.get("model", "seed sensor")),
+        cfa=r.cfa("bayer_pattern"),
+        bit_depth=bits,
+        black_level=black,
+        white_level=white,
+        xyz_to_camera=xyz,
+        white_balance=r.numbers("white_balance_d50", 3, (2.0, 1.0, 1.8), positive=True),
+        iso_range=iso_range,
+        noise=NoiseSpec.from_seed(gaussian),
+        gamma=r.number("gamma_param", 2.2, positive=True),
+        ccm_bias=None if bias is None else tuple(float(v) for v in bias),
+        size_mm=size,
+        resolution=tuple(int(v) for v in res),
+        spectral=spectral,
+        source={"*": "seed config"},
+        path=None if r.origin.startswith("<") else r.origin,
+    )
