@@ -58,7 +58,7 @@ def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> tuple[l
     """Find input files. Folders are searched recursively for ``extensions``.
 
     Returns ``(found, missing)``: ``found`` is a sorted list of (path, key) pairs,
-    ``missing`` the inputs that do not exist.
+    ``missing`` a failed :class:`Result` for each input that does not exist.
     """
     exts = tuple(e.lower() for e in extensions)
     found: dict[Path, str] = {}
@@ -72,7 +72,8 @@ def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> tuple[l
         elif path.exists():
             found.setdefault(path, path.name)
         else:
-            missing.append(str(item))
+            missing.append(Result(Task(path, str(item), {}, 0), "failed",
+                                  f"{item}: no such file or folder"))
     return sorted(found.items(), key=lambda kv: (kv[1], str(kv[0]))), missing
 
 

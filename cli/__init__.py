@@ -1,0 +1,1 @@
+"""rawsim's command-line interface (installed as the ``rawsim_cli`` package)."""

@@ -1,0 +1,102 @@
+"""The ``rawsim`` command group: global options and lazily loaded subcommands.
+
+Subcommands are imported only when run, so ``rawsim --help`` and
+``rawsim --version`` answer without importing torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import sys
+from importlib.metadata import PackageNotFoundError, version
+
+import click
+
+#: name → (module, one-line help). The help is here so that listing commands
+#: needs no import.
+COMMANDS = {
+    "unprocess": ("rawsim_cli.unprocess", "Turn sRGB/EXR images into noisy Bayer DNGs."),
+    "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
+}
+
+
+EXIT_INTERNAL, EXIT_INTERRUPTED = 3, 130
+
+
+def _version() -> str:
+    try:
+        return version("rawsim")
+    except PackageNotFoundError:  # running from a source tree
+        return "unknown"
+
+
+class LazyGroup(click.Group):
+    """A group whose subcommands are imported on first use."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        module = importlib.import_module(COMMANDS[name][0])
+        return getattr(module, "command")
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.Exit, click.ClickException, click.Abort):
+            raise
+        except KeyboardInterrupt:
+            click.echo("rawsim: interrupted", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
+        except Exception as err:  # a bug: one line, or the traceback with --debug
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"rawsim: internal error: {type(err).__name__}: {err} "
+                       "(run with --debug for the traceback)", err=True)
+            ctx.exit(EXIT_INTERNAL)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx)]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(_version(), "--version", prog_name="rawsim")
+@click.option("-v", "--verbose", count=True, help="More output (repeat for debug logs).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors and the summary.")
+@click.option("--debug", is_flag=True, help="Show tracebacks for errors.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
+    """rawsim: raw image unprocessing and processing on a differentiable torch ISP.
+
+    \b
+    Exit codes:
+      0  every file was done (or skipped because its outputs exist)
+      1  some files failed; the others were done
+      2  usage error: bad option, unknown or malformed profile, no inputs
+      3  internal error (a bug: please report it, with --debug output)
+    130  interrupted
+
+    \b
+    Example:
+      rawsim unprocess photos/ -o raw/ --profile sony_a7s2 --iso 1600
+    """
+    level = logging.WARNING
+    if quiet:
+        level = logging.ERROR
+    elif verbose:
+        level = logging.INFO if verbose == 1 else logging.DEBUG
+    logging.basicConfig(level=level, format="rawsim: %(message)s", stream=sys.stderr)
+    ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
+
+
+def main() -> None:
+    cli()
+
+
+if __name__ == "__main__":
+    main()
