@@ -185,6 +185,8 @@ class _Reader:
         value = self.raw(key, default)
         if value is None and default is None:
             return None
+        if isinstance(value, tuple):  # a default
+            value = list(value)
         if not isinstance(value, list) or (length is not None and len(value) != length):
             want = f"a list of {length} numbers" if length else "a list of numbers"
             self.fail(key, f"expected {want}, got {value!r}")

@@ -1,0 +1,59 @@
+"""Shared fixtures: test data location, dtype tolerances, small helpers."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Real test files shipped beside the project (see ../shared/data/SOURCES.md).
+DATA = ROOT.parent / "shared" / "data"
+PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+#: Absolute tolerance of round trips per dtype.
+TOL = {torch.float32: 2e-5, torch.float64: 1e-10}
+
+
+def pytest_collection_modifyitems(config, items):
+    if not DATA.is_dir():
+        raise pytest.UsageError(f"test data not found at {DATA} (../shared/data beside the repo)")
+
+
+@pytest.fixture(params=PATTERNS)
+def pattern(request) -> str:
+    return request.param
+
+
+@pytest.fixture(params=[torch.float32, torch.float64], ids=["f32", "f64"])
+def dtype(request):
+    return request.param
+
+
+@pytest.fixture
+def data() -> Path:
+    return DATA
+
+
+@pytest.fixture
+def rng() -> torch.Generator:
+    return torch.Generator().manual_seed(1234)
+
+
+def psnr(a: np.ndarray, b: np.ndarray, peak: float = 1.0) -> float:
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10 * np.log10(peak**2 / mse)
+
+
+def require_tool(name: str) -> str:
+    """Path of an external tool; the test fails (not skips) on CI if it is missing."""
+    path = shutil.which(name)
+    if path is None:
+        import os
+
+        if os.environ.get("CI"):
+            pytest.fail(f"{name} is not installed (.ci/run installs it)")
+        pytest.skip(f"{name} not installed")
+    return path
