@@ -41,7 +41,7 @@ class LazyGroup(click.Group):
         if name not in COMMANDS:
             return None
         module = importlib.import_module(COMMANDS[name][0])
-        return getattr(module, "command")
+        return module.command
 
     def invoke(self, ctx: click.Context):
         try:
@@ -54,8 +54,11 @@ class LazyGroup(click.Group):
         except Exception as err:  # a bug: one line, or the traceback with --debug
             if ctx.obj and ctx.obj.get("debug"):
                 raise
-            click.echo(f"rawsim: internal error: {type(err).__name__}: {err} "
-                       "(run with --debug for the traceback)", err=True)
+            click.echo(
+                f"rawsim: internal error: {type(err).__name__}: {err} "
+                "(run with --debug for the traceback)",
+                err=True,
+            )
             ctx.exit(EXIT_INTERNAL)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:

@@ -8,27 +8,47 @@ import traceback
 import click
 
 overwrite_opt = click.option(
-    "--overwrite", is_flag=True, help="Replace existing outputs (default: skip files whose outputs all exist)."
+    "--overwrite",
+    is_flag=True,
+    help="Replace existing outputs (default: skip files whose outputs all exist).",
 )
 jobs_opt = click.option(
-    "-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+    "-j",
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
     help="Worker processes. Results are identical for any number.",
 )
 device_opt = click.option(
-    "--device", type=click.Choice(["auto", "cpu", "cuda"]), default="cpu", show_default=True,
+    "--device",
+    type=click.Choice(["auto", "cpu", "cuda"]),
+    default="cpu",
+    show_default=True,
     help="Where tensors live. Noise drawn on CUDA differs from CPU noise for the same seed.",
 )
 seed_opt = click.option(
-    "--seed", type=int, default=0, show_default=True,
-    help="Run seed. Each file's randomness derives from it and the file's path relative to its input folder.",
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Run seed. Each file's randomness derives from it and the file's path "
+    "relative to its input folder.",
 )
 profile_opt = click.option(
-    "-p", "--profile", "profile", required=True, metavar="NAME|PATH",
+    "-p",
+    "--profile",
+    "profile",
+    required=True,
+    metavar="NAME|PATH",
     help="Sensor profile: a bundled name (see 'rawsim profiles list') or a JSON file.",
 )
 shard_opt = click.option(
-    "--shard", metavar="K/N", default=None,
-    help="Process only the K-th of N equal shares of the inputs (e.g. $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT with K from 1).",
+    "--shard",
+    metavar="K/N",
+    default=None,
+    help="Process only the K-th of N shares of the inputs, K from 1 "
+    "(e.g. $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT).",
 )
 json_opt = click.option(
     "--json", "json_records", is_flag=True, help="Print one JSON record per file on stdout."

@@ -31,15 +31,25 @@ def list_cmd(as_json):
     for name in list_profiles():
         p = load_profile(name)
         lo, hi = p.iso_range
-        rows.append({"name": name, "camera": f"{p.make} {p.model}", "cfa": p.cfa.pattern,
-                     "bits": p.bit_depth, "iso_min": lo, "iso_max": hi})
+        rows.append(
+            {
+                "name": name,
+                "camera": f"{p.make} {p.model}",
+                "cfa": p.cfa.pattern,
+                "bits": p.bit_depth,
+                "iso_min": lo,
+                "iso_max": hi,
+            }
+        )
     if as_json:
         click.echo(json.dumps(rows, indent=2))
         return
     click.echo(f"{'name':<22} {'camera':<28} {'cfa':<5} {'bits':>4}  iso")
     for r in rows:
-        click.echo(f"{r['name']:<22} {r['camera']:<28} {r['cfa']:<5} {r['bits']:>4}  "
-                   f"{r['iso_min']:g}–{r['iso_max']:g}")
+        click.echo(
+            f"{r['name']:<22} {r['camera']:<28} {r['cfa']:<5} {r['bits']:>4}  "
+            f"{r['iso_min']:g}–{r['iso_max']:g}"
+        )
 
 
 @command.command("show")
@@ -59,24 +69,32 @@ def show_cmd(profile, iso, as_json):
     p = load_profile(profile)
     data = p.to_dict()
     if iso is not None:
-        data["at_iso"] = {m: p.noise.levels(m, p.check_iso(iso)).to_dict()
-                          for m in ("poisson-gaussian", "gaussian")}
+        data["at_iso"] = {
+            m: p.noise.levels(m, p.check_iso(iso)).to_dict()
+            for m in ("poisson-gaussian", "gaussian")
+        }
     if as_json:
         click.echo(json.dumps(data, indent=2))
         return
     click.echo(f"{p.name}: {p.make} {p.model}")
-    click.echo(f"  CFA {p.cfa.pattern}, {p.bit_depth}-bit, black {p.black_level:g}, "
-               f"white {p.white_level:g} DN")
+    click.echo(
+        f"  CFA {p.cfa.pattern}, {p.bit_depth}-bit, black {p.black_level:g}, "
+        f"white {p.white_level:g} DN"
+    )
     click.echo(f"  ISO {p.iso_range[0]:g}–{p.iso_range[1]:g}" if p.iso_range else "  ISO any")
-    click.echo("  XYZ→camera: " + "; ".join(" ".join(f"{v:+.4f}" for v in row)
-                                            for row in p.xyz_to_camera))
+    click.echo(
+        "  XYZ→camera: " + "; ".join(" ".join(f"{v:+.4f}" for v in row) for row in p.xyz_to_camera)
+    )
     click.echo("  daylight WB gains: " + " ".join(f"{v:.4f}" for v in p.white_balance))
     click.echo(f"  noise K(ISO): {data['noise']['gain']}")
     click.echo(f"  read σ: {data['noise']['read_sigma']}")
     if iso is not None:
         for model, values in data["at_iso"].items():
-            click.echo(f"  at ISO {iso:g} ({model}): " +
-                       ", ".join(f"{k} {v:.4g}" for k, v in values.items()
-                                 if isinstance(v, float) and k != "iso"))
+            click.echo(
+                f"  at ISO {iso:g} ({model}): "
+                + ", ".join(
+                    f"{k} {v:.4g}" for k, v in values.items() if isinstance(v, float) and k != "iso"
+                )
+            )
     for key, src in p.source.items():
         click.echo(f"  source[{key}]: {src}")

@@ -30,15 +30,19 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
         elif verbose:
             click.echo(f"done: {result.task.source} ({result.seconds:.2f} s)", err=True)
         if json_records:
-            record = {"input": str(result.task.source), "status": result.status,
-                      "outputs": {k: str(v) for k, v in result.task.outputs.items()}}
+            record = {
+                "input": str(result.task.source),
+                "status": result.status,
+                "outputs": {k: str(v) for k, v in result.task.outputs.items()},
+            }
             if result.status == "failed":
                 record["error"] = result.message
             click.echo(json.dumps(record))
 
     show_bar = not quiet and sys.stderr.isatty()
-    with click.progressbar(length=total, label="rawsim", file=sys.stderr,
-                           hidden=not show_bar) as bar:
+    with click.progressbar(
+        length=total, label="rawsim", file=sys.stderr, hidden=not show_bar
+    ) as bar:
         for result in pre_failed:
             report(result)
             bar.update(1)

@@ -22,30 +22,81 @@ NOISES = ("poisson-gaussian", "gaussian", "none")
 
 @click.command("unprocess")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))
-@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
-              help="Output folder; the input folder tree is mirrored under it.")
+@click.option(
+    "-o",
+    "--output",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Output folder; the input folder tree is mirrored under it.",
+)
 @profile_opt
 @click.option("--iso", type=float, help="ISO of every capture (within the profile's range).")
-@click.option("--iso-range", nargs=2, type=float, metavar="MIN MAX",
-              help="Draw each file's ISO log-uniformly from [MIN, MAX] instead.")
+@click.option(
+    "--iso-range",
+    nargs=2,
+    type=float,
+    metavar="MIN MAX",
+    help="Draw each file's ISO log-uniformly from [MIN, MAX] instead.",
+)
 @seed_opt
-@click.option("--randomize", is_flag=True,
-              help="Sample colour matrix, white balance and brightness per file (Brooks et al.).")
+@click.option(
+    "--randomize",
+    is_flag=True,
+    help="Sample colour matrix, white balance and brightness per file (Brooks et al.).",
+)
 @click.option("--clean", is_flag=True, help="Also write <stem>.clean.dng, the noise-free mosaic.")
-@click.option("--format", "fmt", type=click.Choice(["dng", "npz", "both"]), default="dng",
-              show_default=True, help="npz: packed R, Gr, Gb, B planes + metadata, for ML loaders.")
-@click.option("--noise", type=click.Choice(NOISES), default="poisson-gaussian", show_default=True,
-              help="Noise model: K(ISO) Poisson + Gaussian read noise, the seed's Gaussian, or none.")
-@click.option("--tone", type=click.Choice(TONES), default="none", show_default=True,
-              help="Inverse tone curve for 8/16-bit inputs, applied before the transfer decode.")
-@click.option("--transfer", default="srgb", show_default=True, metavar="srgb|gamma:G|linear",
-              help="Transfer function of 8/16-bit inputs (exact IEC 61966-2-1 sRGB by default).")
-@click.option("--exposure", type=float, default=0.0, show_default=True, metavar="EV",
-              help="Scale linear light by 2^EV. For EXR/float inputs 1.0 is the white level at 0 EV.")
-@click.option("--vignetting", type=click.FloatRange(min=0), default=0.0, show_default=True,
-              help="Strength of the radial lens shading added (1 = 1 + 0.3r² + 0.15r⁴ + 0.05r⁶).")
-@click.option("--wb-inverse", type=click.Choice(["safe", "exact"]), default="safe",
-              show_default=True, help="Inverse white balance: highlight-preserving, or exact.")
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["dng", "npz", "both"]),
+    default="dng",
+    show_default=True,
+    help="npz: packed R, Gr, Gb, B planes + metadata, for ML loaders.",
+)
+@click.option(
+    "--noise",
+    type=click.Choice(NOISES),
+    default="poisson-gaussian",
+    show_default=True,
+    help="Noise model: K(ISO) Poisson + Gaussian read noise, the seed's Gaussian, or none.",
+)
+@click.option(
+    "--tone",
+    type=click.Choice(TONES),
+    default="none",
+    show_default=True,
+    help="Inverse tone curve for 8/16-bit inputs, applied before the transfer decode.",
+)
+@click.option(
+    "--transfer",
+    default="srgb",
+    show_default=True,
+    metavar="srgb|gamma:G|linear",
+    help="Transfer function of 8/16-bit inputs (exact IEC 61966-2-1 sRGB by default).",
+)
+@click.option(
+    "--exposure",
+    type=float,
+    default=0.0,
+    show_default=True,
+    metavar="EV",
+    help="Scale linear light by 2^EV. For EXR/float inputs 1.0 is the white level at 0 EV.",
+)
+@click.option(
+    "--vignetting",
+    type=click.FloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    help="Strength of the radial lens shading added (1 = 1 + 0.3r² + 0.15r⁴ + 0.05r⁶).",
+)
+@click.option(
+    "--wb-inverse",
+    type=click.Choice(["safe", "exact"]),
+    default="safe",
+    show_default=True,
+    help="Inverse white balance: highlight-preserving, or exact.",
+)
 @jobs_opt
 @device_opt
 @overwrite_opt
@@ -53,9 +104,29 @@ NOISES = ("poisson-gaussian", "gaussian", "none")
 @json_opt
 @click.pass_context
 @usage_errors
-def command(ctx, inputs, out_dir, profile, iso, iso_range, seed, randomize, clean, fmt, noise,
-            tone, transfer, exposure, vignetting, wb_inverse, jobs, device, overwrite, shard,
-            json_records):
+def command(
+    ctx,
+    inputs,
+    out_dir,
+    profile,
+    iso,
+    iso_range,
+    seed,
+    randomize,
+    clean,
+    fmt,
+    noise,
+    tone,
+    transfer,
+    exposure,
+    vignetting,
+    wb_inverse,
+    jobs,
+    device,
+    overwrite,
+    shard,
+    json_records,
+):
     """Turn sRGB or scene-linear images into the noisy Bayer DNGs a sensor would record.
 
     INPUTS are image files or folders (searched recursively for PNG, JPEG, TIFF,
@@ -117,8 +188,15 @@ def command(ctx, inputs, out_dir, profile, iso, iso_range, seed, randomize, clea
     found, missing = batch.discover(inputs, IMAGE_EXTENSIONS)
     if not found:
         raise click.UsageError(f"no input images found in {', '.join(inputs)}", ctx)
-    tasks, pre_failed = batch.plan(found, out_dir, options.output_suffixes(), seed,
-                                   batch.parse_shard(shard))
-    results = batch.run(tasks, unprocess_file, jobs=jobs, overwrite=overwrite,
-                        debug=bool(ctx.obj and ctx.obj.get("debug")), options=options)
+    tasks, pre_failed = batch.plan(
+        found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
+    )
+    results = batch.run(
+        tasks,
+        unprocess_file,
+        jobs=jobs,
+        overwrite=overwrite,
+        debug=bool(ctx.obj and ctx.obj.get("debug")),
+        options=options,
+    )
     run_batch(ctx, tasks, results, missing + pre_failed, json_records)

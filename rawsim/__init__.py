@@ -21,8 +21,21 @@ from rawsim.profiles import SensorProfile, list_profiles, load_profile
 from rawsim.sensors import MonoSensor, RGBSensor, Sensor
 
 __all__ = [
-    "CFA", "MonoSensor", "NoiseLevels", "ParameterError", "ProfileError", "RGBSensor",
-    "RawsimError", "Sensor", "SensorProfile", "UnprocessParams", "UnsupportedInputError",
-    "__version__", "add_noise", "list_profiles", "load_profile", "sample_params",
+    "CFA",
+    "MonoSensor",
+    "NoiseLevels",
+    "ParameterError",
+    "ProfileError",
+    "RGBSensor",
+    "RawsimError",
+    "Sensor",
+    "SensorProfile",
+    "UnprocessParams",
+    "UnsupportedInputError",
+    "__version__",
+    "add_noise",
+    "list_profiles",
+    "load_profile",
+    "sample_params",
     "unprocess_tensor",
 ]

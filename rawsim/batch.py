@@ -72,8 +72,9 @@ def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> tuple[l
         elif path.exists():
             found.setdefault(path, path.name)
         else:
-            missing.append(Result(Task(path, str(item), {}, 0), "failed",
-                                  f"{item}: no such file or folder"))
+            missing.append(
+                Result(Task(path, str(item), {}, 0), "failed", f"{item}: no such file or folder")
+            )
     return sorted(found.items(), key=lambda kv: (kv[1], str(kv[0]))), missing
 
 
@@ -181,8 +182,12 @@ def run(
             yield _run_one(job, t, overwrite, debug, kwargs)
         return
     threads = max(1, (os.cpu_count() or 1) // jobs)
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"),
-                             initializer=_init_worker, initargs=(threads,)) as pool:
+    with ProcessPoolExecutor(
+        max_workers=jobs,
+        mp_context=get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(threads,),
+    ) as pool:
         futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
         for fut in as_completed(futures):
             try:
@@ -209,5 +214,7 @@ class Summary:
         return EXIT_FAILED if self.failed else EXIT_OK
 
     def __str__(self) -> str:
-        return (f"{self.done} done, {self.skipped} skipped, {self.failed} failed "
-                f"in {self.seconds:.1f} s")
+        return (
+            f"{self.done} done, {self.skipped} skipped, {self.failed} failed "
+            f"in {self.seconds:.1f} s"
+        )

@@ -85,7 +85,9 @@ class SigmaCurve:
         if self.model == "loglinear":
             return math.exp(self.slope * math.log(k) + self.bias)
         if self.model == "table":
-            return self.sigma[0] if len(self.sigma) == 1 else _interp_loglog(iso, self.iso, self.sigma)
+            return (
+                self.sigma[0] if len(self.sigma) == 1 else _interp_loglog(iso, self.iso, self.sigma)
+            )
         raise ParameterError(f"unknown sigma model {self.model!r}; valid: loglinear, table")
 
 
@@ -115,7 +117,9 @@ class NoiseSpec:
         ratio = g.read_noise_std / alpha2 if alpha2 > 0 else 0.0
         return cls(
             gain=GainCurve("linear", slope=alpha2 / g.iso_base),
-            read_sigma=SigmaCurve("loglinear", slope=1.0, bias=math.log(ratio) if ratio > 0 else -50.0),
+            read_sigma=SigmaCurve(
+                "loglinear", slope=1.0, bias=math.log(ratio) if ratio > 0 else -50.0
+            ),
             gaussian=g,
         )
 
@@ -127,9 +131,11 @@ class NoiseSpec:
         if model == "gaussian":
             g = self.gaussian
             return NoiseLevels(
-                model, iso,
+                model,
+                iso,
                 read_sigma=g.read_noise_std * iso / g.iso_base,
-                shot_alpha=g.shot_noise_std_alpha, shot_beta=g.shot_noise_std_beta,
+                shot_alpha=g.shot_noise_std_alpha,
+                shot_beta=g.shot_noise_std_beta,
                 iso_gain=iso / g.iso_base,
             )
         k = self.gain(iso)
@@ -171,7 +177,9 @@ class NoiseLevels:
         """
         s = torch.linspace(0, span, 1025, dtype=torch.float64)
         v = self.variance(s)
-        a, b = torch.linalg.lstsq(torch.stack([s, torch.ones_like(s)], 1), v[:, None]).solution[:, 0]
+        a, b = torch.linalg.lstsq(torch.stack([s, torch.ones_like(s)], 1), v[:, None]).solution[
+            :, 0
+        ]
         return float(a), float(b)
 
     def noise_profile(self, black: float, white: float) -> tuple[float, float]:
@@ -185,8 +193,11 @@ class NoiseLevels:
         if self.model == "poisson-gaussian":
             out["gain_dn_per_electron"] = self.gain
         elif self.model == "gaussian":
-            out |= {"shot_alpha": self.shot_alpha, "shot_beta": self.shot_beta,
-                    "iso_gain": self.iso_gain}
+            out |= {
+                "shot_alpha": self.shot_alpha,
+                "shot_beta": self.shot_beta,
+                "iso_gain": self.iso_gain,
+            }
         return out
 
 

@@ -112,12 +112,21 @@ def sample_params(
     if randomize:
         bias = None
         weights = torch.rand(4, generator=g, dtype=torch.float64)
-        mix = torch.einsum("k,kij->ij", weights / weights.sum(),
-                           torch.tensor(BROOKS_XYZ_TO_CAMERA, dtype=torch.float64))
+        mix = torch.einsum(
+            "k,kij->ij",
+            weights / weights.sum(),
+            torch.tensor(BROOKS_XYZ_TO_CAMERA, dtype=torch.float64),
+        )
         xyz = tuple(tuple(float(v) for v in row) for row in mix)
         gains = (uniform(*RED_GAIN_RANGE), 1.0, uniform(*BLUE_GAIN_RANGE))
         draw = torch.normal(BRIGHTNESS_MEAN, BRIGHTNESS_STD, (), generator=g)
         # Brooks's rgb_gain = 1 / N(0.8, 0.1); a draw ≤ 0.1 (prob. 1e-12) is clamped.
         brightness = 1.0 / max(float(draw), 0.1)
-    return UnprocessParams(iso=float(iso), xyz_to_camera=tuple(xyz), wb_gains=tuple(gains),
-                           brightness=brightness, ccm_bias=bias, **fixed)
+    return UnprocessParams(
+        iso=float(iso),
+        xyz_to_camera=tuple(xyz),
+        wb_gains=tuple(gains),
+        brightness=brightness,
+        ccm_bias=bias,
+        **fixed,
+    )

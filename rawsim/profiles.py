@@ -22,12 +22,32 @@ from rawsim.isp.color_matrix import split_seed_matrix
 from rawsim.noise import GainCurve, NoiseSpec, SeedGaussian, SigmaCurve
 
 #: Keys of rawsim's format whose numbers must cite a source.
-SOURCED_KEYS = ("xyz_to_camera", "black_level", "white_level", "iso_range", "noise.gain",
-                "noise.read_sigma")
-SEED_KEYS = ("sensor_size", "sensor_res", "bit", "black_level", "bayer_pattern",
-             "white_balance_d50", "color_matrix_d50", "gamma_param", "iso_base",
-             "read_noise_std", "shot_noise_std_alpha", "shot_noise_std_beta", "wavelengths",
-             "red_spectral_response", "green_spectral_response", "blue_spectral_response")
+SOURCED_KEYS = (
+    "xyz_to_camera",
+    "black_level",
+    "white_level",
+    "iso_range",
+    "noise.gain",
+    "noise.read_sigma",
+)
+SEED_KEYS = (
+    "sensor_size",
+    "sensor_res",
+    "bit",
+    "black_level",
+    "bayer_pattern",
+    "white_balance_d50",
+    "color_matrix_d50",
+    "gamma_param",
+    "iso_base",
+    "read_noise_std",
+    "shot_noise_std_alpha",
+    "shot_noise_std_beta",
+    "wavelengths",
+    "red_spectral_response",
+    "green_spectral_response",
+    "blue_spectral_response",
+)
 
 
 @dataclass(frozen=True)
@@ -97,8 +117,11 @@ class SensorProfile:
 
 
 def _curve_dict(curve) -> dict:
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(curve).items()
-            if v not in ((), None)}
+    return {
+        k: (list(v) if isinstance(v, tuple) else v)
+        for k, v in vars(curve).items()
+        if v not in ((), None)
+    }
 
 
 def profile_dir() -> Path:
@@ -173,7 +196,11 @@ class _Reader:
         value = self.raw(key, default)
         if value is None and default is None:
             return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+        ):
             self.fail(key, f"expected a finite number, got {value!r}")
         if positive and not value > 0:
             self.fail(key, f"must be > 0, got {value!r}")
@@ -221,15 +248,19 @@ class _Reader:
         model = self.string(f"{key}.model")
         if kind == "gain":
             if model == "linear":
-                return GainCurve("linear", slope=self.number(f"{key}.slope"),
-                                 intercept=self.number(f"{key}.intercept", 0.0))
+                return GainCurve(
+                    "linear",
+                    slope=self.number(f"{key}.slope"),
+                    intercept=self.number(f"{key}.intercept", 0.0),
+                )
             if model == "table":
                 iso, k = self._table(key, "k")
                 return GainCurve("table", iso=iso, k=k)
             self.fail(f"{key}.model", f"unknown gain model {model!r}; valid: linear, table")
         if model == "loglinear":
-            return SigmaCurve("loglinear", slope=self.number(f"{key}.slope"),
-                              bias=self.number(f"{key}.bias"))
+            return SigmaCurve(
+                "loglinear", slope=self.number(f"{key}.slope"), bias=self.number(f"{key}.bias")
+            )
         if model == "table":
             iso, sigma = self._table(key, "sigma")
             return SigmaCurve("table", iso=iso, sigma=sigma)
@@ -238,7 +269,7 @@ class _Reader:
     def _table(self, key: str, values: str):
         iso = self.numbers(f"{key}.iso", positive=True)
         vals = self.numbers(f"{key}.{values}", len(iso), positive=True)
-        if not iso or any(b <= a for a, b in zip(iso, iso[1:])):
+        if not iso or any(b <= a for a, b in zip(iso, iso[1:], strict=False)):
             self.fail(f"{key}.iso", "must be a non-empty, strictly increasing list")
         return iso, vals
 

@@ -57,8 +57,11 @@ class Sensor(nn.Module):
     def from_config(cls, config) -> Sensor:
         """Build from a seed JSON config (``sensor_size``, ``sensor_res``, ``gamma_param``)."""
         c = _read_config(config)
-        return cls(c.get("sensor_size", (36.0, 24.0)), c.get("sensor_res", (5472, 3648)),
-                   c.get("gamma_param", 2.2))
+        return cls(
+            c.get("sensor_size", (36.0, 24.0)),
+            c.get("sensor_res", (5472, 3648)),
+            c.get("gamma_param", 2.2),
+        )
 
     def response_curve(self, x: torch.Tensor) -> torch.Tensor:
         return x
@@ -83,8 +86,9 @@ class RGBSensor(Sensor):
     """A Bayer sensor described by a :class:`~rawsim.profiles.SensorProfile`."""
 
     def __init__(self, profile: SensorProfile) -> None:
-        super().__init__(profile.size_mm or (36.0, 24.0), profile.resolution or (0, 0),
-                         profile.gamma)
+        super().__init__(
+            profile.size_mm or (36.0, 24.0), profile.resolution or (0, 0), profile.gamma
+        )
         self.profile = profile
 
     @classmethod
@@ -127,8 +131,9 @@ class RGBSensor(Sensor):
         if spec is None:
             raise ParameterError(f"profile {self.profile.name!r} has no spectral responses")
         check_image(spectral, "spectral image", channels=len(spec["wavelengths"]))
-        resp = torch.tensor([spec["red"], spec["green"], spec["blue"]], dtype=spectral.dtype,
-                            device=spectral.device)
+        resp = torch.tensor(
+            [spec["red"], spec["green"], spec["blue"]], dtype=spectral.dtype, device=spectral.device
+        )
         return torch.einsum("cl,blhw->bchw", resp / resp[1].sum(), spectral)
 
     def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
@@ -140,8 +145,9 @@ class RGBSensor(Sensor):
         """
         check_choice("in_type", in_type, IN_TYPES)
         check_image(image, "image", channels=3)
-        p = params or self.default_params(self.profile.iso_range[0] if self.profile.iso_range
-                                          else 100.0)
+        p = params or self.default_params(
+            self.profile.iso_range[0] if self.profile.iso_range else 100.0
+        )
         x = display_to_linear(image, p.tone, p.transfer) if in_type == "rgb" else image
         scale = 2.0**p.exposure_ev / p.brightness
         if scale != 1.0:
@@ -153,8 +159,9 @@ class RGBSensor(Sensor):
             return safe_invert_white_balance(x, p.wb_gains)
         return invert_white_balance(x, p.wb_gains)
 
-    def linrgb2raw(self, camera_rgb: torch.Tensor, params=None,
-                   shading: torch.Tensor | None = None) -> torch.Tensor:
+    def linrgb2raw(
+        self, camera_rgb: torch.Tensor, params=None, shading: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Camera RGB (B, 3, H, W) → clean mosaic in DN (B, 1, H, W), unrounded.
 
         Mosaics in the profile's CFA pattern, adds vignetting if ``params.vignetting``
@@ -163,14 +170,23 @@ class RGBSensor(Sensor):
         """
         mosaic = self.cfa.mosaic(camera_rgb)
         if shading is None and params is not None and params.vignetting > 0:
-            shading = radial_gain(*mosaic.shape[-2:], strength=params.vignetting,
-                                  device=mosaic.device, dtype=mosaic.dtype)
+            shading = radial_gain(
+                *mosaic.shape[-2:],
+                strength=params.vignetting,
+                device=mosaic.device,
+                dtype=mosaic.dtype,
+            )
         if shading is not None:
             mosaic = invert_lens_shading(mosaic, shading)
         return denormalize_levels(mosaic, self.black_level, self.white_level)
 
-    def simu_noise(self, dn: torch.Tensor, iso: float, model: str = "poisson-gaussian",
-                   generator: torch.Generator | None = None) -> torch.Tensor:
+    def simu_noise(
+        self,
+        dn: torch.Tensor,
+        iso: float,
+        model: str = "poisson-gaussian",
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
         """Add noise at ``iso``, round to integers and saturate to [0, white] DN."""
         noisy = add_noise(dn, self.black_level, self.noise_levels(iso, model), generator)
         return saturate(quantize(noisy), self.white_level)
@@ -192,8 +208,9 @@ class MonoSensor(Sensor):
     """
 
     def __init__(self, profile: SensorProfile) -> None:
-        super().__init__(profile.size_mm or (36.0, 24.0), profile.resolution or (0, 0),
-                         profile.gamma)
+        super().__init__(
+            profile.size_mm or (36.0, 24.0), profile.resolution or (0, 0), profile.gamma
+        )
         self.profile = profile
 
     @classmethod
@@ -218,8 +235,13 @@ class MonoSensor(Sensor):
     def linrgb2raw(self, x: torch.Tensor, params=None) -> torch.Tensor:
         return denormalize_levels(x, self.profile.black_level, self.profile.white_level)
 
-    def simu_noise(self, dn: torch.Tensor, iso: float, model: str = "poisson-gaussian",
-                   generator: torch.Generator | None = None) -> torch.Tensor:
+    def simu_noise(
+        self,
+        dn: torch.Tensor,
+        iso: float,
+        model: str = "poisson-gaussian",
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
         levels = self.profile.noise.levels(model, self.profile.check_iso(iso))
         noisy = add_noise(dn, self.profile.black_level, levels, generator)
         return saturate(quantize(noisy), self.profile.white_level)

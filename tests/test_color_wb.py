@@ -29,8 +29,9 @@ A7S2 = [[0.5838, -0.1430, -0.0246], [-0.3497, 1.1477, 0.2297], [-0.0748, 0.1885,
 
 
 def test_d65_white_point():
-    assert torch.allclose(XYZ_D65, torch.tensor([0.95047, 1.0, 1.08883], dtype=torch.float64),
-                          atol=1e-4)
+    assert torch.allclose(
+        XYZ_D65, torch.tensor([0.95047, 1.0, 1.08883], dtype=torch.float64), atol=1e-4
+    )
 
 
 def test_camera_matrix_rows_sum_to_one_and_invert():
@@ -43,8 +44,9 @@ def test_camera_matrix_rows_sum_to_one_and_invert():
 
 
 def test_ccm_to_xyz_matrix_round_trip():
-    ccm = torch.tensor([[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5]],
-                       dtype=torch.float64)
+    ccm = torch.tensor(
+        [[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5]], dtype=torch.float64
+    )
     xyz = xyz_to_camera_from_ccm(ccm)
     assert torch.allclose(srgb_from_camera(xyz), ccm, atol=1e-12)
 
@@ -100,8 +102,11 @@ def test_white_balance_on_rgb_and_mosaic(pattern, dtype, rng):
     # On a mosaic each site gets its own colour's gain: same as balancing then mosaicking.
     mosaic = cfa.mosaic(rgb)
     assert torch.allclose(apply_white_balance(mosaic, gains, cfa), cfa.mosaic(balanced))
-    assert torch.allclose(invert_white_balance(apply_white_balance(mosaic, gains, cfa), gains, cfa),
-                          mosaic, atol=TOL[dtype])
+    assert torch.allclose(
+        invert_white_balance(apply_white_balance(mosaic, gains, cfa), gains, cfa),
+        mosaic,
+        atol=TOL[dtype],
+    )
     module = WhiteBalance(gains, cfa)
     assert torch.allclose(module.reverse(module(mosaic.float())), mosaic.float(), atol=1e-6)
 
@@ -120,8 +125,9 @@ def test_safe_inverse_matches_exact_below_threshold_and_keeps_highlights():
     x = torch.rand(1, 3, 8, 8) * 0.3 + 0.7
     inv = 1 / g.view(1, 3, 1, 1)
     mask = ((x.mean(1, keepdim=True) - 0.9).clamp_min(0) / 0.1) ** 2
-    assert torch.allclose(safe_invert_white_balance(x, g),
-                          x * torch.maximum(mask + (1 - mask) * inv, inv), atol=1e-6)
+    assert torch.allclose(
+        safe_invert_white_balance(x, g), x * torch.maximum(mask + (1 - mask) * inv, inv), atol=1e-6
+    )
 
 
 def test_white_balance_errors_and_gradcheck():

@@ -20,8 +20,10 @@ def test_bundled_profiles_load_with_sources():
         for iso in (lo, hi):
             levels = p.noise.levels("poisson-gaussian", iso)
             assert levels.gain > 0 and levels.read_sigma > 0
-        assert p.noise.levels("poisson-gaussian", hi).gain > p.noise.levels(
-            "poisson-gaussian", lo).gain
+        assert (
+            p.noise.levels("poisson-gaussian", hi).gain
+            > p.noise.levels("poisson-gaussian", lo).gain
+        )
         assert p.white_balance[1] == 1.0
 
 
@@ -93,12 +95,23 @@ def test_iso_outside_declared_range_is_an_error():
 
 def test_seed_config_keys(tmp_path):
     seed = {
-        "sensor_size": [36, 24], "sensor_res": [5472, 3648], "bit": 10, "black_level": 64,
-        "bayer_pattern": "bggr", "white_balance_d50": [2.0, 1.0, 1.8],
-        "color_matrix_d50": [[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5],
-                             [0.01, 0.0, -0.01]],
-        "gamma_param": 2.2, "iso_base": 100, "read_noise_std": 0.5,
-        "shot_noise_std_alpha": 0.4, "shot_noise_std_beta": 0.0,
+        "sensor_size": [36, 24],
+        "sensor_res": [5472, 3648],
+        "bit": 10,
+        "black_level": 64,
+        "bayer_pattern": "bggr",
+        "white_balance_d50": [2.0, 1.0, 1.8],
+        "color_matrix_d50": [
+            [1.6, -0.4, -0.2],
+            [-0.2, 1.5, -0.3],
+            [0.0, -0.5, 1.5],
+            [0.01, 0.0, -0.01],
+        ],
+        "gamma_param": 2.2,
+        "iso_base": 100,
+        "read_noise_std": 0.5,
+        "shot_noise_std_alpha": 0.4,
+        "shot_noise_std_beta": 0.0,
     }
     p = load_profile(_write(tmp_path, seed, "seed.json"))
     assert p.cfa.pattern == "BGGR" and p.white_level == 1023 and p.black_level == 64
@@ -110,9 +123,11 @@ def test_seed_config_keys(tmp_path):
     assert pg.gain == pytest.approx(0.16 * 4) and pg.read_sigma == pytest.approx(2.0)
     from rawsim.color import srgb_from_camera
 
-    assert torch.allclose(srgb_from_camera(p.xyz_to_camera),
-                          torch.tensor(seed["color_matrix_d50"][:3], dtype=torch.float64),
-                          atol=1e-9)
+    assert torch.allclose(
+        srgb_from_camera(p.xyz_to_camera),
+        torch.tensor(seed["color_matrix_d50"][:3], dtype=torch.float64),
+        atol=1e-9,
+    )
     seed["bogus_key"] = 1
     with pytest.raises(ProfileError, match="'bogus_key'"):
         load_profile(_write(tmp_path, seed, "seed2.json"))

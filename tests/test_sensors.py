@@ -99,10 +99,15 @@ def test_base_and_mono_sensors():
 
 
 def test_rgb_sensor_from_seed_config_and_spectral_response():
-    config = {"bit": 12, "black_level": 256, "bayer_pattern": "grbg",
-              "wavelengths": [450, 550, 650], "red_spectral_response": [0.0, 0.2, 1.0],
-              "green_spectral_response": [0.2, 1.0, 0.3],
-              "blue_spectral_response": [1.0, 0.2, 0.0]}
+    config = {
+        "bit": 12,
+        "black_level": 256,
+        "bayer_pattern": "grbg",
+        "wavelengths": [450, 550, 650],
+        "red_spectral_response": [0.0, 0.2, 1.0],
+        "green_spectral_response": [0.2, 1.0, 0.3],
+        "blue_spectral_response": [1.0, 0.2, 0.0],
+    }
     s = RGBSensor.from_config(config)
     assert s.cfa.pattern == "GRBG" and s.white_level == 4095
     spectral = torch.ones(1, 3, 2, 2)

@@ -17,11 +17,14 @@ from tests.conftest import TOL
 def test_srgb_golden_values():
     # IEC 61966-2-1: the knees and mid-grey.
     v = torch.tensor([0.0, 0.04045, 0.5, 1.0], dtype=torch.float64)
-    expected = torch.tensor([0.0, 0.04045 / 12.92, ((0.5 + 0.055) / 1.055) ** 2.4, 1.0],
-                            dtype=torch.float64)
+    expected = torch.tensor(
+        [0.0, 0.04045 / 12.92, ((0.5 + 0.055) / 1.055) ** 2.4, 1.0], dtype=torch.float64
+    )
     assert torch.allclose(srgb_decode(v), expected, atol=1e-12)
-    assert torch.allclose(srgb_encode(torch.tensor([0.0031308], dtype=torch.float64)),
-                          torch.tensor([0.0031308 * 12.92], dtype=torch.float64))
+    assert torch.allclose(
+        srgb_encode(torch.tensor([0.0031308], dtype=torch.float64)),
+        torch.tensor([0.0031308 * 12.92], dtype=torch.float64),
+    )
 
 
 def test_srgb_round_trip_including_out_of_range(dtype):

@@ -18,8 +18,27 @@ from rawsim.errors import UnsupportedInputError
 #: Extensions picked up when scanning folders (files named explicitly are always tried).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".bmp", ".webp")
 #: Camera raw extensions: these go through ``rawsim process``, not here.
-RAW_EXTENSIONS = (".dng", ".cr2", ".cr3", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf",
-                  ".orf", ".rw2", ".pef", ".srw", ".kdc", ".dcr", ".mrw", ".3fr", ".iiq", ".x3f")
+RAW_EXTENSIONS = (
+    ".dng",
+    ".cr2",
+    ".cr3",
+    ".nef",
+    ".nrw",
+    ".arw",
+    ".srf",
+    ".sr2",
+    ".raf",
+    ".orf",
+    ".rw2",
+    ".pef",
+    ".srw",
+    ".kdc",
+    ".dcr",
+    ".mrw",
+    ".3fr",
+    ".iiq",
+    ".x3f",
+)
 
 
 @dataclass(frozen=True)
@@ -50,8 +69,14 @@ class DecodedImage:
     def crop(self) -> dict:
         """The kept region of the source, in pixels (cropping only removes odd edges)."""
         h, w = self.pixels.shape[:2]
-        return {"x": 0, "y": 0, "width": w, "height": h,
-                "source_width": self.source_size[0], "source_height": self.source_size[1]}
+        return {
+            "x": 0,
+            "y": 0,
+            "width": w,
+            "height": h,
+            "source_width": self.source_size[0],
+            "source_height": self.source_size[1],
+        }
 
 
 def read_image(path: str | Path) -> DecodedImage:
@@ -92,7 +117,9 @@ def read_image(path: str | Path) -> DecodedImage:
     finally:
         inp.close()
     if pixels is None or error:
-        raise UnsupportedInputError(f"{path}: cannot decode pixels ({error.strip() or 'truncated?'})")
+        raise UnsupportedInputError(
+            f"{path}: cannot decode pixels ({error.strip() or 'truncated?'})"
+        )
     pixels = np.asarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]

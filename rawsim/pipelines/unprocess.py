@@ -87,13 +87,24 @@ def unprocess_tensor(
     noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
     clean_out = torch.empty_like(noisy) if clean else None
     with values_checked(False):
-        _run_strips(sensor, image, params, noise, generator, display_referred, lut, shading,
-                    noisy, clean_out)
+        _run_strips(
+            sensor,
+            image,
+            params,
+            noise,
+            generator,
+            display_referred,
+            lut,
+            shading,
+            noisy,
+            clean_out,
+        )
     return noisy, clean_out
 
 
-def _run_strips(sensor, image, params, noise, generator, display_referred, lut, shading,
-                noisy, clean_out) -> None:
+def _run_strips(
+    sensor, image, params, noise, generator, display_referred, lut, shading, noisy, clean_out
+) -> None:
     h = image.shape[-2]
     for top_row in range(0, h, STRIP_ROWS):
         rows = slice(top_row, top_row + STRIP_ROWS)
@@ -194,13 +205,21 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         image = image.to(torch.int32)
     noise_gen = torch.Generator(device=device).manual_seed(derive_seed(task.seed, "noise"))
     noisy, clean = unprocess_tensor(
-        sensor, image, params, noise=options.noise, generator=noise_gen,
-        display_referred=not linear_input, code_max=decoded.code_max, clean=options.clean,
+        sensor,
+        image,
+        params,
+        noise=options.noise,
+        generator=noise_gen,
+        display_referred=not linear_input,
+        code_max=decoded.code_max,
+        clean=options.clean,
     )
     levels = sensor.noise_levels(params.iso, options.noise)
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = noisy[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
-    clean_np = None if clean is None else clean[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
+    clean_np = (
+        None if clean is None else clean[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
+    )
     info = _dng_info(options.profile, params, levels, decoded.orientation)
     if "dng" in task.outputs:
         with atomic_output(task.outputs["dng"]) as tmp:
@@ -214,8 +233,12 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         if clean_np is not None:
             arrays["clean"] = _pack(cfa, clean_np)
         with atomic_output(task.outputs["npz"]) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, **arrays, planes=np.array(PACKED_PLANES),
-                     metadata=np.array(json.dumps(metadata)))
+            np.savez(
+                fh,
+                **arrays,
+                planes=np.array(PACKED_PLANES),
+                metadata=np.array(json.dumps(metadata)),
+            )
     with atomic_output(task.outputs["json"]) as tmp:
         Path(tmp).write_text(json.dumps(metadata, indent=2) + "\n")
     return metadata
@@ -238,8 +261,9 @@ def _dng_info(profile: SensorProfile, params: UnprocessParams, levels, orientati
         model=profile.model,
         unique_model=f"{profile.make} {profile.model}",
         iso=params.iso,
-        noise_profile=None if levels.model == "none" else levels.noise_profile(
-            profile.black_level, profile.white_level),
+        noise_profile=None
+        if levels.model == "none"
+        else levels.noise_profile(profile.black_level, profile.white_level),
         baseline_exposure=params.baseline_exposure,
         orientation=orientation if 1 <= orientation <= 8 else 1,
         software=f"rawsim {__version__}",
@@ -260,8 +284,12 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "orientation": decoded.orientation,
         "width": w,
         "height": h,
-        "profile": {"name": profile.name, "make": profile.make, "model": profile.model,
-                    "path": profile.path},
+        "profile": {
+            "name": profile.name,
+            "make": profile.make,
+            "model": profile.model,
+            "path": profile.path,
+        },
         "cfa_pattern": profile.cfa.pattern,
         "packed_planes": list(PACKED_PLANES),
         "bit_depth": profile.bit_depth,
@@ -280,6 +308,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         span = profile.white_level - profile.black_level
         a, b = levels.affine_variance(span)
         meta["noise"]["variance_dn2"] = {"per_dn_above_black": a, "offset": b}
-        meta["noise"]["noise_profile"] = list(levels.noise_profile(profile.black_level,
-                                                                   profile.white_level))
+        meta["noise"]["noise_profile"] = list(
+            levels.noise_profile(profile.black_level, profile.white_level)
+        )
     return meta

@@ -1,0 +1,305 @@
+"""The command line: outputs, batch behaviour, errors and exit codes, determinism."""
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+import rawpy
+from click.testing import CliRunner
+
+from rawsim_cli.main import cli
+from tests.conftest import DATA, ROOT
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def digest(folder):
+    return {
+        p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture
+def photos(tmp_path):
+    """A small input tree: two photos at the top, one in a sub-folder, one non-image."""
+    root = tmp_path / "in"
+    (root / "sub").mkdir(parents=True)
+    shutil.copy(DATA / "srgb" / "chelsea.png", root / "chelsea.png")
+    shutil.copy(DATA / "srgb" / "rocket.jpg", root / "rocket.jpg")
+    shutil.copy(DATA / "srgb16" / "painted_figure_16bit.tif", root / "sub" / "figure.tif")
+    (root / "notes.txt").write_text("not an image, and not picked up from a folder")
+    return root
+
+
+def test_help_does_not_import_torch():
+    code = (
+        "import sys; from click.testing import CliRunner; from rawsim_cli.main import cli; "
+        "r = CliRunner().invoke(cli, ['--help']); assert r.exit_code == 0, r.output; "
+        "assert 'unprocess' in r.output; assert 'torch' not in sys.modules, 'torch imported'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_version_and_command_help():
+    assert run("--version").output.startswith("rawsim, version ")
+    out = run("unprocess", "--help").output
+    assert "Example:" in out and "U(1.9, 2.4)" in out and "--iso-range" in out
+
+
+def test_unprocess_mirrors_tree_and_writes_sidecars(photos, tmp_path):
+    out = tmp_path / "out"
+    r = run(
+        "unprocess",
+        photos,
+        "-o",
+        out,
+        "--profile",
+        "sony_a7s2",
+        "--iso",
+        1600,
+        "--clean",
+        "--format",
+        "both",
+    )
+    assert r.exit_code == 0, r.output
+    assert "3 done, 0 skipped, 0 failed" in r.output
+    names = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file())
+    assert names == sorted(
+        f"{s}{x}"
+        for s in ("chelsea", "rocket", "sub/figure")
+        for x in (".dng", ".clean.dng", ".json", ".npz")
+    )
+    meta = json.loads((out / "chelsea.json").read_text())
+    assert meta["crop"] == {
+        "x": 0,
+        "y": 0,
+        "width": 450,
+        "height": 300,
+        "source_width": 451,
+        "source_height": 300,
+    }
+    for key in ("profile", "params", "noise", "seed", "file_seed", "black_level", "white_level"):
+        assert key in meta
+    assert meta["noise"]["gain_dn_per_electron"] == pytest.approx(1.52543)
+    assert meta["params"]["transfer"] == "srgb" and meta["params"]["tone"] == "none"
+    npz = np.load(out / "sub" / "figure.npz")
+    assert npz["mosaic"].shape == (4, 221, 145) and npz["mosaic"].dtype == np.uint16
+    assert list(npz["planes"]) == ["R", "Gr", "Gb", "B"]
+    assert json.loads(str(npz["metadata"]))["input"] == "sub/figure.tif"
+    with rawpy.imread(str(out / "sub" / "figure.dng")) as raw:
+        packed = np.stack(
+            [
+                raw.raw_image[0::2, 0::2],
+                raw.raw_image[0::2, 1::2],
+                raw.raw_image[1::2, 0::2],
+                raw.raw_image[1::2, 1::2],
+            ]
+        )
+    assert np.array_equal(packed, npz["mosaic"])  # RGGB: R, Gr, Gb, B sites
+
+
+def test_existing_outputs_are_skipped_unless_overwrite(photos, tmp_path):
+    out = tmp_path / "out"
+    args = ("unprocess", photos, "-o", out, "-p", "nikon_d850", "--iso", 800)
+    assert run(*args).exit_code == 0
+    before = digest(out)
+    r = run(*args)
+    assert r.exit_code == 0 and "0 done, 3 skipped" in r.output and "skip:" in r.output
+    r = run(*args, "--overwrite")
+    assert "3 done, 0 skipped" in r.output and digest(out) == before
+
+
+def test_bad_files_are_reported_and_the_batch_goes_on(photos, tmp_path):
+    (photos / "empty.png").write_bytes(b"")
+    good = (DATA / "srgb" / "coffee.png").read_bytes()
+    (photos / "truncated.png").write_bytes(good[: len(good) // 3])
+    (photos / "text.jpg").write_text("hello")
+    shutil.copy(DATA / "raw" / "canon_eos60d_mlv.dng", photos / "raw.dng")
+    out = tmp_path / "out"
+    r = run(
+        "unprocess",
+        photos,
+        photos / "raw.dng",
+        tmp_path / "missing.png",
+        "-o",
+        out,
+        "-p",
+        "sony_a7s2",
+        "--iso",
+        400,
+    )
+    assert r.exit_code == 1
+    errors = [line for line in r.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 5, r.output
+    for name in ("empty.png", "truncated.png", "text.jpg", "raw.dng", "missing.png"):
+        assert sum(name in e for e in errors) == 1
+    assert "0 bytes" in r.output and "camera raw" in r.output
+    assert "Traceback" not in r.output
+    assert "3 done, 0 skipped, 5 failed" in r.output
+    leftovers = [p.name for p in out.rglob("*") if ".tmp" in p.name or p.name.startswith(".")]
+    assert leftovers == []
+    assert not (out / "truncated.dng").exists() and not (out / "empty.json").exists()
+    assert (photos / "empty.png").read_bytes() == b""  # inputs untouched
+
+
+def test_debug_shows_tracebacks(photos, tmp_path):
+    (photos / "empty.png").write_bytes(b"")
+    r = run(
+        "--debug",
+        "unprocess",
+        photos / "empty.png",
+        "-o",
+        tmp_path / "o",
+        "-p",
+        "sony_a7s2",
+        "--iso",
+        100,
+    )
+    assert r.exit_code == 1 and "Traceback" in r.output
+
+
+def test_usage_errors_exit_2(photos, tmp_path):
+    out = tmp_path / "out"
+    r = run("unprocess", photos, "-o", out, "-p", "sony_a7s2")
+    assert r.exit_code == 2 and "exactly one of --iso" in r.output
+    r = run("unprocess", photos, "-o", out, "-p", "nikon_d850", "--iso", 51200)
+    assert r.exit_code == 2 and "outside the range" in r.output
+    r = run("unprocess", photos, "-o", out, "-p", "no_such_camera", "--iso", 100)
+    assert r.exit_code == 2 and "bundled:" in r.output
+    bad = tmp_path / "bad.json"
+    profile = json.loads((ROOT / "sensor_profiles" / "sony_a7s2.json").read_text())
+    profile["white_level"] = "lots"
+    bad.write_text(json.dumps(profile))
+    r = run("unprocess", photos, "-o", out, "-p", bad, "--iso", 100)
+    assert r.exit_code == 2 and str(bad) in r.output and "'white_level'" in r.output
+    r = run("unprocess", tmp_path / "nothing", "-o", out, "-p", "sony_a7s2", "--iso", 100)
+    assert r.exit_code == 2 and "no input images" in r.output
+    r = run("unprocess", photos, "-o", out, "-p", "sony_a7s2", "--iso", 100, "--transfer", "pq")
+    assert r.exit_code == 2 and "transfer" in r.output
+    assert not out.exists()
+
+
+def test_same_seed_gives_identical_files_for_any_jobs_order_and_split(photos, tmp_path):
+    common = (
+        "-p",
+        "sony_a7s2",
+        "--iso-range",
+        100,
+        6400,
+        "--randomize",
+        "--clean",
+        "--format",
+        "both",
+        "--seed",
+        11,
+    )
+    a, b, c, d = (tmp_path / n for n in "abcd")
+    assert run("unprocess", photos, "-o", a, *common, "--jobs", 1).exit_code == 0
+    assert run("unprocess", photos, "-o", b, *common, "--jobs", 2).exit_code == 0
+    assert digest(a) == digest(b)
+    # Another order of the same inputs, given as files relative to the same root.
+    files = [photos / "sub" / "figure.tif", photos / "rocket.jpg", photos / "chelsea.png"]
+    for shard in ("2/2", "1/2"):
+        assert run("unprocess", photos, "-o", c, *common, "--shard", shard).exit_code == 0
+    assert digest(c) == digest(a)
+    assert run("unprocess", *files, "-o", d, *common).exit_code == 0
+    assert digest(d)["rocket.dng"] == digest(a)["rocket.dng"]
+    other = tmp_path / "e"
+    assert run("unprocess", photos, "-o", other, *common[:-1], 12).exit_code == 0
+    assert digest(other)["rocket.dng"] != digest(a)["rocket.dng"]
+
+
+def test_randomize_samples_brooks_ranges_per_file(photos, tmp_path):
+    out = tmp_path / "out"
+    r = run(
+        "unprocess", photos, "-o", out, "-p", "sony_a7s2", "--iso-range", 200, 3200, "--randomize"
+    )
+    assert r.exit_code == 0
+    metas = [json.loads(p.read_text()) for p in sorted(out.rglob("*.json"))]
+    gains = {tuple(m["params"]["wb_gains"]) for m in metas}
+    assert len(gains) == 3
+    for m in metas:
+        red, green, blue = m["params"]["wb_gains"]
+        assert 1.9 <= red <= 2.4 and green == 1 and 1.5 <= blue <= 1.9
+        assert 200 <= m["params"]["iso"] <= 3200
+        assert m["baseline_exposure"] == pytest.approx(np.log2(m["params"]["brightness"]))
+
+
+def _write_image(path, pixels, fmt, **attrs):
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    for k, v in attrs.items():
+        spec.attribute(k, v)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec), oiio.geterror()
+    assert out.write_image(pixels)
+    out.close()
+
+
+def test_input_kinds(tmp_path):
+    rng = np.random.default_rng(0)
+    src = tmp_path / "in"
+    src.mkdir()
+    _write_image(src / "rgba.png", (rng.random((31, 40, 4)) * 255).astype(np.uint8), oiio.UINT8)
+    _write_image(src / "grey.png", (rng.random((20, 22, 1)) * 65535).astype(np.uint16), oiio.UINT16)
+    _write_image(
+        src / "tiled.exr",
+        rng.random((64, 48, 3)).astype(np.float16),
+        oiio.HALF,
+        tile_width=16,
+        tile_height=16,
+    )
+    _write_image(
+        src / "rotated.jpg",
+        (rng.random((32, 48, 3)) * 255).astype(np.uint8),
+        oiio.UINT8,
+        Orientation=6,
+    )
+    out = tmp_path / "out"
+    r = run("unprocess", src, "-o", out, "-p", "canon_eos_70d", "--iso", 3200)
+    assert r.exit_code == 0, r.output
+    rgba = json.loads((out / "rgba.json").read_text())
+    assert rgba["dropped_channels"] == ["A"] and rgba["height"] == 30
+    assert json.loads((out / "tiled.json").read_text())["input_kind"] == "scene-linear"
+    assert json.loads((out / "grey.json").read_text())["code_max"] == 65535
+    with rawpy.imread(str(out / "rotated.dng")) as raw:
+        assert raw.sizes.flip != 0  # orientation passed through to the DNG
+
+
+def test_profiles_commands():
+    r = run("profiles", "list")
+    assert r.exit_code == 0 and "sony_a7s2" in r.output and "nikon_d850" in r.output
+    rows = json.loads(run("profiles", "list", "--json").output)
+    assert {row["name"] for row in rows} >= {"sony_a7s2", "nikon_d850", "canon_eos_70d"}
+    shown = json.loads(run("profiles", "show", "sony_a7s2", "--iso", 1600, "--json").output)
+    assert shown["at_iso"]["poisson-gaussian"]["gain_dn_per_electron"] == pytest.approx(1.52543)
+    assert "source[noise.gain]" in run("profiles", "show", "nikon_d850").output
+    assert run("profiles", "show", "nope").exit_code == 2
+
+
+def test_json_records_on_stdout(photos, tmp_path):
+    r = CliRunner().invoke(
+        cli,
+        [
+            "unprocess",
+            str(photos / "rocket.jpg"),
+            "-o",
+            str(tmp_path / "o"),
+            "-p",
+            "sony_a7s2",
+            "--iso",
+            "100",
+            "--json",
+        ],
+    )
+    records = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
+    assert records and records[0]["status"] == "done"
