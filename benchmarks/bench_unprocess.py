@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -62,13 +63,24 @@ def core_24mp(tmp: Path, repeat: int) -> None:
     pixels = torch.from_numpy(oiio_decode(photo)).permute(2, 0, 1).unsqueeze(0)
     sensor = RGBSensor.from_profile("sony_a7s2")
     params = sensor.default_params(1600)
-    print(f"1. core unprocess, one 24 MP 8-bit photo (6000×4000), {torch.get_num_threads()} threads")
+    threads = torch.get_num_threads()
+    print(f"1. core unprocess, one 24 MP 8-bit photo (6000×4000), {threads} threads")
     print(f"   {'OpenImageIO decode (reference)':<44} {decode_s:7.3f} s")
     for noise in ("none", "gaussian", "poisson-gaussian"):
         for clean in (False, True):
             gen = torch.Generator().manual_seed(0)
-            t = best(lambda: unprocess_tensor(sensor, pixels, params, noise=noise, generator=gen,
-                                              clean=clean), repeat)
+            t = best(
+                partial(
+                    unprocess_tensor,
+                    sensor,
+                    pixels,
+                    params,
+                    noise=noise,
+                    generator=gen,
+                    clean=clean,
+                ),
+                repeat,
+            )
             label = f"rawsim noise={noise}" + (" + clean" if clean else "")
             print(f"   {label:<44} {t:7.3f} s   (target ≤ 0.5 s)")
 
@@ -84,17 +96,33 @@ def throughput(tmp: Path, count: int) -> None:
     print(f"   {'OpenImageIO decode only (reference)':<44} {count / decode_s:7.1f} images/s")
     for jobs in (1, 2):
         out = tmp / f"out{jobs}"
-        cmd = ["rawsim", "-q", "unprocess", str(folder), "-o", str(out), "-p", "sony_a7s2",
-               "--iso", "1600", "--jobs", str(jobs)]
+        cmd = [
+            "rawsim",
+            "-q",
+            "unprocess",
+            str(folder),
+            "-o",
+            str(out),
+            "-p",
+            "sony_a7s2",
+            "--iso",
+            "1600",
+            "--jobs",
+            str(jobs),
+        ]
         start = time.perf_counter()
         done = subprocess.run(cmd, check=True, capture_output=True, text=True)
         elapsed = time.perf_counter() - start
         batch_s = float(re.search(r"in ([0-9.]+) s", done.stderr).group(1))
         shutil.rmtree(out)
-        print(f"   {f'rawsim unprocess --jobs {jobs}, batch (summary time)':<44} "
-              f"{count / batch_s:7.1f} images/s   (target ≥ 15)")
-        print(f"   {f'rawsim unprocess --jobs {jobs}, incl. start-up':<44} "
-              f"{count / elapsed:7.1f} images/s   (start-up {elapsed - batch_s:.1f} s)")
+        print(
+            f"   {f'rawsim unprocess --jobs {jobs}, batch (summary time)':<44} "
+            f"{count / batch_s:7.1f} images/s   (target ≥ 15)"
+        )
+        print(
+            f"   {f'rawsim unprocess --jobs {jobs}, incl. start-up':<44} "
+            f"{count / elapsed:7.1f} images/s   (start-up {elapsed - batch_s:.1f} s)"
+        )
 
 
 def help_latency() -> None:
@@ -103,8 +131,10 @@ def help_latency() -> None:
         start = time.perf_counter()
         subprocess.run(["rawsim", "--help"], check=True, capture_output=True)
         times.append(time.perf_counter() - start)
-    print(f"3. rawsim --help: median {statistics.median(times):.3f} s, best {min(times):.3f} s "
-          "(target ≤ 0.3 s)")
+    print(
+        f"3. rawsim --help: median {statistics.median(times):.3f} s, best {min(times):.3f} s "
+        "(target ≤ 0.3 s)"
+    )
 
 
 def main() -> None:
