@@ -1,0 +1,100 @@
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+from rawsim.batch import Task, discover, parse_shard, plan, run
+from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.io.atomic import atomic_output
+from tests.conftest import ROOT
+
+
+def test_atomic_output_replaces_only_on_success(tmp_path):
+    target = tmp_path / "sub" / "a.dng"
+    with atomic_output(target) as tmp:
+        assert tmp.parent == target.parent and tmp.suffix == ".dng"
+        tmp.write_bytes(b"first")
+    assert target.read_bytes() == b"first"
+    with pytest.raises(RuntimeError), atomic_output(target) as tmp:
+        tmp.write_bytes(b"half")
+        raise RuntimeError("interrupted")
+    assert target.read_bytes() == b"first"  # the old file survives a failed write
+    assert sorted(p.name for p in target.parent.iterdir()) == ["a.dng"]  # no temporaries
+
+
+def test_discover_keys_are_relative_to_each_input(tmp_path):
+    (tmp_path / "a" / "deep").mkdir(parents=True)
+    for name in ("a/x.png", "a/deep/y.JPG", "a/z.txt", "a/.hidden.png", "b.exr"):
+        (tmp_path / name).write_bytes(b"x")
+    found, missing = discover(
+        [tmp_path / "a", tmp_path / "b.exr", tmp_path / "nope"], [".png", ".jpg", ".exr"]
+    )
+    assert [key for _, key in found] == ["b.exr", "deep/y.JPG", "x.png"]
+    assert len(missing) == 1 and "no such file" in missing[0].message
+
+
+def test_plan_mirrors_tree_and_rejects_clashes(tmp_path):
+    found = [
+        (tmp_path / "in/a.png", "a.png"),
+        (tmp_path / "in/a.jpg", "a.jpg"),
+        (tmp_path / "in/s/b.png", "s/b.png"),
+    ]
+    tasks, failed = plan(found, tmp_path / "out", {"dng": ".dng", "json": ".json"}, seed=3)
+    assert [t.key for t in tasks] == ["s/b.png"]
+    assert tasks[0].outputs["dng"] == tmp_path / "out" / "s" / "b.dng"
+    assert {r.task.key for r in failed} == {"a.png", "a.jpg"}
+    assert all("clash" in r.message for r in failed)
+
+
+def test_plan_refuses_to_overwrite_an_input(tmp_path):
+    src = tmp_path / "x.json"
+    tasks, failed = plan([(src, "x.json")], tmp_path, {"json": ".json"}, seed=0)
+    assert not tasks and "it is an input" in failed[0].message
+
+
+def test_shards_partition_the_run(tmp_path):
+    found = [(tmp_path / f"{i}.png", f"{i}.png") for i in range(10)]
+    full, _ = plan(found, tmp_path / "o", {"dng": ".dng"}, seed=1)
+    parts = [
+        plan(found, tmp_path / "o", {"dng": ".dng"}, seed=1, shard=(k, 3))[0] for k in (1, 2, 3)
+    ]
+    keys = sorted(t.key for p in parts for t in p)
+    assert keys == sorted(t.key for t in full) and sum(len(p) for p in parts) == 10
+    seeds = {t.key: t.seed for p in parts for t in p}
+    assert all(seeds[t.key] == t.seed for t in full)  # seeds do not depend on the shard
+    assert parse_shard("2/8") == (2, 8) and parse_shard(None) == (1, 1)
+    for bad in ("0/3", "4/3", "a/b", "3"):
+        with pytest.raises(ParameterError):
+            parse_shard(bad)
+
+
+def _fails_on_b(task, **_):
+    if task.key == "b":
+        raise UnsupportedInputError(f"{task.source}: broken")
+    if task.key == "c":
+        raise ZeroDivisionError("bug")
+    return {"ok": task.key}
+
+
+def test_run_reports_every_outcome(tmp_path):
+    tasks = [Task(tmp_path / k, k, {"x": tmp_path / f"{k}.out"}, 0) for k in "abc"]
+    (tmp_path / "d.out").write_text("exists")
+    tasks.append(Task(tmp_path / "d", "d", {"x": tmp_path / "d.out"}, 0))
+    for jobs in (1, 2):
+        results = {r.task.key: r for r in run(tasks, _fails_on_b, jobs=jobs)}
+        assert results["a"].status == "done" and results["a"].record == {"ok": "a"}
+        assert results["b"].status == "failed" and results["b"].message.endswith("broken")
+        assert results["c"].status == "failed" and "ZeroDivisionError: bug" in results["c"].message
+        assert results["d"].status == "skipped"
+
+
+def test_readme_python_example_runs():
+    text = (ROOT / "README.md").read_text()
+    code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["noisy"].shape == (1, 1, 256, 256)
+    assert torch.equal(namespace["noisy"], namespace["noisy"].round())
+    assert isinstance(namespace["mosaic"], torch.Tensor)
+    assert Path(ROOT / "examples" / "photos").is_dir()
