@@ -82,8 +82,8 @@ class Sensor(nn.Module):
         return gamma_encode(x, self.gamma)
 
 
-class RGBSensor(Sensor):
-    """A Bayer sensor described by a :class:`~rawsim.profiles.SensorProfile`."""
+class ProfileSensor(Sensor):
+    """A sensor described by a :class:`~rawsim.profiles.SensorProfile`: levels and noise."""
 
     def __init__(self, profile: SensorProfile) -> None:
         super().__init__(
@@ -92,19 +92,15 @@ class RGBSensor(Sensor):
         self.profile = profile
 
     @classmethod
-    def from_profile(cls, name_or_path) -> RGBSensor:
+    def from_profile(cls, name_or_path):
         """Build from a bundled profile name or a profile JSON path."""
         return cls(load_profile(name_or_path))
 
     @classmethod
-    def from_config(cls, config) -> RGBSensor:
+    def from_config(cls, config):
         """Build from the seed's JSON config keys (a dict or a path)."""
         origin = str(config) if isinstance(config, (str, Path)) else "<config>"
         return cls(profile_from_dict(_read_config(config), origin))
-
-    @property
-    def cfa(self) -> CFA:
-        return self.profile.cfa
 
     @property
     def black_level(self) -> float:
@@ -114,13 +110,32 @@ class RGBSensor(Sensor):
     def white_level(self) -> float:
         return self.profile.white_level
 
-    def default_params(self, iso: float, **fixed) -> UnprocessParams:
-        """The profile's own matrix and daylight white balance at ``iso``."""
-        return sample_params(self.profile, iso=iso, **fixed)
-
     def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
         """Noise parameters at ``iso``; the ISO must lie in the profile's range."""
         return self.profile.noise.levels(model, self.profile.check_iso(iso))
+
+    def simu_noise(
+        self,
+        dn: torch.Tensor,
+        iso: float,
+        model: str = "poisson-gaussian",
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Add noise at ``iso``, round to integers and saturate to [0, white] DN."""
+        noisy = add_noise(dn, self.black_level, self.noise_levels(iso, model), generator)
+        return saturate(quantize(noisy), self.white_level)
+
+
+class RGBSensor(ProfileSensor):
+    """A Bayer sensor described by a :class:`~rawsim.profiles.SensorProfile`."""
+
+    @property
+    def cfa(self) -> CFA:
+        return self.profile.cfa
+
+    def default_params(self, iso: float, **fixed) -> UnprocessParams:
+        """The profile's own matrix and daylight white balance at ``iso``."""
+        return sample_params(self.profile, iso=iso, **fixed)
 
     def response_curve(self, spectral: torch.Tensor) -> torch.Tensor:
         """Spectral image (B, Nλ, H, W) → (B, 3, H, W) through the channel responses.
@@ -137,7 +152,7 @@ class RGBSensor(Sensor):
         return torch.einsum("cl,blhw->bchw", resp / resp[1].sum(), spectral)
 
     def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
-        """sRGB or linear sRGB (B, 3, H, W) → linear camera RGB before white balance.
+        """sRGB or linear sRGB (B, 3, H, W) → linear camera RGB as the sensor records it.
 
         Steps: display decode (``in_type="rgb"``: inverse tone, transfer), exposure
         and brightness, sRGB → camera matrix, inverse white balance. Values above 1
@@ -180,17 +195,6 @@ class RGBSensor(Sensor):
             mosaic = invert_lens_shading(mosaic, shading)
         return denormalize_levels(mosaic, self.black_level, self.white_level)
 
-    def simu_noise(
-        self,
-        dn: torch.Tensor,
-        iso: float,
-        model: str = "poisson-gaussian",
-        generator: torch.Generator | None = None,
-    ) -> torch.Tensor:
-        """Add noise at ``iso``, round to integers and saturate to [0, white] DN."""
-        noisy = add_noise(dn, self.black_level, self.noise_levels(iso, model), generator)
-        return saturate(quantize(noisy), self.white_level)
-
     def bayer2rggb(self, dn: torch.Tensor) -> torch.Tensor:
         """Mosaic DN (B, 1, H, W) → normalised planes (B, 4, H/2, W/2) in R, Gr, Gb, B order."""
         return self.cfa.pack(normalize_levels(dn, self.black_level, self.white_level))
@@ -200,23 +204,12 @@ class RGBSensor(Sensor):
         return denormalize_levels(self.cfa.unpack(planes), self.black_level, self.white_level)
 
 
-class MonoSensor(Sensor):
+class MonoSensor(ProfileSensor):
     """A sensor without a colour filter, using a profile's levels and noise.
 
     ``response_curve`` is the spectral weighting when the profile has spectral data,
     else the mean of the RGB channels. ISP: black level, then gamma.
     """
-
-    def __init__(self, profile: SensorProfile) -> None:
-        super().__init__(
-            profile.size_mm or (36.0, 24.0), profile.resolution or (0, 0), profile.gamma
-        )
-        self.profile = profile
-
-    @classmethod
-    def from_config(cls, config) -> MonoSensor:
-        origin = str(config) if isinstance(config, (str, Path)) else "<config>"
-        return cls(profile_from_dict(_read_config(config), origin))
 
     def response_curve(self, x: torch.Tensor) -> torch.Tensor:
         """(B, Nλ, H, W) spectral → (B, 1, H, W) weighted by the green response, or RGB mean."""
@@ -233,20 +226,10 @@ class MonoSensor(Sensor):
         return self.response_curve(super().unprocess(image, in_type))
 
     def linrgb2raw(self, x: torch.Tensor, params=None) -> torch.Tensor:
-        return denormalize_levels(x, self.profile.black_level, self.profile.white_level)
-
-    def simu_noise(
-        self,
-        dn: torch.Tensor,
-        iso: float,
-        model: str = "poisson-gaussian",
-        generator: torch.Generator | None = None,
-    ) -> torch.Tensor:
-        levels = self.profile.noise.levels(model, self.profile.check_iso(iso))
-        noisy = add_noise(dn, self.profile.black_level, levels, generator)
-        return saturate(quantize(noisy), self.profile.white_level)
+        """Linear grey (B, 1, H, W), white at 1 → DN. Not clipped or rounded."""
+        return denormalize_levels(x, self.black_level, self.white_level)
 
     def process(self, dn: torch.Tensor) -> torch.Tensor:
         """Black-level compensation, then gamma."""
-        x = normalize_levels(dn, self.profile.black_level, self.profile.white_level)
+        x = normalize_levels(dn, self.black_level, self.white_level)
         return gamma_encode(x, self.gamma)

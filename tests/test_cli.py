@@ -303,3 +303,13 @@ def test_json_records_on_stdout(photos, tmp_path):
     )
     records = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
     assert records and records[0]["status"] == "done"
+
+
+def test_cli_choices_match_the_core():
+    # The CLI lists them literally so that its --help needs no torch import.
+    from rawsim.isp.tone import TONE_CURVES
+    from rawsim.noise import NOISE_MODELS
+    from rawsim_cli import unprocess
+
+    assert set(unprocess.TONES) == set(TONE_CURVES)
+    assert set(unprocess.NOISES) == set(NOISE_MODELS)
