@@ -160,10 +160,14 @@ def _worker_context():
 
     Forked workers share the parent's imported modules, which spares each of them
     the seconds that importing torch takes; the parent has run no parallel torch
-    work before the pool starts.
+    work before the pool starts. CUDA does not survive a fork, so with a GPU
+    present the workers are spawned.
     """
-    methods = get_all_start_methods()
-    return get_context("fork" if "fork" in methods else "spawn")
+    import torch
+
+    if "fork" in get_all_start_methods() and not torch.cuda.is_available():
+        return get_context("fork")
+    return get_context("spawn")
 
 
 def _init_worker(threads: int) -> None:
