@@ -113,3 +113,12 @@ def test_rgb_sensor_from_seed_config_and_spectral_response():
     spectral = torch.ones(1, 3, 2, 2)
     rgb = s.response_curve(spectral)
     assert torch.allclose(rgb[0, :, 0, 0], torch.tensor([1.2, 1.5, 1.2]) / 1.5)
+
+
+def test_integer_codes_must_fit_the_code_range(sony):
+    params = sony.default_params(100)
+    codes = torch.full((1, 3, 2, 2), 300, dtype=torch.int32)
+    with pytest.raises(ParameterError, match=r"\[0, 255\]"):
+        unprocess_tensor(sony, codes, params, code_max=255)
+    ok, _ = unprocess_tensor(sony, codes, params, code_max=1023, noise="none")
+    assert ok.shape == (1, 1, 2, 2)

@@ -32,7 +32,7 @@ from rawsim.seeds import derive_seed
 from rawsim.sensors import RGBSensor, display_to_linear
 
 STRIP_ROWS = 128
-INTEGER_DTYPES = (torch.uint8, torch.int16, torch.int32, torch.uint16)
+INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
 
 
 @torch.no_grad()
@@ -50,7 +50,7 @@ def unprocess_tensor(
     """Simulate the raw capture of ``image`` by ``sensor``.
 
     Args:
-        image: (B, 3, H, W), H and W even. Either integer codes (uint8/uint16/…,
+        image: (B, 3, H, W), H and W even. Either integer codes (uint8/uint16/int32,
             decoded through a lookup table of the display transform, with
             ``code_max`` the full-scale code, default the dtype's maximum), or float
             values: display-referred in [0, 1] if ``display_referred``, else
@@ -74,6 +74,8 @@ def unprocess_tensor(
     lut = None
     if image.dtype in INTEGER_DTYPES:
         top = code_max or int(torch.iinfo(image.dtype).max)
+        if int(image.min()) < 0 or int(image.max()) > top:
+            raise ParameterError(f"integer codes must lie in [0, {top}]")
         codes = torch.arange(top + 1, dtype=torch.float32, device=image.device) / top
         lut = display_to_linear(codes, params.tone, params.transfer)
     elif image.is_floating_point():
