@@ -228,12 +228,13 @@ def add_noise(
     if levels.model == "gaussian":
         shot = levels.shot_alpha * positive.sqrt() + levels.shot_beta
         sigma = torch.sqrt(levels.iso_gain * shot**2 + levels.read_sigma**2)
-        return dn + sigma * read
+        return torch.addcmul(dn, sigma, read)
     if levels.model == "poisson-gaussian":
         k, read_var = levels.gain, levels.read_sigma**2
         small = positive.detach() < EXACT_POISSON_BELOW * k
-        sigma = torch.sqrt(torch.where(small, read_var, k * positive + read_var))
-        noisy = (dn + sigma * read).reshape(-1)
+        # σ² = K s + σ_read² where the normal law stands in for Poisson, σ_read² elsewhere.
+        sigma = (k * positive).masked_fill(small, 0.0).add(read_var).sqrt()
+        noisy = torch.addcmul(dn, sigma, read).reshape(-1)
         idx = small.reshape(-1).nonzero().squeeze(1)
         if idx.numel():
             signal = positive.reshape(-1).index_select(0, idx)

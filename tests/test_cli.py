@@ -258,6 +258,10 @@ def test_input_kinds(tmp_path):
         tile_width=16,
         tile_height=16,
     )
+    _write_image(src / "sky.hdr", (rng.random((24, 26, 3)) * 4).astype(np.float32), oiio.FLOAT)
+    _write_image(
+        src / "grey_alpha.png", (rng.random((22, 24, 2)) * 255).astype(np.uint8), oiio.UINT8
+    )
     _write_image(
         src / "rotated.jpg",
         (rng.random((32, 48, 3)) * 255).astype(np.uint8),
@@ -271,6 +275,8 @@ def test_input_kinds(tmp_path):
     assert rgba["dropped_channels"] == ["A"] and rgba["height"] == 30
     assert json.loads((out / "tiled.json").read_text())["input_kind"] == "scene-linear"
     assert json.loads((out / "grey.json").read_text())["code_max"] == 65535
+    assert json.loads((out / "sky.json").read_text())["input_kind"] == "scene-linear"
+    assert json.loads((out / "grey_alpha.json").read_text())["dropped_channels"] == ["A"]
     with rawpy.imread(str(out / "rotated.dng")) as raw:
         assert raw.sizes.flip != 0  # orientation passed through to the DNG
 
