@@ -1,0 +1,189 @@
+"""Reading camera raw files with rawpy (LibRaw) into a :class:`RawImage`.
+
+Everything is copied out of LibRaw before the file closes. The quirks seen on
+real files are handled here, each with a warning in ``RawImage.warnings``:
+
+* all-zero colour matrices: ``rgb_xyz_matrix`` is used when set, else LibRaw's
+  ``color_matrix`` (camera → sRGB), else the identity;
+* unknown white balance (``-1`` or all ones): daylight multipliers, else grey
+  world (decided by the ISP's ``auto`` mode);
+* files without a CFA (LinearRaw DNGs): read as 3-channel linear data and
+  rendered without demosaicking;
+* non-Bayer mosaics (X-Trans, four-colour): rejected as not supported yet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from rawsim.cfa import CFA
+from rawsim.errors import ParameterError, UnsupportedInputError
+
+# LibRaw's flip code → EXIF/TIFF orientation.
+_FLIP_TO_ORIENTATION = {0: 1, 3: 3, 5: 8, 6: 6}
+
+
+@dataclass(frozen=True)
+class RawImage:
+    """A camera raw, decoded.
+
+    Attributes:
+        data: (H, W) mosaic in DN for a CFA sensor, or (H, W, 3) linear data when
+            the file has no CFA (``cfa`` is None). uint16.
+        cfa: the Bayer pattern, None for 3-channel data.
+        black_level: (2, 2) black per CFA tile site (DN), or (3,) per channel.
+        white_level: saturation level (DN).
+        as_shot_wb: camera white-balance gains (R, G, B), G = 1, or None if unknown.
+        daylight_wb: daylight gains (R, G, B), G = 1, or None if unknown.
+        xyz_to_camera: (3, 3) D65 XYZ → camera matrix, or None.
+        camera_to_srgb: (3, 3) LibRaw's camera → linear sRGB matrix, or None.
+        orientation: EXIF orientation 1–8.
+        iso: ISO speed (0 if unknown).
+        make, model: camera names ("unknown" when the file does not say).
+        path: the file.
+        warnings: fallbacks taken while reading.
+    """
+
+    data: np.ndarray
+    cfa: CFA | None
+    black_level: np.ndarray
+    white_level: float
+    as_shot_wb: tuple[float, float, float] | None
+    daylight_wb: tuple[float, float, float] | None
+    xyz_to_camera: np.ndarray | None
+    camera_to_srgb: np.ndarray | None
+    orientation: int
+    iso: float
+    make: str
+    model: str
+    path: str
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _gains(values, name: str, warnings: list[str]) -> tuple[float, float, float] | None:
+    """Green-normalised (R, G, B) gains from LibRaw's 4 multipliers, None if unknown."""
+    v = np.asarray(values, dtype=np.float64)[:4]
+    rgb = v[:3]
+    if not np.all(np.isfinite(rgb)) or np.any(rgb <= 0) or np.allclose(rgb, rgb[1]):
+        warnings.append(f"{name} white balance unknown ({np.round(v, 4).tolist()})")
+        return None
+    return tuple(float(x) for x in rgb / rgb[1])
+
+
+def _camera_names(path: Path) -> tuple[str, str]:
+    """Make and Model from TIFF-based raws (DNG, CR2, NEF, ARW, …), else "unknown"."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            tags = tif.pages.first.tags
+            make = str(tags["Make"].value).strip() if "Make" in tags else ""
+            model = ""
+            for key in ("Model", "UniqueCameraModel"):
+                if key in tags:
+                    model = str(tags[key].value).strip()
+                    break
+            return make or "unknown", model or "unknown"
+    except Exception:  # not TIFF-based: rawpy does not expose the names
+        return "unknown", "unknown"
+
+
+def read_raw(path: str | Path) -> RawImage:
+    """Decode a camera raw with rawpy. Raises :class:`UnsupportedInputError` with the reason."""
+    import rawpy
+
+    path = Path(path)
+    if not path.is_file():
+        raise UnsupportedInputError(f"{path}: not a file")
+    if path.stat().st_size == 0:
+        raise UnsupportedInputError(f"{path}: empty file (0 bytes)")
+    warnings: list[str] = []
+    try:
+        with rawpy.imread(str(path)) as raw:
+            pattern = raw.raw_pattern
+            if pattern is not None and np.asarray(pattern).shape == (2, 2):
+                # The colours of the visible area's first tile (its origin may be odd).
+                pattern = raw.raw_colors_visible[:2, :2]
+            desc = raw.color_desc.decode(errors="replace")
+            visible = raw.raw_image_visible
+            if pattern is not None and np.asarray(pattern).shape != (2, 2):
+                raise UnsupportedInputError(
+                    f"{path}: {np.asarray(pattern).shape[0]}×{np.asarray(pattern).shape[1]} "
+                    "mosaics (e.g. Fujifilm X-Trans) are not supported yet"
+                )
+            data = np.array(visible, dtype=np.uint16, copy=True)
+            black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
+            white = float(raw.white_level)
+            pattern = None if pattern is None else np.array(pattern, copy=True)
+            camera_wb = np.array(raw.camera_whitebalance, dtype=np.float64)
+            daylight_wb = np.array(raw.daylight_whitebalance, dtype=np.float64)
+            xyz = np.array(raw.rgb_xyz_matrix[:3], dtype=np.float64)
+            cam_srgb = np.array(raw.color_matrix[:, :3], dtype=np.float64)
+            flip = int(raw.sizes.flip)
+            iso = float(raw.other.iso_speed)
+            colors = int(raw.num_colors)
+    except UnsupportedInputError:
+        raise
+    except rawpy.LibRawFileUnsupportedError:
+        raise UnsupportedInputError(f"{path}: not a raw file LibRaw can read") from None
+    except (rawpy.LibRawError, OSError) as err:
+        reason = " ".join(str(err).strip("b'\"").split()) or type(err).__name__
+        raise UnsupportedInputError(f"{path}: cannot decode raw data ({reason})") from None
+
+    if pattern is None:
+        if data.ndim != 3 or data.shape[2] < 3 or colors != 3:
+            raise UnsupportedInputError(f"{path}: no CFA and not 3-channel data")
+        data = np.ascontiguousarray(data[:, :, :3])
+        cfa = None
+        black_level = black[:3].copy()
+        warnings.append("no CFA (linear DNG): rendered as 3-channel linear data")
+    else:
+        if colors != 3 or sorted(set(desc[int(i)] for i in pattern.flatten())) != ["B", "G", "R"]:
+            raise UnsupportedInputError(
+                f"{path}: colour filter {desc!r} with pattern {pattern.tolist()} is not "
+                "an RGB Bayer mosaic (not supported yet)"
+            )
+        try:
+            cfa = CFA.from_rawpy(pattern, desc)
+        except ParameterError as err:
+            raise UnsupportedInputError(f"{path}: {err}") from None
+        h, w = data.shape
+        if h < 2 or w < 2:
+            raise UnsupportedInputError(f"{path}: image is too small ({w}×{h})")
+        # LibRaw's visible area may start on any site: keep whole 2×2 tiles.
+        data = np.ascontiguousarray(data[: h - h % 2, : w - w % 2])
+        black_level = black[pattern.astype(int)]  # per tile site
+    if not white > float(np.max(black_level)):
+        raise UnsupportedInputError(f"{path}: white level {white:g} is not above black")
+
+    if np.allclose(xyz, 0):
+        xyz_out = None
+        if np.allclose(cam_srgb, 0):
+            warnings.append("no colour matrix in the file: camera RGB is treated as sRGB")
+            cam_srgb_out = None
+        else:
+            cam_srgb_out = cam_srgb
+            warnings.append("rgb_xyz_matrix is zero: using LibRaw's camera→sRGB color_matrix")
+    else:
+        xyz_out, cam_srgb_out = xyz, None if np.allclose(cam_srgb, 0) else cam_srgb
+
+    make, model = _camera_names(path)
+    return RawImage(
+        data=data,
+        cfa=cfa,
+        black_level=black_level,
+        white_level=white,
+        as_shot_wb=_gains(camera_wb, "as-shot", warnings),
+        daylight_wb=_gains(daylight_wb, "daylight", warnings),
+        xyz_to_camera=xyz_out,
+        camera_to_srgb=cam_srgb_out,
+        orientation=_FLIP_TO_ORIENTATION.get(flip, 1),
+        iso=iso,
+        make=make,
+        model=model,
+        path=str(path),
+        warnings=tuple(warnings),
+    )
