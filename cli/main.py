@@ -17,6 +17,8 @@ import click
 #: needs no import.
 COMMANDS = {
     "unprocess": ("rawsim_cli.unprocess", "Turn sRGB/EXR images into noisy Bayer DNGs."),
+    "process": ("rawsim_cli.process", "Render camera raws through rawsim's ISP."),
+    "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
 }
 

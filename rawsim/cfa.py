@@ -84,6 +84,14 @@ class CFA:
             tile[color, i // 2, i % 2] = 1
         return tile.repeat(1, height // 2, width // 2)
 
+    def site_masks(self, height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
+        """Masks (4, H, W) of the R, Gr, Gb and B sites (the order of :meth:`pack`)."""
+        _check_even(height, width)
+        tile = torch.zeros(4, 2, 2, device=device, dtype=dtype)
+        for plane, (r, c) in enumerate(self._packed_sites):
+            tile[plane, r, c] = 1
+        return tile.repeat(1, height // 2, width // 2)
+
     def color_map(self, height: int, width: int, device=None) -> torch.Tensor:
         """Colour index of every site, (1, 1, H, W) int64."""
         _check_even(height, width)

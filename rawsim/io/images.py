@@ -144,3 +144,56 @@ def read_image(path: str | Path) -> DecodedImage:
         dropped_channels=tuple(dropped),
         format_name=format_name,
     )
+
+
+#: Output formats of ``rawsim process`` → file extension.
+OUTPUT_FORMATS = {"png": ".png", "tiff": ".tif", "jpg": ".jpg", "exr": ".exr"}
+
+
+def write_image(
+    path: str | Path,
+    pixels: np.ndarray,
+    fmt: str,
+    bits: int = 8,
+    srgb: bool = True,
+    attributes: dict | None = None,
+) -> None:
+    """Write (H, W, C) float pixels with OpenImageIO.
+
+    PNG/TIFF/JPEG: values are display-referred, clipped to [0, 1] and quantised to
+    ``bits`` (8 or 16; JPEG is 8-bit only). EXR: scene-linear, written as half
+    (``bits`` 16) or float (``bits`` 32), unclipped. ``srgb`` tags the colour space.
+    """
+    import OpenImageIO as oiio
+
+    h, w, c = pixels.shape
+    if fmt == "exr":
+        kind = {16: oiio.HALF, 32: oiio.FLOAT}.get(bits)
+        data = np.ascontiguousarray(pixels, dtype=np.float32)
+    else:
+        if fmt == "jpg" and bits != 8:
+            raise UnsupportedInputError("JPEG output is 8-bit only (use --bits 8)")
+        kind = {8: oiio.UINT8, 16: oiio.UINT16}.get(bits)
+        top = 2**bits - 1
+        data = np.round(np.clip(pixels, 0.0, 1.0) * top)
+        data = np.ascontiguousarray(data, dtype=np.uint8 if bits == 8 else np.uint16)
+    if kind is None:
+        raise UnsupportedInputError(f"{fmt} output cannot hold {bits}-bit samples")
+    spec = oiio.ImageSpec(w, h, c, kind)
+    if fmt == "exr":
+        spec.attribute("compression", "zip")
+        spec.attribute("oiio:ColorSpace", "lin_rec709" if srgb else "Linear")
+    elif srgb:
+        spec.attribute("oiio:ColorSpace", "sRGB")
+    if fmt == "jpg":
+        spec.attribute("Compression", "jpeg:95")
+    for key, value in (attributes or {}).items():
+        spec.attribute(key, value)
+    out = oiio.ImageOutput.create(str(path))
+    if out is None:
+        raise UnsupportedInputError(f"{path}: OpenImageIO cannot write {fmt} ({oiio.geterror()})")
+    try:
+        if not out.open(str(path), spec) or not out.write_image(data):
+            raise UnsupportedInputError(f"{path}: cannot write image ({out.geterror()})")
+    finally:
+        out.close()

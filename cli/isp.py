@@ -1,0 +1,37 @@
+"""``rawsim isp``: show and check ISP configs."""
+
+from __future__ import annotations
+
+import click
+
+from rawsim_cli.options import usage_errors
+
+
+@click.group("isp")
+def command():
+    """Show the default ISP config, or check one.
+
+    \b
+    Example:
+      rawsim isp show > isp.toml && rawsim isp check isp.toml
+    """
+
+
+@command.command("show")
+@usage_errors
+def show_cmd():
+    """Print the default ISP config as TOML (edit it and pass it to 'rawsim process -c')."""
+    from rawsim.isp.pipeline import config_to_toml, default_config
+
+    click.echo(config_to_toml(default_config()), nl=False)
+
+
+@command.command("check")
+@click.argument("config", type=click.Path(dir_okay=False))
+@usage_errors
+def check_cmd(config):
+    """Validate a config file; print the effective stage order."""
+    from rawsim.isp.pipeline import load_config
+
+    stages = load_config(config)
+    click.echo(" → ".join(s["name"] for s in stages if s["enabled"]))
