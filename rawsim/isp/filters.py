@@ -28,7 +28,7 @@ def _on_planes(x: torch.Tensor, cfa: CFA | None, fn) -> torch.Tensor:
 def anti_alias(
     x: torch.Tensor, cfa: CFA | None, method: str = "weighted_average", sigma: float = 0.5
 ) -> torch.Tensor:
-    """Small blur: 3×3 binomial (``weighted_average``) or Gaussian of ``sigma`` (in plane pixels)."""
+    """Small blur: 3×3 binomial (``weighted_average``) or a Gaussian of ``sigma`` plane pixels."""
     check_choice("anti-aliasing method", method, ANTI_ALIAS_METHODS)
     if method == "none":
         return x
