@@ -1,9 +1,11 @@
 """Dead/hot pixel correction on a CFA mosaic, within each colour plane.
 
-Each site is compared with the mean of its same-colour neighbours; where it
-deviates by more than ``threshold`` (linear units, white = 1) it is replaced by
-that mean, blended through a sigmoid of width ``temperature`` so the stage stays
-differentiable. ``reverse`` is the identity (defects are not re-created).
+Each site is compared with the median of its same-colour neighbours (the
+original design used their mean, which a hot pixel drags along with it, so its
+neighbours got "corrected" too); where it deviates by more than ``threshold``
+(linear units, white = 1) it is replaced by that median, blended through a
+sigmoid of width ``temperature`` so the stage stays differentiable. ``reverse``
+is the identity (defects are not re-created).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ def correct_dead_pixels(
     kernel: int = 3,
     temperature: float = 0.01,
 ) -> torch.Tensor:
-    """(B, 1, H, W) linear mosaic → the same with outliers replaced by their neighbours' mean."""
+    """(B, 1, H, W) linear mosaic → the same with outliers replaced by their neighbours' median."""
     check_image(mosaic, "mosaic", channels=1)
     if kernel not in (3, 5):
         raise ParameterError(f"dead-pixel kernel must be 3 or 5, got {kernel}")
@@ -32,9 +34,11 @@ def correct_dead_pixels(
 
     def fix(planes: torch.Tensor) -> torch.Tensor:
         shifted = neighbourhood(planes, kernel)
-        mean = (shifted.sum(0) - planes) / (kernel * kernel - 1)
-        weight = torch.sigmoid(((planes - mean).abs() - threshold) / temperature)
-        return planes + weight * (mean - planes)
+        centre = kernel * kernel // 2
+        others = torch.cat([shifted[:centre], shifted[centre + 1 :]])
+        reference = others.median(dim=0).values
+        weight = torch.sigmoid(((planes - reference).abs() - threshold) / temperature)
+        return planes + weight * (reference - planes)
 
     return per_plane(mosaic, cfa, fix)
 

@@ -1,0 +1,124 @@
+"""Demosaic methods: structure, exactness where defined, and quality on real photos."""
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+import rawpy
+import torch
+
+from rawsim.cfa import CFA
+from rawsim.errors import ParameterError
+from rawsim.io.dng import DngInfo, write_dng
+from rawsim.isp.demosaic import DEMOSAIC_METHODS, Demosaic, demosaic, demosaic_menon
+from tests.conftest import DATA
+
+PHOTOS = ["astronaut.png", "coffee.png", "chelsea.png", "rocket.jpg"]
+
+
+def _photo(name: str) -> torch.Tensor:
+    x = oiio.ImageBuf(str(DATA / "srgb" / name)).get_pixels(oiio.FLOAT)[:, :, :3]
+    h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
+    return torch.from_numpy(np.ascontiguousarray(x[:h, :w])).permute(2, 0, 1)[None]
+
+
+def cpsnr(y: torch.Tensor, x: torch.Tensor) -> float:
+    """CPSNR on the 8-bit scale, 10-pixel border cropped (the standard demosaic test)."""
+    a = (y.clamp(0, 1) * 255).round()[..., 10:-10, 10:-10].double()
+    b = (x * 255).round()[..., 10:-10, 10:-10].double()
+    return float(10 * torch.log10(255**2 / ((a - b) ** 2).mean()))
+
+
+@pytest.fixture(scope="module")
+def photos():
+    return {name: _photo(name) for name in PHOTOS}
+
+
+@pytest.fixture(scope="module")
+def quality(photos):
+    """Mean CPSNR of every method over the photos, RGGB and GBRG."""
+    out = {}
+    for method in DEMOSAIC_METHODS:
+        scores = []
+        for x in photos.values():
+            for pattern in ("RGGB", "GBRG"):
+                cfa = CFA(pattern)
+                scores.append(cpsnr(demosaic(cfa.mosaic(x), cfa, method), x))
+        out[method] = float(np.mean(scores))
+    return out
+
+
+@pytest.mark.parametrize("method", DEMOSAIC_METHODS)
+def test_shapes_and_flat_colour_exact(method, pattern):
+    cfa = CFA(pattern)
+    x = torch.ones(2, 3, 16, 12) * torch.tensor([0.2, 0.5, 0.7]).view(1, 3, 1, 1)
+    y = demosaic(cfa.mosaic(x), cfa, method)
+    assert y.shape == (2, 3, 16, 12)
+    assert torch.allclose(y, x, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["bilinear", "malvar", "wcd"])
+def test_cfa_sites_keep_their_values(method, pattern, rng):
+    cfa = CFA(pattern)
+    mosaic = torch.rand(1, 1, 12, 14, generator=rng)
+    y = demosaic(mosaic, cfa, method)
+    assert torch.allclose(cfa.mosaic(y), mosaic, atol=1e-6)
+    assert torch.allclose(cfa.mosaic(demosaic_menon(mosaic, cfa, refine=False)), mosaic, atol=1e-6)
+
+
+def test_quality_ordering_on_real_photos(quality):
+    assert 29.0 <= quality["bilinear"] <= 32.5  # ≈ 30 dB, as the standard test reports
+    assert quality["malvar"] >= quality["bilinear"] + 3
+    assert quality["menon"] >= quality["malvar"] + 1
+    assert quality["wcd"] >= quality["menon"] + 0.5
+
+
+def test_wcd_beats_libraw_on_the_same_photos(tmp_path, photos, quality):
+    """LibRaw's AHD/AAHD/DCB/DHT on the same mosaics (as DNGs, raw colour, linear out)."""
+    libraw = {}
+    for name, x in photos.items():
+        cfa = CFA("RGGB")
+        m = cfa.mosaic(x)[0, 0].numpy()
+        path = tmp_path / "m.dng"
+        info = DngInfo(
+            cfa, 0, 65535, ((1, 0, 0), (0, 1, 0), (0, 0, 1)), (1, 1, 1), "t", "t", "t", 100
+        )
+        write_dng(path, np.round(m * 65535).astype(np.uint16), info)
+        for alg in ("AHD", "AAHD", "DCB", "DHT"):
+            with rawpy.imread(str(path)) as raw:
+                y = raw.postprocess(
+                    demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, alg),
+                    output_color=rawpy.ColorSpace.raw,
+                    gamma=(1, 1),
+                    no_auto_bright=True,
+                    user_wb=[1, 1, 1, 1],
+                    output_bps=16,
+                    user_flip=0,
+                    adjust_maximum_thr=0,
+                )
+            y = torch.from_numpy(y.astype(np.float32) / 65535).permute(2, 0, 1)[None]
+            libraw.setdefault(alg, []).append(cpsnr(y, x))
+    best = max(float(np.mean(v)) for v in libraw.values())
+    ours = float(
+        np.mean(
+            [cpsnr(demosaic(CFA("RGGB").mosaic(x), CFA("RGGB"), "wcd"), x) for x in photos.values()]
+        )
+    )
+    assert ours > best + 0.5, (ours, {k: np.mean(v) for k, v in libraw.items()})
+
+
+def test_demosaic_errors_and_module():
+    cfa = CFA("BGGR")
+    with pytest.raises(ParameterError, match="valid: wcd, menon, malvar, bilinear"):
+        demosaic(torch.rand(1, 1, 4, 4), cfa, "ahd")
+    with pytest.raises(ParameterError, match="1 channel"):
+        demosaic(torch.rand(1, 3, 4, 4), cfa)
+    module = Demosaic(cfa, "malvar")
+    x = torch.rand(1, 3, 8, 8)
+    assert torch.equal(module.reverse(x), cfa.mosaic(x))
+
+
+@pytest.mark.parametrize("method", DEMOSAIC_METHODS)
+def test_demosaic_gradcheck(method):
+    cfa = CFA("GRBG")
+    m = torch.rand(1, 1, 8, 8, dtype=torch.float64, requires_grad=True) + 0.1
+    assert torch.autograd.gradcheck(lambda v: demosaic(v, cfa, method), (m,), atol=1e-5)

@@ -1,0 +1,332 @@
+"""rawsim process: raw reading, ISP config, agreement with LibRaw, round trip, the CLI."""
+
+import json
+import shutil
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+import rawpy
+import torch
+from click.testing import CliRunner
+
+from rawsim.batch import Task
+from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.io.raw import read_raw
+from rawsim.isp.pipeline import (
+    STAGES,
+    config_to_toml,
+    default_config,
+    load_config,
+    load_config_text,
+    override,
+    validate_config,
+)
+from rawsim.pipelines.process import render
+from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
+from rawsim.profiles import load_profile
+from rawsim_cli.main import cli
+from tests.conftest import DATA, psnr
+
+RAW = DATA / "raw"
+LIBRAW_MATCHED = dict(
+    use_camera_wb=True,
+    demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR,
+    highlight_mode=rawpy.HighlightMode.Clip,
+    no_auto_bright=True,
+    output_bps=16,
+    user_flip=0,
+    adjust_maximum_thr=0.0,  # LibRaw's other auto-brightening: off, as in rawsim
+)
+
+
+def _crop(a):
+    return a[10:-10, 10:-10]
+
+
+def _rgb(t: torch.Tensor) -> np.ndarray:
+    return t[0].permute(1, 2, 0).numpy()
+
+
+# ---- reading raws ---------------------------------------------------------------------
+
+
+def test_read_raw_shared_files():
+    canon = read_raw(RAW / "canon_eos60d_mlv.dng")
+    assert canon.cfa.pattern == "RGGB" and canon.data.shape == (540, 960)
+    assert canon.black_level.tolist() == [[2048] * 2] * 2 and canon.white_level == 15000
+    assert canon.as_shot_wb[1] == 1 and canon.xyz_to_camera is not None and not canon.warnings
+    assert (canon.make, canon.model) == ("Canon", "Canon EOS 60D")
+    kodak = read_raw(RAW / "kodak_dc50_grbg.kdc")
+    assert kodak.cfa.pattern == "GRBG" and kodak.as_shot_wb is None
+    assert kodak.xyz_to_camera is None and kodak.camera_to_srgb is None
+    assert any("no colour matrix" in w for w in kodak.warnings)
+    bggr = read_raw(RAW / "synthetic_colorchecker_bggr.dng")
+    assert bggr.cfa.pattern == "BGGR" and bggr.as_shot_wb == pytest.approx((2.0, 1.0, 1.50015))
+    linear = read_raw(RAW / "canon_eos6d_linear_raw_no_cfa.dng")
+    assert linear.cfa is None and linear.data.shape == (816, 1224, 3)
+
+
+def test_read_raw_errors(tmp_path):
+    (tmp_path / "empty.dng").write_bytes(b"")
+    with pytest.raises(UnsupportedInputError, match="0 bytes"):
+        read_raw(tmp_path / "empty.dng")
+    shutil.copy(DATA / "srgb" / "chelsea.png", tmp_path / "photo.cr2")
+    with pytest.raises(UnsupportedInputError, match="not a raw file"):
+        read_raw(tmp_path / "photo.cr2")
+    data = (RAW / "canon_eos60d_mlv.dng").read_bytes()
+    (tmp_path / "cut.dng").write_bytes(data[: len(data) // 4])
+    with pytest.raises(UnsupportedInputError, match="cut.dng"):
+        read_raw(tmp_path / "cut.dng")
+
+
+# ---- config ---------------------------------------------------------------------------
+
+
+def test_isp_show_round_trips_through_config(tmp_path):
+    r = CliRunner().invoke(cli, ["isp", "show"])
+    assert r.exit_code == 0
+    path = tmp_path / "isp.toml"
+    path.write_text(r.output)
+    assert load_config(path) == validate_config(default_config())
+    assert [s["name"] for s in load_config(path)] == list(STAGES)
+    check = CliRunner().invoke(cli, ["isp", "check", str(path)])
+    assert check.exit_code == 0 and "demosaic → color_matrix" in check.output
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('[[stage]]\nname = "sharpen"', "unknown stage 'sharpen'; valid: black_level"),
+        ('[[stage]]\nname = "demosaic"\nmethod = "ahd"', "valid: wcd, menon, malvar, bilinear"),
+        ('[[stage]]\nname = "tone"\ncolour = 1', "unknown key 'colour'; valid: enabled, curve"),
+        ('[[stage]]\nname = "exposure"\nev = "bright"', "expected a number"),
+        (
+            '[[stage]]\nname = "black_level"\n[[stage]]\nname = "color_matrix"\n[[stage]]\n'
+            'name = "demosaic"',
+            "'color_matrix' must come after 'demosaic'",
+        ),
+        ('[[stage]]\nname = "black_level"', "needs an enabled 'demosaic'"),
+        ("[[stage]\n", "not valid TOML"),
+        ('[[stage]]\nname = "white_balance"\nmode = "1,2"', "R,G,B"),
+    ],
+)
+def test_bad_configs_are_clear_errors(text, message):
+    with pytest.raises(ParameterError, match=message.replace("(", r"\(").replace("[", r"\[")):
+        load_config_text(text)
+
+
+def test_overrides_and_blend_moves_after_demosaic():
+    cfg = override(
+        default_config(),
+        wb="2,1,1.5",
+        highlights="blend",
+        demosaic="menon",
+        exposure=1.0,
+        output_space="xyz",
+        transfer="gamma:2.2",
+        tone="aces",
+    )
+    names = [s["name"] for s in cfg]
+    assert names.index("highlights") == names.index("demosaic") + 1
+    by = {s["name"]: s for s in cfg}
+    assert by["white_balance"]["mode"] == "2,1,1.5" and by["transfer"]["function"] == "gamma:2.2"
+    assert by["exposure"]["ev"] == 1.0 and by["color_matrix"]["output_space"] == "xyz"
+    assert load_config_text(config_to_toml(cfg)) == cfg
+
+
+# ---- rendering ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["canon_eos60d_mlv.dng", "synthetic_colorchecker_bggr.dng"])
+def test_agrees_with_libraw_srgb(name):
+    raw = read_raw(RAW / name)
+    ours, _ = render(raw, override(default_config(), demosaic="bilinear"))
+    with rawpy.imread(str(RAW / name)) as r:
+        ref = (
+            r.postprocess(output_color=rawpy.ColorSpace.sRGB, gamma=(2.4, 12.92), **LIBRAW_MATCHED)
+            / 65535.0
+        )
+    assert psnr(_crop(np.clip(_rgb(ours), 0, 1)), _crop(ref)) >= 40
+
+
+def test_agrees_with_libraw_in_camera_space_for_kodak():
+    """LibRaw applies a Kodak matrix that rawpy does not expose; the camera data agree."""
+    raw = read_raw(RAW / "kodak_dc50_grbg.kdc")
+    cfg = override(
+        default_config(), demosaic="bilinear", wb="1,1,1", output_space="camera", transfer="linear"
+    )
+    ours, _ = render(raw, cfg)
+    with rawpy.imread(str(RAW / "kodak_dc50_grbg.kdc")) as r:
+        ref = (
+            r.postprocess(output_color=rawpy.ColorSpace.raw, gamma=(1, 1), **LIBRAW_MATCHED)
+            / 65535.0
+        )
+    assert psnr(_crop(np.clip(_rgb(ours), 0, 1)), _crop(ref)) >= 40
+
+
+def test_kodak_renders_with_warned_fallbacks():
+    raw = read_raw(RAW / "kodak_dc50_grbg.kdc")
+    out, info = render(raw, default_config())
+    assert any("grey world" in w for w in info["warnings"])
+    assert any("no colour matrix" in w for w in info["warnings"])
+    r, g, b = info["white_balance"]
+    assert g == 1 and 0.5 < r < 2 and 0.5 < b < 2
+    assert bool(torch.isfinite(out).all())
+
+
+def test_bggr_colours_are_right():
+    """The colour checker's patches: red is red, blue is blue, greys are neutral."""
+    out, _ = render(read_raw(RAW / "synthetic_colorchecker_bggr.dng"), default_config())
+    img = _rgb(out)
+    h, w = img.shape[:2]
+
+    def patch(row, col):  # 4 rows × 6 columns of patches
+        y, x = int((row + 0.5) * h / 4), int((col + 0.5) * w / 6)
+        return img[y - 3 : y + 3, x - 3 : x + 3].reshape(-1, 3).mean(0)
+
+    red, blue, green = patch(2, 2), patch(2, 0), patch(2, 1)
+    assert red[0] > 2 * red[1] and red[0] > 2 * red[2]
+    assert blue[2] > 2 * blue[0] and blue[2] > blue[1]
+    assert green[1] > green[0] and green[1] > green[2]
+    for col in range(6):
+        grey = patch(3, col)
+        assert np.ptp(grey) < 0.05 * grey.max() + 0.01
+
+
+def test_no_cfa_dng_renders_as_three_channels():
+    raw = read_raw(RAW / "canon_eos6d_linear_raw_no_cfa.dng")
+    out, info = render(raw, default_config())
+    assert out.shape == (1, 3, 816, 1224)
+    assert any("no CFA" in w for w in info["warnings"])
+    assert 0.01 < float(out.mean()) < 0.9
+
+
+def test_round_trip_unprocess_then_process(tmp_path):
+    """--clean DNG → rawsim process with the same profile returns the photo."""
+    results = {}
+    for name in ("srgb16/hdr_room_16bit.png", "srgb/chelsea.png"):
+        src = DATA / name
+        options = UnprocessOptions(
+            load_profile("sony_a7s2"), iso=800, clean=True, safe_white_balance=False
+        )
+        outputs = {k: tmp_path / f"{src.stem}{v}" for k, v in options.output_suffixes().items()}
+        unprocess_file(Task(src, src.name, outputs, 1), options)
+        raw = read_raw(outputs["clean_dng"])
+        photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)[:, :, :3]
+        photo = photo[: raw.data.shape[0], : raw.data.shape[1]]
+        for method in ("bilinear", "wcd"):
+            out, _ = render(raw, override(default_config(), demosaic=method))
+            results[name, method] = psnr(_crop(np.clip(_rgb(out), 0, 1)), _crop(photo))
+    assert results["srgb16/hdr_room_16bit.png", "wcd"] >= 38
+    assert results["srgb/chelsea.png", "wcd"] >= 35
+    for name in ("srgb16/hdr_room_16bit.png", "srgb/chelsea.png"):
+        assert results[name, "wcd"] > results[name, "bilinear"] + 4
+
+
+def test_smooth_round_trip_is_exact_but_for_quantisation(tmp_path):
+    y, x = np.mgrid[0:128, 0:192] / 128.0
+    img = np.stack([0.2 + 0.3 * x, 0.3 + 0.5 * y, 0.5 + 0.3 * np.sin(3 * x)], -1)
+    src = tmp_path / "smooth.tif"
+    buf = oiio.ImageBuf(oiio.ImageSpec(192, 128, 3, oiio.UINT16))
+    buf.set_pixels(oiio.ROI(), img.astype(np.float32))
+    assert buf.write(str(src))
+    options = UnprocessOptions(load_profile("nikon_d850"), iso=100, clean=True)
+    outputs = {k: tmp_path / f"s{v}" for k, v in options.output_suffixes().items()}
+    unprocess_file(Task(src, src.name, outputs, 1), options)
+    out, _ = render(read_raw(outputs["clean_dng"]), default_config())
+    photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)
+    assert psnr(_crop(_rgb(out)), _crop(photo)) >= 50
+
+
+# ---- CLI ------------------------------------------------------------------------------
+
+
+def test_process_cli_formats_and_sidecars(tmp_path):
+    src = tmp_path / "raws"
+    (src / "sub").mkdir(parents=True)
+    shutil.copy(RAW / "canon_eos60d_mlv.dng", src / "a.dng")
+    shutil.copy(RAW / "synthetic_colorchecker_bggr.dng", src / "sub" / "b.dng")
+    for fmt, bits, ext, kind in [
+        ("png", "8", ".png", "uint8"),
+        ("tiff", "16", ".tif", "uint16"),
+        ("jpg", "8", ".jpg", "uint8"),
+        ("exr", "16", ".exr", "half"),
+    ]:
+        out = tmp_path / fmt
+        r = CliRunner().invoke(
+            cli,
+            [
+                "process",
+                str(src),
+                "-o",
+                str(out),
+                "--format",
+                fmt,
+                "--bits",
+                bits,
+                "--wb",
+                "camera",
+            ],
+        )
+        assert r.exit_code == 0, r.output
+        img = oiio.ImageInput.open(str(out / "sub" / f"b{ext}"))
+        assert str(img.spec().format) == kind and img.spec().width == 256
+        img.close()
+        meta = json.loads((out / "a.json").read_text())
+        assert meta["white_balance"] == pytest.approx([2.338, 1.0, 1.416], abs=1e-3)
+        assert load_config_text(meta["config_toml"]) == meta["config"]
+    exr_meta = json.loads((tmp_path / "exr" / "a.json").read_text())
+    assert not next(s for s in exr_meta["config"] if s["name"] == "transfer")["enabled"]
+
+
+def test_process_cli_config_flags_and_errors(tmp_path):
+    cfg = tmp_path / "isp.toml"
+    cfg.write_text(CliRunner().invoke(cli, ["isp", "show"]).output.replace('"wcd"', '"malvar"'))
+    r = CliRunner().invoke(
+        cli,
+        [
+            "process",
+            str(RAW),
+            "-o",
+            str(tmp_path / "o"),
+            "-c",
+            str(cfg),
+            "--tone",
+            "hable",
+            "--exposure",
+            "0.5",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    meta = json.loads((tmp_path / "o" / "kodak_dc50_grbg.json").read_text())
+    by = {s["name"]: s for s in meta["config"]}
+    assert by["demosaic"]["method"] == "malvar" and by["tone"]["curve"] == "hable"
+    assert any("grey world" in w for w in meta["warnings"])
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[stage]]\nname = "sharpen"\n')
+    r = CliRunner().invoke(cli, ["process", str(RAW), "-o", str(tmp_path / "x"), "-c", str(bad)])
+    assert r.exit_code == 2 and "unknown stage 'sharpen'" in r.output
+    r = CliRunner().invoke(
+        cli, ["process", str(RAW), "-o", str(tmp_path / "x"), "--format", "jpg", "--bits", "16"]
+    )
+    assert r.exit_code == 2 and "--bits 8" in r.output
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    (junk / "empty.nef").write_bytes(b"")
+    shutil.copy(DATA / "srgb" / "rocket.jpg", junk / "photo.arw")
+    shutil.copy(RAW / "canon_eos60d_mlv.dng", junk / "ok.dng")
+    r = CliRunner().invoke(cli, ["process", str(junk), "-o", str(tmp_path / "j")])
+    assert r.exit_code == 1 and "1 done, 0 skipped, 2 failed" in r.output
+    assert "empty.nef" in r.output and "photo.arw" in r.output and "Traceback" not in r.output
+
+
+def test_cli_choices_match_the_core():
+    from rawsim.isp.demosaic import DEMOSAIC_METHODS
+    from rawsim.isp.highlights import HIGHLIGHT_MODES
+    from rawsim.isp.pipeline import OUTPUT_SPACES
+    from rawsim.isp.tone import TONE_CURVES
+    from rawsim_cli import process
+
+    assert process.DEMOSAICS == DEMOSAIC_METHODS and process.HIGHLIGHTS == HIGHLIGHT_MODES
+    assert process.TONES == TONE_CURVES and process.SPACES == OUTPUT_SPACES
