@@ -75,7 +75,7 @@ def test_quality_ordering_on_real_photos(quality):
 def test_wcd_beats_libraw_on_the_same_photos(tmp_path, photos, quality):
     """LibRaw's AHD/AAHD/DCB/DHT on the same mosaics (as DNGs, raw colour, linear out)."""
     libraw = {}
-    for name, x in photos.items():
+    for x in photos.values():
         cfa = CFA("RGGB")
         m = cfa.mosaic(x)[0, 0].numpy()
         path = tmp_path / "m.dng"
