@@ -161,8 +161,9 @@ def write_image(
     """Write (H, W, C) float pixels with OpenImageIO.
 
     PNG/TIFF/JPEG: values are display-referred, clipped to [0, 1] and quantised to
-    ``bits`` (8 or 16; JPEG is 8-bit only). EXR: scene-linear, written as half
-    (``bits`` 16) or float (``bits`` 32), unclipped. ``srgb`` tags the colour space.
+    ``bits`` (8 or 16; JPEG is 8-bit only); TIFF is uncompressed. EXR: scene-linear,
+    written as half (``bits`` 16) or float (``bits`` 32), zip-compressed, unclipped.
+    ``srgb`` tags the colour space.
     """
     import OpenImageIO as oiio
 
@@ -187,6 +188,8 @@ def write_image(
         spec.attribute("oiio:ColorSpace", "sRGB")
     if fmt == "jpg":
         spec.attribute("Compression", "jpeg:95")
+    elif fmt == "tiff":
+        spec.attribute("compression", "none")  # as dcraw -T: deflate costs seconds per image
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
     out = oiio.ImageOutput.create(str(path))

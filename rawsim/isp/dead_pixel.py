@@ -57,6 +57,11 @@ class DeadPixelCorrection(nn.Module):
             temperature,
         )
 
+    @property
+    def radius(self) -> int:
+        """Rows of context needed on each side (the neighbourhood, in mosaic rows)."""
+        return 2 * (self.kernel // 2)
+
     def forward(self, mosaic: torch.Tensor) -> torch.Tensor:
         return correct_dead_pixels(mosaic, self.cfa, self.threshold, self.kernel, self.temperature)
 

@@ -56,6 +56,12 @@ def _conv(x: torch.Tensor, kernel) -> torch.Tensor:
     return out if out is not None else torch.zeros_like(x)
 
 
+def _box(x: torch.Tensor, size: int) -> torch.Tensor:
+    """Sum over a ``size`` × ``size`` window (separable: two 1-D passes)."""
+    ones = torch.ones(size)
+    return _v(_h(x, ones), ones)
+
+
 def _h(x: torch.Tensor, kernel) -> torch.Tensor:
     return _conv(x, torch.as_tensor(kernel)[None])
 
@@ -225,8 +231,7 @@ def demosaic_wcd(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
         "h": (at["h"](0, -1) - at["h"](0, 1)).abs(),
         "v": (at["v"](-1, 0) - at["v"](1, 0)).abs(),
     }
-    box = torch.ones(5, 5)
-    sums = {k: _shifted(_conv(g, box), 2) for k, g in grad.items()}
+    sums = {k: _shifted(_box(g, 5), 2) for k, g in grad.items()}
     ones = torch.tensor([1 / 3, 1 / 3, 1 / 3, 0.0, 0.0])
     weights, estimates = [], []
     for dy, dx in _DIRECTIONS:
@@ -260,7 +265,7 @@ def _diagonal_mean(diff, sites, mosaic, green) -> torch.Tensor:
     for dy, dx in _DIAGONALS:
         gradient = (m(dy, dx) - m(-dy, -dx)).abs() + (g(dy, dx) - g(0, 0)).abs()
         gradient = gradient + (m(2 * dy, 2 * dx) - m(0, 0)).abs()
-        weight = (_conv(gradient, torch.ones(3, 3)) + _EPS) ** -2
+        weight = (_box(gradient, 3) + _EPS) ** -2
         out = out + weight * d(dy, dx)
         total = total + weight
     return out / total
@@ -285,6 +290,11 @@ class Demosaic(nn.Module):
         super().__init__()
         self.cfa = cfa
         self.method = check_choice("demosaic method", method, DEMOSAIC_METHODS)
+
+    @property
+    def radius(self) -> int:
+        """Rows of context each output row depends on (bounded generously)."""
+        return {"bilinear": 2, "malvar": 2, "menon": 12, "wcd": 16}[self.method]
 
     def forward(self, mosaic: torch.Tensor) -> torch.Tensor:
         return demosaic(mosaic, self.cfa, self.method)

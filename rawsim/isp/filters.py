@@ -79,6 +79,12 @@ class AntiAliasing(nn.Module):
         super().__init__()
         self.cfa, self.method, self.sigma = cfa, method, sigma
 
+    @property
+    def radius(self) -> int:
+        """Rows of context needed on each side (doubled on a mosaic's planes)."""
+        size = 3 if self.method != "gaussian" else gaussian_kernel(self.sigma).shape[0]
+        return (size // 2) * (2 if self.cfa is not None else 1)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return anti_alias(x, self.cfa, self.method, self.sigma)
 
@@ -100,6 +106,11 @@ class Denoise(nn.Module):
         super().__init__()
         self.cfa, self.method, self.kernel = cfa, method, kernel
         self.sigma, self.sigma_color = sigma, sigma_color
+
+    @property
+    def radius(self) -> int:
+        """Rows of context needed on each side (doubled on a mosaic's planes)."""
+        return (self.kernel // 2) * (2 if self.cfa is not None else 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return denoise(x, self.cfa, self.method, self.kernel, self.sigma, self.sigma_color)

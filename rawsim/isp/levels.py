@@ -55,18 +55,29 @@ def white_level_for_bits(bits: int) -> int:
 
 
 class Levels(nn.Module):
-    """Black-level stage: ``forward`` DN → [0, 1] units, ``reverse`` back to DN."""
+    """Black-level stage: ``forward`` DN → [0, 1] units, ``reverse`` back to DN.
+
+    ``black`` is a number, a tensor broadcastable to the data, or a (…, 2, 2) CFA
+    tile of per-site levels, repeated over the data (whose first row and column
+    are the tile's).
+    """
 
     def __init__(self, black, white) -> None:
         super().__init__()
         _check_levels(black, white)
         self.black, self.white = black, white
 
+    def _black(self, x: torch.Tensor):
+        b = self.black
+        if isinstance(b, torch.Tensor) and b.shape[-2:] == (2, 2) and x.shape[-2:] != (2, 2):
+            return b.to(x).repeat(1, 1, x.shape[-2] // 2, x.shape[-1] // 2)
+        return b
+
     def forward(self, dn: torch.Tensor) -> torch.Tensor:
-        return normalize_levels(dn, self.black, self.white)
+        return normalize_levels(dn, self._black(dn), self.white)
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
-        return denormalize_levels(x, self.black, self.white)
+        return denormalize_levels(x, self._black(x), self.white)
 
 
 class Saturation(nn.Module):

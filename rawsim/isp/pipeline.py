@@ -157,7 +157,7 @@ STAGES: dict[str, dict[str, Param]] = {
 }
 _DISABLED_BY_DEFAULT = {"dead_pixel", "lens_shading", "anti_aliasing", "denoise", "ycbcr"}
 _MOSAIC_ONLY = {"dead_pixel", "anti_aliasing", "demosaic"}
-_RGB_ONLY = {"color_matrix", "ycbcr"}
+_RGB_ONLY = {"color_matrix", "ycbcr", "orientation"}
 
 
 def default_config() -> list[dict]:
@@ -219,6 +219,8 @@ def _check_order(config: list[dict], origin: str) -> None:
         raise ParameterError(f"{origin}: stage {bad!r} must come {where} 'demosaic'")
     if names.index("black_level") > split:
         raise ParameterError(f"{origin}: 'black_level' must come before 'demosaic'")
+    if "orientation" in names and names[-1] != "orientation":
+        raise ParameterError(f"{origin}: 'orientation' must be the last enabled stage")
     for s in config:
         if s["name"] == "highlights" and s["enabled"] and s["mode"] == "blend":
             if names.index("highlights") < split:
@@ -309,7 +311,13 @@ def load_config_text(text: str, origin: str = "config") -> list[dict]:
 
 
 class Isp(nn.Module):
-    """A built ISP: named stage modules run in order. ``info`` records resolved values."""
+    """A built ISP: named stage modules run in order. ``info`` records resolved values.
+
+    Without gradients, images taller than two strips run strip by strip
+    (:data:`STRIP_ROWS` rows plus enough rows of context for every stage): the
+    result is the same, the memory a fraction. Orientation, a global reindexing,
+    runs once at the end.
+    """
 
     def __init__(self, stages: list[tuple[str, nn.Module]], info: dict) -> None:
         super().__init__()
@@ -317,10 +325,40 @@ class Isp(nn.Module):
         self.stages = nn.ModuleList([m for _, m in stages])
         self.info = info
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        for stage in self.stages:
-            x = stage(x)
+    @property
+    def halo(self) -> int:
+        """Rows of context a strip needs on each side (even, so strips keep the CFA phase)."""
+        total = sum(getattr(m, "radius", 0) for m in self.stages)
+        return total + total % 2
+
+    def _run(self, x: torch.Tensor, region: tuple[int, int]) -> torch.Tensor:
+        for m in self.stages:
+            if isinstance(m, Orientation):
+                continue
+            x = m(x, region) if getattr(m, "positional", False) else m(x)
         return x
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = x.shape[-2]
+        if torch.is_grad_enabled() or h <= 2 * STRIP_ROWS:
+            out = self._run(x, (0, h))
+        else:
+            out = None
+            halo = self.halo
+            for top in range(0, h, STRIP_ROWS):
+                lo, hi = max(0, top - halo), min(h, top + STRIP_ROWS + halo)
+                part = self._run(x[..., lo:hi, :], (lo, h))
+                rows = part[..., top - lo : top - lo + min(STRIP_ROWS, h - top), :]
+                if out is None:
+                    out = rows.new_empty(*rows.shape[:-2], h, rows.shape[-1])
+                out[..., top : top + rows.shape[-2], :] = rows
+        for m in self.stages:
+            if isinstance(m, Orientation):
+                out = m(out)
+        return out
+
+
+STRIP_ROWS = 256
 
 
 def grey_world_gains(mosaic: np.ndarray, cfa, black, white) -> tuple[float, float, float]:
@@ -434,8 +472,7 @@ def _black_map(raw):
         return float(black.flat[0])
     if raw.cfa is None:
         return torch.as_tensor(black, dtype=torch.float32).reshape(1, 3, 1, 1)
-    h, w = raw.data.shape
-    return torch.as_tensor(np.tile(black, (h // 2, w // 2)), dtype=torch.float32)[None, None]
+    return torch.as_tensor(black, dtype=torch.float32).reshape(1, 1, 2, 2)  # a CFA tile
 
 
 def _before(config: list[dict], a: str, b: str) -> bool:
