@@ -245,8 +245,9 @@ def demosaic_wcd(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
     delta = sum(w * e for w, e in zip(weights, estimates, strict=True)) / total
     green = mosaic * g_sites + (mosaic + delta) * rb_sites
     # Red at blue sites (and blue at red sites): diagonal colour differences.
-    red = mosaic * r + (green - _diagonal_mean(green - mosaic, r, mosaic, green)) * b
-    blue = mosaic * b + (green - _diagonal_mean(green - mosaic, b, mosaic, green)) * r
+    diagonal = _diagonal_weights(mosaic, green)
+    red = mosaic * r + (green - _diagonal_mean((green - mosaic) * r, diagonal)) * b
+    blue = mosaic * b + (green - _diagonal_mean((green - mosaic) * b, diagonal)) * r
     # Red and blue at green sites: the four neighbours' differences, weighted as green.
     red = red + (green - _weighted_cross((green - red) * rb_sites, weights, total)) * g_sites
     blue = blue + (green - _weighted_cross((green - blue) * rb_sites, weights, total)) * g_sites
@@ -258,17 +259,22 @@ def _weighted_cross(diff: torch.Tensor, weights, total) -> torch.Tensor:
     return sum(w * at(dy, dx) for w, (dy, dx) in zip(weights, _DIRECTIONS, strict=True)) / total
 
 
-def _diagonal_mean(diff, sites, mosaic, green) -> torch.Tensor:
-    """Mean of ``diff`` over the diagonal ``sites`` neighbours, weighted by diagonal gradients."""
-    d, m, g = _shifted(diff * sites, 2), _shifted(mosaic, 2), _shifted(green, 1)
-    out = total = 0
+def _diagonal_weights(mosaic: torch.Tensor, green: torch.Tensor):
+    """Weights of the four diagonal neighbours: 1 / (local diagonal gradient)², and their sum."""
+    m, g = _shifted(mosaic, 2), _shifted(green, 1)
+    weights = []
     for dy, dx in _DIAGONALS:
         gradient = (m(dy, dx) - m(-dy, -dx)).abs() + (g(dy, dx) - g(0, 0)).abs()
         gradient = gradient + (m(2 * dy, 2 * dx) - m(0, 0)).abs()
-        weight = (_box(gradient, 3) + _EPS) ** -2
-        out = out + weight * d(dy, dx)
-        total = total + weight
-    return out / total
+        weights.append((_box(gradient, 3) + _EPS) ** -2)
+    return weights, weights[0] + weights[1] + weights[2] + weights[3]
+
+
+def _diagonal_mean(diff: torch.Tensor, diagonal) -> torch.Tensor:
+    """Mean of ``diff`` (zero off its sites) over the diagonal neighbours, weighted."""
+    weights, total = diagonal
+    d = _shifted(diff, 1)
+    return sum(w * d(dy, dx) for w, (dy, dx) in zip(weights, _DIAGONALS, strict=True)) / total
 
 
 def demosaic(mosaic: torch.Tensor, cfa: CFA, method: str = "wcd") -> torch.Tensor:

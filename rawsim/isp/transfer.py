@@ -2,8 +2,8 @@
 
 ``forward`` encodes linear light for display; ``reverse`` decodes display values
 back to linear light. Nominal domain [0, 1]; values outside it are not clipped:
-both curves are extended as odd functions (sRGB's linear toe continues below 0,
-its power segment above 1), so every value keeps an exact inverse.
+sRGB's linear toe continues below 0 and its power segment above 1; the power
+law is extended as an odd function. Every value keeps an exact inverse.
 """
 
 from __future__ import annotations
@@ -29,17 +29,15 @@ def _signed_pow(x: torch.Tensor, exponent: float) -> torch.Tensor:
 
 
 def srgb_decode(v: torch.Tensor) -> torch.Tensor:
-    """sRGB-encoded values → linear light. Any shape; odd-symmetric outside [0, 1]."""
-    a = v.abs()
-    power = ((a.clamp_min(_SRGB_DECODE_KNEE) + _SRGB_A) / (1 + _SRGB_A)).pow(_SRGB_GAMMA)
-    return torch.sign(v) * torch.where(a <= _SRGB_DECODE_KNEE, a / _SRGB_SLOPE, power)
+    """sRGB-encoded values → linear light. Any shape; linear below 0, power law above 1."""
+    power = ((v.clamp_min(_SRGB_DECODE_KNEE) + _SRGB_A) / (1 + _SRGB_A)).pow(_SRGB_GAMMA)
+    return torch.where(v <= _SRGB_DECODE_KNEE, v / _SRGB_SLOPE, power)
 
 
 def srgb_encode(x: torch.Tensor) -> torch.Tensor:
-    """Linear light → sRGB-encoded values. Any shape; odd-symmetric outside [0, 1]."""
-    a = x.abs()
-    power = (1 + _SRGB_A) * a.clamp_min(_SRGB_ENCODE_KNEE).pow(1 / _SRGB_GAMMA) - _SRGB_A
-    return torch.sign(x) * torch.where(a <= _SRGB_ENCODE_KNEE, a * _SRGB_SLOPE, power)
+    """Linear light → sRGB-encoded values. Any shape; linear below 0, power law above 1."""
+    power = x.clamp_min(_SRGB_ENCODE_KNEE).pow(1 / _SRGB_GAMMA).mul_(1 + _SRGB_A).sub_(_SRGB_A)
+    return torch.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
 
 
 def gamma_decode(v: torch.Tensor, gamma: float = 2.2) -> torch.Tensor:
