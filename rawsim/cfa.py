@@ -9,6 +9,7 @@ Tensors are (B, C, H, W) with H and W even; a mosaic has C = 1.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -84,8 +85,12 @@ class CFA:
             tile[color, i // 2, i % 2] = 1
         return tile.repeat(1, height // 2, width // 2)
 
+    @functools.lru_cache(maxsize=8)  # noqa: B019 - CFA values are few and immutable
     def site_masks(self, height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
-        """Masks (4, H, W) of the R, Gr, Gb and B sites (the order of :meth:`pack`)."""
+        """Masks (4, H, W) of the R, Gr, Gb and B sites (the order of :meth:`pack`).
+
+        Cached per size (strips repeat it); treat the result as read-only.
+        """
         _check_even(height, width)
         tile = torch.zeros(4, 2, 2, device=device, dtype=dtype)
         for plane, (r, c) in enumerate(self._packed_sites):
@@ -136,6 +141,19 @@ class CFA:
         for plane, (r, c) in enumerate(self._packed_sites):
             out[:, 0, r::2, c::2] = planes[:, plane]
         return out
+
+
+def apply_tile(x: torch.Tensor, tile: torch.Tensor, op) -> torch.Tensor:
+    """``op(x, tile)`` with a (…, 2, 2) per-site tile laid over every 2×2 block of ``x``.
+
+    ``x`` is (B, C, H, W) with even H, W; the tile broadcasts through a reshaped
+    view, so no full-size map is built.
+    """
+    b, c, h, w = x.shape
+    _check_even(h, w)
+    blocks = x.reshape(b, c, h // 2, 2, w // 2, 2)
+    t = tile.to(x).reshape(*tile.shape[:-2], 1, 2, 1, 2)
+    return op(blocks, t).reshape(b, c, h, w)
 
 
 def _check_even(height: int, width: int) -> None:

@@ -152,13 +152,13 @@ OUTPUT_FORMATS = {"png": ".png", "tiff": ".tif", "jpg": ".jpg", "exr": ".exr"}
 
 def write_image(
     path: str | Path,
-    pixels: np.ndarray,
+    image,
     fmt: str,
     bits: int = 8,
     srgb: bool = True,
     attributes: dict | None = None,
 ) -> None:
-    """Write (H, W, C) float pixels with OpenImageIO.
+    """Write a (C, H, W) float tensor with OpenImageIO.
 
     PNG/TIFF/JPEG: values are display-referred, clipped to [0, 1] and quantised to
     ``bits`` (8 or 16; JPEG is 8-bit only); TIFF is uncompressed. EXR: scene-linear,
@@ -166,20 +166,22 @@ def write_image(
     ``srgb`` tags the colour space.
     """
     import OpenImageIO as oiio
+    import torch
 
-    h, w, c = pixels.shape
+    c, h, w = image.shape
     if fmt == "exr":
         kind = {16: oiio.HALF, 32: oiio.FLOAT}.get(bits)
-        data = np.ascontiguousarray(pixels, dtype=np.float32)
+        data = image.float()
     else:
         if fmt == "jpg" and bits != 8:
             raise UnsupportedInputError("JPEG output is 8-bit only (use --bits 8)")
         kind = {8: oiio.UINT8, 16: oiio.UINT16}.get(bits)
-        top = 2**bits - 1
-        data = np.round(np.clip(pixels, 0.0, 1.0) * top)
-        data = np.ascontiguousarray(data, dtype=np.uint8 if bits == 8 else np.uint16)
+        # Quantise in torch; reorder the (small) integers to (H, W, C) afterwards.
+        data = image.clamp(0.0, 1.0).mul_(2**bits - 1).round_()
+        data = data.to(torch.uint8 if bits == 8 else torch.uint16)
     if kind is None:
         raise UnsupportedInputError(f"{fmt} output cannot hold {bits}-bit samples")
+    data = data.permute(1, 2, 0).contiguous().cpu().numpy()
     spec = oiio.ImageSpec(w, h, c, kind)
     if fmt == "exr":
         spec.attribute("compression", "zip")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from rawsim.cfa import apply_tile
 from rawsim.errors import ParameterError
 
 
@@ -67,17 +68,18 @@ class Levels(nn.Module):
         _check_levels(black, white)
         self.black, self.white = black, white
 
-    def _black(self, x: torch.Tensor):
-        b = self.black
-        if isinstance(b, torch.Tensor) and b.shape[-2:] == (2, 2) and x.shape[-2:] != (2, 2):
-            return b.to(x).repeat(1, 1, x.shape[-2] // 2, x.shape[-1] // 2)
-        return b
+    def _tiled(self) -> bool:
+        return isinstance(self.black, torch.Tensor) and self.black.shape[-2:] == (2, 2)
 
     def forward(self, dn: torch.Tensor) -> torch.Tensor:
-        return normalize_levels(dn, self._black(dn), self.white)
+        if self._tiled():
+            return apply_tile(dn, self.black, lambda x, b: normalize_levels(x, b, self.white))
+        return normalize_levels(dn, self.black, self.white)
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
-        return denormalize_levels(x, self._black(x), self.white)
+        if self._tiled():
+            return apply_tile(x, self.black, lambda y, b: denormalize_levels(y, b, self.white))
+        return denormalize_levels(x, self.black, self.white)
 
 
 class Saturation(nn.Module):

@@ -9,35 +9,38 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from rawsim.cfa import CFA
+from rawsim.cfa import CFA, apply_tile
 from rawsim.errors import ParameterError, check_image
 
 
-def _gain_map(x: torch.Tensor, gains, cfa: CFA | None) -> torch.Tensor:
+def _gains(x: torch.Tensor, gains) -> torch.Tensor:
     g = torch.as_tensor(gains, dtype=x.dtype, device=x.device)
     if g.shape[-1] != 3 or g.ndim not in (1, 2):
         raise ParameterError(f"white-balance gains must be (3,) or (B, 3), got {tuple(g.shape)}")
     if not bool((g > 0).all()):
         raise ParameterError("white-balance gains must be positive")
-    g = g.reshape(-1, 3)
+    return g.reshape(-1, 3)
+
+
+def _scale(x: torch.Tensor, gains, cfa: CFA | None, op) -> torch.Tensor:
+    g = _gains(x, gains)
     if x.shape[1] == 3:
-        return g.reshape(-1, 3, 1, 1)
+        return op(x, g.reshape(-1, 3, 1, 1))
     if cfa is None:
         raise ParameterError("a mosaic (B, 1, H, W) needs its CFA pattern")
-    h, w = x.shape[-2:]
-    return cfa.tile(g).repeat(1, 1, h // 2, w // 2)
+    return apply_tile(x, cfa.tile(g), op)
 
 
 def apply_white_balance(x: torch.Tensor, gains, cfa: CFA | None = None) -> torch.Tensor:
     """Multiply by the gains: RGB (B, 3, H, W), or a mosaic (B, 1, H, W) with its ``cfa``."""
     check_image(x, "image")
-    return x * _gain_map(x, gains, cfa)
+    return _scale(x, gains, cfa, torch.mul)
 
 
 def invert_white_balance(x: torch.Tensor, gains, cfa: CFA | None = None) -> torch.Tensor:
     """Exact inverse of :func:`apply_white_balance` (divide by the gains)."""
     check_image(x, "image")
-    return x / _gain_map(x, gains, cfa)
+    return _scale(x, gains, cfa, torch.div)
 
 
 def safe_invert_white_balance(rgb: torch.Tensor, gains, threshold: float = 0.9) -> torch.Tensor:
@@ -61,7 +64,7 @@ def safe_invert_white_balance(rgb: torch.Tensor, gains, threshold: float = 0.9) 
     check_image(rgb, "image", channels=3)
     if not 0 < threshold < 1:
         raise ParameterError(f"threshold must be in (0, 1), got {threshold}")
-    inv = 1 / _gain_map(rgb, gains, None)
+    inv = 1 / _gains(rgb, gains).reshape(-1, 3, 1, 1)
     gray = rgb.mean(dim=1, keepdim=True)
     mask = ((gray - threshold).clamp_min(0) / (1 - threshold)) ** 2
     # max(mask + (1 − mask)/g, 1/g) = 1/g + mask · max(1 − 1/g, 0) for mask in [0, 1].

@@ -70,7 +70,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     config = options.effective_config()
     device = resolve_device(options.device)
     rgb, info = render(raw, config, device)
-    pixels = rgb[0].permute(1, 2, 0).cpu().numpy()
+    height, width = rgb.shape[-2:]
     transfer = next((s for s in config if s["name"] == "transfer" and s["enabled"]), None)
     space = next(s["output_space"] for s in config if s["name"] == "color_matrix")
     srgb = space == "srgb" and (options.fmt == "exr" or (transfer or {}).get("function") == "srgb")
@@ -83,8 +83,8 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         "white_level": raw.white_level,
         "iso": raw.iso,
         "orientation": raw.orientation,
-        "width": pixels.shape[1],
-        "height": pixels.shape[0],
+        "width": width,
+        "height": height,
         "format": options.fmt,
         "bits": options.bits,
         "config": config,
@@ -93,7 +93,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     }
     with atomic_output(task.outputs["image"]) as tmp:
         write_image(
-            tmp, pixels, options.fmt, options.bits, srgb, {"Software": f"rawsim {__version__}"}
+            tmp, rgb[0], options.fmt, options.bits, srgb, {"Software": f"rawsim {__version__}"}
         )
     with atomic_output(task.outputs["json"]) as tmp:
         Path(tmp).write_text(json.dumps(meta, indent=2) + "\n")
