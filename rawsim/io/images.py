@@ -169,19 +169,25 @@ def write_image(
     import torch
 
     c, h, w = image.shape
+    if fmt == "jpg" and bits != 8:
+        raise UnsupportedInputError("JPEG output is 8-bit only (use --bits 8)")
     if fmt == "exr":
         kind = {16: oiio.HALF, 32: oiio.FLOAT}.get(bits)
-        data = image.float()
     else:
-        if fmt == "jpg" and bits != 8:
-            raise UnsupportedInputError("JPEG output is 8-bit only (use --bits 8)")
         kind = {8: oiio.UINT8, 16: oiio.UINT16}.get(bits)
-        # Quantise in torch; reorder the (small) integers to (H, W, C) afterwards.
-        data = image.clamp(0.0, 1.0).mul_(2**bits - 1).round_()
-        data = data.to(torch.uint8 if bits == 8 else torch.uint16)
     if kind is None:
         raise UnsupportedInputError(f"{fmt} output cannot hold {bits}-bit samples")
-    data = data.permute(1, 2, 0).contiguous().cpu().numpy()
+    if fmt == "exr":
+        data = image.float().permute(1, 2, 0).contiguous().cpu().numpy()
+    else:
+        # Quantise a block of rows at a time straight into the (H, W, C) integer
+        # array, so no full-size float copy is made.
+        dtype = torch.uint8 if bits == 8 else torch.uint16
+        out = torch.empty(h, w, c, dtype=dtype)
+        for top in range(0, h, 256):
+            block = image[:, top : top + 256].clamp(0.0, 1.0).mul_(2**bits - 1).round_()
+            out[top : top + 256] = block.to(dtype).permute(1, 2, 0).cpu()
+        data = out.numpy()
     spec = oiio.ImageSpec(w, h, c, kind)
     if fmt == "exr":
         spec.attribute("compression", "zip")
