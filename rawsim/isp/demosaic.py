@@ -266,7 +266,7 @@ def _diagonal_weights(mosaic: torch.Tensor, green: torch.Tensor):
     for dy, dx in _DIAGONALS:
         gradient = (m(dy, dx) - m(-dy, -dx)).abs() + (g(dy, dx) - g(0, 0)).abs()
         gradient = gradient + (m(2 * dy, 2 * dx) - m(0, 0)).abs()
-        weights.append((_box(gradient, 3) + _EPS) ** -2)
+        weights.append((gradient + _EPS) ** -2)
     return weights, weights[0] + weights[1] + weights[2] + weights[3]
 
 
