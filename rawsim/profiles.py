@@ -19,6 +19,7 @@ from rawsim.cfa import CFA
 from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
+from rawsim.isp.levels import white_level_for_bits
 from rawsim.noise import GainCurve, NoiseSpec, SeedGaussian, SigmaCurve
 
 #: Keys of rawsim's format whose numbers must cite a source.
@@ -289,8 +290,8 @@ def _levels(r: _Reader, bits_key: str, black_key: str, white_key: str | None):
         r.fail(bits_key, f"must be an integer in 1..16, got {bits:g}")
     bits = int(bits)
     black = r.number(black_key, minimum=0)
-    white = r.number(white_key, 2**bits - 1) if white_key else float(2**bits - 1)
-    if white > 2**bits - 1:
+    white = r.number(white_key, white_level_for_bits(bits)) if white_key else float(white_level_for_bits(bits))
+    if white > white_level_for_bits(bits):
         r.fail(white_key, f"{white:g} does not fit in {bits} bits")
     if not white > black:
         r.fail(white_key or black_key, f"white level {white:g} must exceed black level {black:g}")
