@@ -290,7 +290,11 @@ def _levels(r: _Reader, bits_key: str, black_key: str, white_key: str | None):
         r.fail(bits_key, f"must be an integer in 1..16, got {bits:g}")
     bits = int(bits)
     black = r.number(black_key, minimum=0)
-    white = r.number(white_key, white_level_for_bits(bits)) if white_key else float(white_level_for_bits(bits))
+    white = (
+        r.number(white_key, white_level_for_bits(bits))
+        if white_key
+        else float(white_level_for_bits(bits))
+    )
     if white > white_level_for_bits(bits):
         r.fail(white_key, f"{white:g} does not fit in {bits} bits")
     if not white > black:
