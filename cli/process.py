@@ -13,7 +13,7 @@ from rawsim_cli.options import (
     shard_opt,
     usage_errors,
 )
-from rawsim_cli.report import run_batch
+from rawsim_cli.report import run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
@@ -110,7 +110,6 @@ def command(
     Example:
       rawsim process raws/ -o renders/ --wb camera --demosaic wcd --format tiff --bits 16
     """
-    from rawsim import batch
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.isp.pipeline import default_config, load_config, override
     from rawsim.pipelines.process import ProcessOptions, process_file
@@ -133,18 +132,17 @@ def command(
         raise click.UsageError(f"--format {fmt} takes --bits {' or '.join(map(str, valid))}", ctx)
     resolve_device(device)
     options = ProcessOptions(config=config, fmt=fmt, bits=nbits, device=device)
-    found, missing = batch.discover(inputs, RAW_EXTENSIONS)
-    if not found:
-        raise click.UsageError(f"no raw files found in {', '.join(inputs)}", ctx)
-    tasks, pre_failed = batch.plan(
-        found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
-    )
-    results = batch.run(
-        tasks,
+    run_files(
+        ctx,
+        inputs,
+        RAW_EXTENSIONS,
+        "raw files",
+        out_dir,
+        seed,
+        shard,
         process_file,
-        jobs=jobs,
-        overwrite=overwrite,
-        debug=bool(ctx.obj and ctx.obj.get("debug")),
-        options=options,
+        options,
+        jobs,
+        overwrite,
+        json_records,
     )
-    run_batch(ctx, tasks, results, missing + pre_failed, json_records)

@@ -9,6 +9,40 @@ import time
 import click
 
 
+def run_files(
+    ctx: click.Context,
+    inputs,
+    extensions,
+    what: str,
+    out_dir,
+    seed: int,
+    shard,
+    job,
+    options,
+    jobs: int,
+    overwrite: bool,
+    json_records: bool,
+) -> None:
+    """Discover ``inputs``, plan their outputs, run ``job`` on each and report; exits."""
+    from rawsim import batch
+
+    found, missing = batch.discover(inputs, extensions)
+    if not found:
+        raise click.UsageError(f"no {what} found in {', '.join(inputs)}", ctx)
+    tasks, pre_failed = batch.plan(
+        found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
+    )
+    results = batch.run(
+        tasks,
+        job,
+        jobs=jobs,
+        overwrite=overwrite,
+        debug=bool(ctx.obj and ctx.obj.get("debug")),
+        options=options,
+    )
+    run_batch(ctx, tasks, results, missing + pre_failed, json_records)
+
+
 def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
     """Consume batch results with a progress bar; print failures, summary; exit."""
     from rawsim.batch import Summary

@@ -14,7 +14,7 @@ from rawsim_cli.options import (
     shard_opt,
     usage_errors,
 )
-from rawsim_cli.report import run_batch
+from rawsim_cli.report import run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 TONES = ("none", "smoothstep", "reinhard", "aces", "hable")
@@ -153,7 +153,6 @@ def command(
     Example:
       rawsim unprocess photos/ renders/ -o raw/ --profile sony_a7s2 --iso 1600 --clean
     """
-    from rawsim import batch
     from rawsim.io.images import IMAGE_EXTENSIONS
     from rawsim.isp.transfer import TransferSpec
     from rawsim.pipelines.unprocess import UnprocessOptions, resolve_device, unprocess_file
@@ -186,18 +185,17 @@ def command(
         device=device,
         seed=seed,
     )
-    found, missing = batch.discover(inputs, IMAGE_EXTENSIONS)
-    if not found:
-        raise click.UsageError(f"no input images found in {', '.join(inputs)}", ctx)
-    tasks, pre_failed = batch.plan(
-        found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
-    )
-    results = batch.run(
-        tasks,
+    run_files(
+        ctx,
+        inputs,
+        IMAGE_EXTENSIONS,
+        "input images",
+        out_dir,
+        seed,
+        shard,
         unprocess_file,
-        jobs=jobs,
-        overwrite=overwrite,
-        debug=bool(ctx.obj and ctx.obj.get("debug")),
-        options=options,
+        options,
+        jobs,
+        overwrite,
+        json_records,
     )
-    run_batch(ctx, tasks, results, missing + pre_failed, json_records)
