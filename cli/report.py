@@ -63,6 +63,9 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
             click.echo(f"skip: {result.message}", err=True)
         elif verbose:
             click.echo(f"done: {result.task.source} ({result.seconds:.2f} s)", err=True)
+        if not quiet:
+            for warning in result.record.get("warnings", []):
+                click.echo(f"warning: {result.task.source}: {warning}", err=True)
         if json_records:
             record = {
                 "input": str(result.task.source),

@@ -352,3 +352,18 @@ def test_strips_give_the_full_frame_result():
             strips = isp(x)
         full = isp(x).detach()  # gradients on: one pass over the whole frame
         assert torch.allclose(strips, full, atol=1e-5), float((strips - full).abs().max())
+
+
+def test_process_warns_on_stderr_and_is_identical_for_any_jobs(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    r = CliRunner().invoke(cli, ["process", str(RAW), "-o", str(a), "--jobs", "1"])
+    assert r.exit_code == 0
+    assert "warning: " in r.output and "kodak_dc50_grbg.kdc: daylight white balance unknown" in (
+        r.output
+    )
+    assert (
+        CliRunner().invoke(cli, ["-q", "process", str(RAW), "-o", str(b), "--jobs", "2"]).exit_code
+        == 0
+    )
+    for png in a.glob("*.png"):
+        assert png.read_bytes() == (b / png.name).read_bytes()
