@@ -9,7 +9,6 @@ from rawsim_cli.options import (
     jobs_opt,
     json_opt,
     overwrite_opt,
-    seed_opt,
     shard_opt,
     usage_errors,
 )
@@ -67,7 +66,6 @@ FORMATS = ("png", "tiff", "jpg", "exr")
 @overwrite_opt
 @shard_opt
 @json_opt
-@seed_opt
 @click.pass_context
 @usage_errors
 def command(
@@ -89,7 +87,6 @@ def command(
     overwrite,
     shard,
     json_records,
-    seed,
 ):
     """Render camera raws (anything LibRaw reads) through rawsim's own ISP.
 
@@ -138,7 +135,7 @@ def command(
         RAW_EXTENSIONS,
         "raw files",
         out_dir,
-        seed,
+        0,  # processing draws no random numbers
         shard,
         process_file,
         options,
