@@ -367,3 +367,27 @@ def test_process_warns_on_stderr_and_is_identical_for_any_jobs(tmp_path):
     )
     for png in a.glob("*.png"):
         assert png.read_bytes() == (b / png.name).read_bytes()
+
+
+def test_minimal_config_without_colour_matrix(tmp_path):
+    cfg = tmp_path / "min.toml"
+    cfg.write_text(
+        '[[stage]]\nname = "black_level"\n[[stage]]\nname = "demosaic"\nmethod = "bilinear"\n'
+    )
+    r = CliRunner().invoke(
+        cli,
+        [
+            "process",
+            str(RAW / "canon_eos60d_mlv.dng"),
+            "-o",
+            str(tmp_path / "o"),
+            "-c",
+            str(cfg),
+            "--format",
+            "tiff",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    img = oiio.ImageInput.open(str(tmp_path / "o" / "canon_eos60d_mlv.tif"))
+    assert img.spec().get_string_attribute("oiio:ColorSpace") != "sRGB"  # camera RGB, untagged
+    img.close()

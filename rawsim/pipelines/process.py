@@ -71,9 +71,10 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     device = resolve_device(options.device)
     rgb, info = render(raw, config, device)
     height, width = rgb.shape[-2:]
-    transfer = next((s for s in config if s["name"] == "transfer" and s["enabled"]), None)
-    space = next(s["output_space"] for s in config if s["name"] == "color_matrix")
-    srgb = space == "srgb" and (options.fmt == "exr" or (transfer or {}).get("function") == "srgb")
+    enabled = {s["name"]: s for s in config if s["enabled"]}
+    space = enabled["color_matrix"]["output_space"] if "color_matrix" in enabled else "camera"
+    encoded = "transfer" in enabled and enabled["transfer"]["function"] == "srgb"
+    srgb = space == "srgb" and "ycbcr" not in enabled and (options.fmt == "exr" or encoded)
     meta = {
         "rawsim_version": __version__,
         "input": task.key,
