@@ -109,3 +109,29 @@ def test_exposure():
     m = Exposure(1.5)
     x = torch.rand(1, 3, 2, 2)
     assert torch.allclose(m(x), x * 2**1.5) and torch.allclose(m.reverse(m(x)), x)
+
+
+@pytest.mark.parametrize(
+    "stage",
+    [
+        lambda c: DeadPixelCorrection(c, threshold=0.2, temperature=0.05),
+        lambda c: AntiAliasing(c, "gaussian", 0.8),
+        lambda c: Denoise(c, "bilateral", 3, 1.0, 0.2),
+        lambda c: Denoise(c, "gaussian", 3, 1.0),
+    ],
+)
+def test_mosaic_stage_gradcheck(stage, pattern):
+    cfa = CFA(pattern)
+    m = torch.rand(1, 1, 6, 8, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(stage(cfa), (m,), atol=1e-5)
+
+
+def test_rgb_stage_gradcheck():
+    gen = torch.Generator().manual_seed(2)
+    x = torch.rand(1, 3, 3, 3, dtype=torch.float64, generator=gen) * 1.5
+    x[..., 0, 0] = torch.tensor([1.2, 1.1, 1.3], dtype=torch.float64)  # clipped in every channel
+    x.requires_grad_(True)
+    assert torch.autograd.gradcheck(Highlights("blend"), (x,), atol=1e-5)
+    assert torch.autograd.gradcheck(Exposure(0.7), (x,))
+    assert torch.autograd.gradcheck(Orientation(6), (x,))
+    assert torch.autograd.gradcheck(ycbcr_to_rgb, (x,))

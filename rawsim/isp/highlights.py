@@ -37,7 +37,9 @@ def handle_highlights(x: torch.Tensor, mode: str = "clip") -> torch.Tensor:
     lab = torch.einsum("ij,bjhw->bihw", trans, clipped)
     chroma_cam = (cam[:, 1:] ** 2).sum(1, keepdim=True)
     chroma_lab = (lab[:, 1:] ** 2).sum(1, keepdim=True)
-    scale = torch.sqrt(chroma_lab / chroma_cam.clamp_min(1e-20))
+    # Fully clipped pixels have no chroma left: clamp inside the root keeps its
+    # gradient finite there (the value changes by < 1e-15).
+    scale = torch.sqrt((chroma_lab / chroma_cam.clamp_min(1e-20)).clamp_min(1e-30))
     blended = torch.cat([lab[:, :1], cam[:, 1:] * scale], dim=1)
     out = torch.einsum("ij,bjhw->bihw", inverse, blended)
     over = (x > 1).any(dim=1, keepdim=True)
