@@ -55,6 +55,13 @@ json_opt = click.option(
 )
 
 
+def batch_options(func):
+    """The options of every file command: --jobs, --device, --overwrite, --shard, --json."""
+    for option in reversed((jobs_opt, device_opt, overwrite_opt, shard_opt, json_opt)):
+        func = option(func)
+    return func
+
+
 def usage_errors(func):
     """Turn rawsim's errors raised while setting up a command into usage errors (exit 2)."""
 

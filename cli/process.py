@@ -5,11 +5,7 @@ from __future__ import annotations
 import click
 
 from rawsim_cli.options import (
-    device_opt,
-    jobs_opt,
-    json_opt,
-    overwrite_opt,
-    shard_opt,
+    batch_options,
     usage_errors,
 )
 from rawsim_cli.report import run_files
@@ -61,11 +57,7 @@ FORMATS = ("png", "tiff", "jpg", "exr")
     help="Bits per sample: 8 or 16 (PNG, TIFF; JPEG 8), 16 (half) or 32 for EXR. "
     "Default 8, EXR 16.",
 )
-@jobs_opt
-@device_opt
-@overwrite_opt
-@shard_opt
-@json_opt
+@batch_options
 @click.pass_context
 @usage_errors
 def command(

@@ -5,13 +5,9 @@ from __future__ import annotations
 import click
 
 from rawsim_cli.options import (
-    device_opt,
-    jobs_opt,
-    json_opt,
-    overwrite_opt,
+    batch_options,
     profile_opt,
     seed_opt,
-    shard_opt,
     usage_errors,
 )
 from rawsim_cli.report import run_files
@@ -98,11 +94,7 @@ NOISES = ("poisson-gaussian", "gaussian", "none")
     show_default=True,
     help="Inverse white balance: highlight-preserving, or exact.",
 )
-@jobs_opt
-@device_opt
-@overwrite_opt
-@shard_opt
-@json_opt
+@batch_options
 @click.pass_context
 @usage_errors
 def command(
