@@ -55,6 +55,19 @@ json_opt = click.option(
 )
 
 
+def files_in_out(func):
+    """INPUTS (files or folders) and -o/--output, the folder that mirrors them."""
+    func = click.option(
+        "-o",
+        "--output",
+        "out_dir",
+        required=True,
+        type=click.Path(file_okay=False),
+        help="Output folder; the input folder tree is mirrored under it.",
+    )(func)
+    return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))(func)
+
+
 def batch_options(func):
     """The options of every file command: --jobs, --device, --overwrite, --shard, --json."""
     for option in reversed((jobs_opt, device_opt, overwrite_opt, shard_opt, json_opt)):

@@ -6,6 +6,7 @@ import click
 
 from rawsim_cli.options import (
     batch_options,
+    files_in_out,
     usage_errors,
 )
 from rawsim_cli.report import run_files
@@ -19,15 +20,7 @@ FORMATS = ("png", "tiff", "jpg", "exr")
 
 
 @click.command("process")
-@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))
-@click.option(
-    "-o",
-    "--output",
-    "out_dir",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Output folder; the input folder tree is mirrored under it.",
-)
+@files_in_out
 @click.option(
     "-c",
     "--config",

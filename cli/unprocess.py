@@ -6,6 +6,7 @@ import click
 
 from rawsim_cli.options import (
     batch_options,
+    files_in_out,
     profile_opt,
     seed_opt,
     usage_errors,
@@ -18,15 +19,7 @@ NOISES = ("poisson-gaussian", "gaussian", "none")
 
 
 @click.command("unprocess")
-@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))
-@click.option(
-    "-o",
-    "--output",
-    "out_dir",
-    required=True,
-    type=click.Path(file_okay=False),
-    help="Output folder; the input folder tree is mirrored under it.",
-)
+@files_in_out
 @profile_opt
 @click.option("--iso", type=float, help="ISO of every capture (within the profile's range).")
 @click.option(
