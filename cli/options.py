@@ -7,6 +7,9 @@ import traceback
 
 import click
 
+# Literal copy of rawsim.isp.tone.TONE_CURVES (checked by a test), so --help needs no torch.
+TONES = ("none", "smoothstep", "reinhard", "aces", "hable")
+
 overwrite_opt = click.option(
     "--overwrite",
     is_flag=True,

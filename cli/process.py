@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from rawsim_cli.options import (
+    TONES,
     batch_options,
     files_in_out,
     usage_errors,
@@ -14,7 +15,6 @@ from rawsim_cli.report import run_files
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend")
-TONES = ("none", "smoothstep", "reinhard", "aces", "hable")
 SPACES = ("srgb", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
 

@@ -108,6 +108,7 @@ def test_isp_show_round_trips_through_config(tmp_path):
         ),
         ('[[stage]]\nname = "black_level"', "needs an enabled 'demosaic'"),
         ("[[stage]\n", "not valid TOML"),
+        ('colour = "vivid"', "unknown top-level key 'colour'; valid: stage"),
         ('[[stage]]\nname = "white_balance"\nmode = "1,2"', "R,G,B"),
     ],
 )

@@ -11,7 +11,7 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_choice, check_image
-from rawsim.isp.planes import filter2d, gaussian_kernel, neighbourhood, per_plane
+from rawsim.isp.planes import correlate, gaussian_kernel, neighbourhood, per_plane
 
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
 DENOISE_METHODS = ("none", "gaussian", "bilateral")
@@ -35,7 +35,7 @@ def anti_alias(
     if not sigma > 0:
         raise ParameterError(f"anti-aliasing sigma must be > 0, got {sigma}")
     kernel = _WEIGHTED_AVERAGE if method == "weighted_average" else gaussian_kernel(sigma)
-    return _on_planes(x, cfa, lambda p: filter2d(p, kernel))
+    return _on_planes(x, cfa, lambda p: correlate(p, kernel))
 
 
 def denoise(
@@ -60,7 +60,7 @@ def denoise(
         raise ParameterError("denoise sigma and sigma_color must be > 0")
     spatial = gaussian_kernel(sigma, kernel)
     if method == "gaussian":
-        return _on_planes(x, cfa, lambda p: filter2d(p, spatial))
+        return _on_planes(x, cfa, lambda p: correlate(p, spatial))
 
     def bilateral(p: torch.Tensor) -> torch.Tensor:
         shifted = neighbourhood(p, kernel)

@@ -232,16 +232,12 @@ def _check_order(config: list[dict], origin: str) -> None:
 def load_config(path) -> list[dict]:
     """Read and validate a TOML config file."""
     try:
-        with open(path, "rb") as fh:
-            data = tomllib.load(fh)
-    except OSError as err:
-        raise ParameterError(f"{path}: cannot read config ({err.strerror})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ParameterError(f"{path}: not valid TOML ({err})") from None
-    unknown = sorted(set(data) - {"stage"})
-    if unknown:
-        raise ParameterError(f"{path}: unknown top-level key {unknown[0]!r}; valid: stage")
-    return validate_config(data.get("stage", []), str(path))
+        with open(path, encoding="utf-8") as fh:
+            text = fh.read()
+    except (OSError, UnicodeDecodeError) as err:
+        reason = getattr(err, "strerror", None) or str(err)
+        raise ParameterError(f"{path}: cannot read config ({reason})") from None
+    return load_config_text(text, str(path))
 
 
 def config_to_toml(config: list[dict]) -> str:
@@ -307,6 +303,9 @@ def load_config_text(text: str, origin: str = "config") -> list[dict]:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ParameterError(f"{origin}: not valid TOML ({err})") from None
+    unknown = sorted(set(data) - {"stage"})
+    if unknown:
+        raise ParameterError(f"{origin}: unknown top-level key {unknown[0]!r}; valid: stage")
     return validate_config(data.get("stage", []), origin)
 
 

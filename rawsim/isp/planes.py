@@ -30,13 +30,27 @@ def neighbourhood(x: torch.Tensor, size: int) -> torch.Tensor:
     )
 
 
-def filter2d(x: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
-    """Correlate every channel of (B, C, H, W) with a normalised 2-D kernel (mirror borders)."""
-    k = kernel.to(x.dtype).to(x.device)
-    c = x.shape[1]
-    pad_h, pad_w = k.shape[0] // 2, k.shape[1] // 2
-    padded = F.pad(x, (pad_w, pad_w, pad_h, pad_h), mode="reflect")
-    return F.conv2d(padded, k.expand(c, 1, *k.shape), groups=c)
+def correlate(x: torch.Tensor, kernel) -> torch.Tensor:
+    """Correlate (N, C, H, W) with a small 2-D kernel, mirror-padded to keep the size.
+
+    Every channel is filtered alike. Summed tap by tap over shifted views: for small
+    kernels on few channels that is many times faster than ``conv2d``, and still
+    differentiable.
+    """
+    k = torch.as_tensor(kernel, dtype=torch.float64)
+    if k.ndim == 1:
+        k = k[None]
+    kh, kw = k.shape
+    h, w = x.shape[-2:]
+    padded = F.pad(x, (kw // 2, kw // 2, kh // 2, kh // 2), mode="reflect")
+    out = None
+    for (i, j), weight in zip(k.nonzero().tolist(), k[k != 0].tolist(), strict=True):
+        view = padded[..., i : i + h, j : j + w]
+        if out is None:
+            out = view * weight
+        else:
+            out.add_(view, alpha=weight)
+    return out if out is not None else torch.zeros_like(x)
 
 
 def gaussian_kernel(sigma: float, size: int | None = None) -> torch.Tensor:
