@@ -92,10 +92,10 @@ def command(
     Example:
       rawsim process raws/ -o renders/ --wb camera --demosaic wcd --format tiff --bits 16
     """
+    from rawsim.device import resolve_device
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.isp.pipeline import default_config, load_config, override
     from rawsim.pipelines.process import ProcessOptions, process_file
-    from rawsim.pipelines.unprocess import resolve_device
 
     config = load_config(config_path) if config_path else default_config()
     config = override(

@@ -138,9 +138,10 @@ def command(
     Example:
       rawsim unprocess photos/ renders/ -o raw/ --profile sony_a7s2 --iso 1600 --clean
     """
+    from rawsim.device import resolve_device
     from rawsim.io.images import IMAGE_EXTENSIONS
     from rawsim.isp.transfer import TransferSpec
-    from rawsim.pipelines.unprocess import UnprocessOptions, resolve_device, unprocess_file
+    from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
     from rawsim.profiles import load_profile
 
     if (iso is None) == (not iso_range):

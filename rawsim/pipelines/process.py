@@ -11,12 +11,12 @@ import torch
 
 from rawsim._version import __version__
 from rawsim.batch import Task
+from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.atomic import atomic_output
 from rawsim.io.images import OUTPUT_FORMATS, write_image
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.isp.pipeline import build_isp, config_to_toml, default_config, validate_config
-from rawsim.pipelines.unprocess import resolve_device
 
 
 @dataclass(frozen=True)

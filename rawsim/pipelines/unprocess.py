@@ -19,6 +19,7 @@ import torch
 from rawsim._version import __version__
 from rawsim.batch import Task
 from rawsim.cfa import PACKED_PLANES
+from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
@@ -169,16 +170,6 @@ class UnprocessOptions:
         if "npz" in self.formats:
             out["npz"] = ".npz"
         return out
-
-
-def resolve_device(name: str) -> torch.device:
-    """``auto`` → CUDA when available, else CPU; ``cuda`` without a GPU is an error."""
-    check_choice("device", name, ("auto", "cpu", "cuda"))
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ParameterError("--device cuda: no CUDA device is available")
-    return torch.device(name)
 
 
 def unprocess_file(task: Task, options: UnprocessOptions) -> dict:

@@ -1,0 +1,17 @@
+"""Choosing the torch device a job runs on."""
+
+from __future__ import annotations
+
+import torch
+
+from rawsim.errors import ParameterError, check_choice
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` → CUDA when available, else CPU; ``cuda`` without a GPU is an error."""
+    check_choice("device", name, ("auto", "cpu", "cuda"))
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ParameterError("--device cuda: no CUDA device is available")
+    return torch.device(name)
