@@ -15,7 +15,7 @@ from rawsim_cli.options import (
 from rawsim_cli.report import run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
-NOISES = ("poisson-gaussian", "gaussian", "none")
+NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
 
 
 @click.command("unprocess")
@@ -49,7 +49,8 @@ NOISES = ("poisson-gaussian", "gaussian", "none")
     type=click.Choice(NOISES),
     default="poisson-gaussian",
     show_default=True,
-    help="Noise model: K(ISO) Poisson + Gaussian read noise, the seed's Gaussian, or none.",
+    help="Noise model: K(ISO) Poisson + Gaussian read noise; physics (ELD: Poisson + "
+    "Tukey-lambda read + row noise + channel bias); the seed's Gaussian; or none.",
 )
 @click.option(
     "--tone",
@@ -131,6 +132,8 @@ def command(
       colour matrix  random convex mix of their four XYZ→camera matrices
       red gain       U(1.9, 2.4);  blue gain U(1.5, 1.9)
       brightness     image divided by 1/N(0.8, 0.1) (recorded as BaselineExposure)
+      noise levels   each σ × exp(N(0, spread²)) around the profile's fits, λ uniform
+                     over its range (ELD, Wei et al. CVPR 2020); K follows the ISO
     Randomness is seeded from --seed and the file's path relative to its input
     folder, so results do not depend on order, --jobs or --shard.
 
@@ -154,6 +157,8 @@ def command(
             prof.check_iso(value)
         if iso_range[0] > iso_range[1]:
             raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
+    for value in (iso,) if iso is not None else iso_range:
+        prof.noise.levels(noise, value)  # e.g. a profile without physics parameters
     resolve_device(device)
     options = UnprocessOptions(
         profile=prof,

@@ -9,6 +9,10 @@ Models (``NOISE_MODELS``):
   1/√λ < 0.1 (excess kurtosis < 0.01) of a normal one, so shot and read noise
   are drawn together as a single normal of the same variance ``K s + σ_read²``
   (exact sampling of every pixel would be several times slower).
+* ``physics``: the ELD model (Wei et al. 2020),
+  ``D = K · Poisson(s / K) + N_read + N_row + bias_c``: read noise Tukey-lambda
+  with shape λ and scale σ_TL, one normal offset per sensor row (σ_row), a
+  per-channel DC bias. Shot noise is drawn as for ``poisson-gaussian``.
 * ``gaussian``: the seed's heteroscedastic model, ``σ_shot = α √s + β``,
   ``g = ISO / ISO_base``, ``σ² = g σ_shot² + g² σ_read²``.
 * ``none``: the clean signal.
@@ -26,7 +30,9 @@ import torch
 
 from rawsim.errors import ParameterError, check_choice
 
-NOISE_MODELS = ("none", "gaussian", "poisson-gaussian")
+NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
+#: Default spread (σ of ln σ) of sampled noise levels when a profile gives none.
+DEFAULT_SPREAD = 0.1
 EXACT_POISSON_BELOW = 100.0
 QUANTIZATION_VARIANCE = 1.0 / 12.0
 
@@ -102,12 +108,53 @@ class SeedGaussian:
 
 
 @dataclass(frozen=True)
+class LambdaCurve:
+    """Tukey-lambda shape λ versus gain: linear in ln K between (k, lam) points, held flat
+    outside them. ``bounds`` is the range a randomised draw is taken from."""
+
+    k: tuple[float, ...]
+    lam: tuple[float, ...]
+
+    def __call__(self, k: float) -> float:
+        if len(self.k) == 1:
+            return self.lam[0]
+        t = min(max(math.log(k), math.log(self.k[0])), math.log(self.k[-1]))
+        for i in range(len(self.k) - 1):
+            lo, hi = math.log(self.k[i]), math.log(self.k[i + 1])
+            if t <= hi or i == len(self.k) - 2:
+                w = (t - lo) / (hi - lo)
+                return self.lam[i] + w * (self.lam[i + 1] - self.lam[i])
+        raise AssertionError("unreachable")
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return min(self.lam), max(self.lam)
+
+
+@dataclass(frozen=True)
 class NoiseSpec:
-    """A sensor's noise description: K(ISO) and read σ, and the seed Gaussian model."""
+    """A sensor's noise description.
+
+    ``gain`` K(ISO) and the Gaussian ``read_sigma`` serve ``poisson-gaussian``; the
+    physics model adds ``tukey_sigma`` (scale of the Tukey-lambda read noise),
+    ``tukey_lambda``, ``row_sigma`` and ``channel_bias`` (DN, R, Gr, Gb, B);
+    ``gaussian`` holds the seed model. ``spread`` is the σ of ln σ when noise
+    levels are sampled (:meth:`sample_levels`).
+    """
 
     gain: GainCurve
     read_sigma: SigmaCurve
     gaussian: SeedGaussian
+    tukey_sigma: SigmaCurve | None = None
+    tukey_lambda: LambdaCurve | None = None
+    row_sigma: SigmaCurve | None = None
+    channel_bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    spread: float = DEFAULT_SPREAD
+
+    @property
+    def has_physics(self) -> bool:
+        """Whether the physics model's parameters are all known."""
+        return None not in (self.tukey_sigma, self.tukey_lambda, self.row_sigma)
 
     @classmethod
     def from_seed(cls, g: SeedGaussian) -> NoiseSpec:
@@ -124,29 +171,98 @@ class NoiseSpec:
         )
 
     def levels(self, model: str, iso: float) -> NoiseLevels:
-        """The noise parameters of ``model`` at ``iso``."""
+        """The nominal noise parameters of ``model`` at ``iso`` (the fitted laws)."""
+        return self._levels(model, iso, None)
+
+    def sample_levels(self, model: str, iso: float, generator: torch.Generator) -> NoiseLevels:
+        """Noise parameters at ``iso`` drawn around the fits, for augmentation (ELD).
+
+        Each σ is multiplied by ``exp(N(0, spread²))`` and λ is uniform over the
+        profile's λ range; K stays on its curve (the ISO is what varies). The
+        seed's ``gaussian`` model has no such spread and is returned as is.
+        """
+        return self._levels(model, iso, generator)
+
+    def _levels(self, model: str, iso: float, g: torch.Generator | None) -> NoiseLevels:
         check_choice("noise model", model, NOISE_MODELS)
         if not iso > 0:
             raise ParameterError(f"ISO must be > 0, got {iso}")
         if model == "gaussian":
-            g = self.gaussian
+            gs = self.gaussian
             return NoiseLevels(
                 model,
                 iso,
-                read_sigma=g.read_noise_std * iso / g.iso_base,
-                shot_alpha=g.shot_noise_std_alpha,
-                shot_beta=g.shot_noise_std_beta,
-                iso_gain=iso / g.iso_base,
+                read_sigma=gs.read_noise_std * iso / gs.iso_base,
+                shot_alpha=gs.shot_noise_std_alpha,
+                shot_beta=gs.shot_noise_std_beta,
+                iso_gain=iso / gs.iso_base,
             )
+
+        def jitter(sigma: float) -> float:
+            if g is None:
+                return sigma
+            return sigma * math.exp(self.spread * float(torch.randn((), generator=g)))
+
         k = self.gain(iso)
-        return NoiseLevels(model, iso, gain=k, read_sigma=self.read_sigma(iso, k))
+        if model != "physics":
+            return NoiseLevels(model, iso, gain=k, read_sigma=jitter(self.read_sigma(iso, k)))
+        if not self.has_physics:
+            raise ParameterError(
+                "this profile has no physics noise parameters "
+                "(noise.tukey_sigma, noise.tukey_lambda, noise.row_sigma)"
+            )
+        if g is None:
+            lam = self.tukey_lambda(k)
+        else:
+            lo, hi = self.tukey_lambda.bounds
+            lam = lo + (hi - lo) * float(torch.rand((), generator=g, dtype=torch.float64))
+        return NoiseLevels(
+            model,
+            iso,
+            gain=k,
+            read_sigma=jitter(self.tukey_sigma(iso, k)),
+            tukey_lambda=lam,
+            row_sigma=jitter(self.row_sigma(iso, k)),
+            channel_bias=self.channel_bias,
+        )
+
+
+def tukey_lambda_variance(lam: float) -> float:
+    """Variance of the standard Tukey-lambda law (scale 1); infinite for λ ≤ −1/2."""
+    if lam <= -0.5:
+        return math.inf
+    if abs(lam) < 1e-6:
+        return math.pi**2 / 3
+    return (2 / lam**2) * (
+        1 / (1 + 2 * lam) - math.exp(2 * math.lgamma(lam + 1) - math.lgamma(2 * lam + 2))
+    )
+
+
+def tukey_lambda_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
+    """Quantile function of the standard Tukey-lambda law at ``u`` in (0, 1).
+
+    ``Q(u) = (u^λ − (1 − u)^λ) / λ``, and the logistic ``ln(u / (1 − u))`` at λ = 0.
+    """
+    if abs(lam) < 1e-6:
+        return torch.log(u / (1 - u))
+    return (u.log().mul_(lam).exp_() - (1 - u).log_().mul_(lam).exp_()).div_(lam)
+
+
+def sample_tukey_lambda(shape, lam: float, generator=None, device=None, dtype=torch.float32):
+    """Standard Tukey-lambda draws (scale 1) of ``shape`` by inverse transform sampling."""
+    tiny = torch.finfo(dtype).tiny
+    u = torch.rand(shape, generator=generator, device=device, dtype=dtype).clamp_(tiny, 1 - 1e-7)
+    return tukey_lambda_quantile(u, lam)
 
 
 @dataclass(frozen=True)
 class NoiseLevels:
     """Noise parameters at one ISO. All in DN; ``gain`` K in DN/e⁻.
 
-    For ``gaussian`` the read σ already includes the ISO factor g.
+    For ``gaussian`` the read σ already includes the ISO factor g. For ``physics``
+    ``read_sigma`` is the Tukey-lambda scale (its standard deviation is
+    ``read_sigma · √var_TL(λ)``), ``row_sigma`` the σ of each row's offset and
+    ``channel_bias`` the mean offset of the R, Gr, Gb and B sites.
     """
 
     model: str
@@ -156,6 +272,16 @@ class NoiseLevels:
     shot_alpha: float = 0.0
     shot_beta: float = 0.0
     iso_gain: float = 1.0
+    tukey_lambda: float = 0.0
+    row_sigma: float = 0.0
+    channel_bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+    @property
+    def read_variance(self) -> float:
+        """Variance (DN²) of the signal-independent read noise, row noise included."""
+        if self.model == "physics":
+            return self.read_sigma**2 * tukey_lambda_variance(self.tukey_lambda) + self.row_sigma**2
+        return self.read_sigma**2
 
     def variance(self, signal):
         """Variance (DN²) of the rounded output at clean ``signal`` DN above black (≥ 0)."""
@@ -166,13 +292,14 @@ class NoiseLevels:
             shot = self.shot_alpha * s.sqrt() + self.shot_beta
             var = self.iso_gain * shot**2 + self.read_sigma**2
         else:
-            var = self.gain * s + self.read_sigma**2
+            var = self.gain * s + self.read_variance
         return var + QUANTIZATION_VARIANCE
 
     def affine_variance(self, span: float) -> tuple[float, float]:
         """(a, b) with variance ≈ a · s + b DN² for s in [0, span].
 
-        Exact for ``poisson-gaussian`` and for ``gaussian`` with β = 0; otherwise the
+        Exact for ``poisson-gaussian`` and ``physics`` (b holds the read, row and
+        quantisation variance) and for ``gaussian`` with β = 0; otherwise the
         least-squares line over the range.
         """
         s = torch.linspace(0, span, 1025, dtype=torch.float64)
@@ -190,8 +317,15 @@ class NoiseLevels:
 
     def to_dict(self) -> dict:
         out = {"model": self.model, "iso": self.iso, "read_sigma_dn": self.read_sigma}
-        if self.model == "poisson-gaussian":
+        if self.model in ("poisson-gaussian", "physics"):
             out["gain_dn_per_electron"] = self.gain
+        if self.model == "physics":
+            out |= {
+                "tukey_lambda": self.tukey_lambda,
+                "row_sigma_dn": self.row_sigma,
+                "channel_bias_dn": list(self.channel_bias),
+                "read_std_dn": math.sqrt(self.read_variance - self.row_sigma**2),
+            }
         elif self.model == "gaussian":
             out |= {
                 "shot_alpha": self.shot_alpha,
@@ -206,6 +340,7 @@ def add_noise(
     black,
     levels: NoiseLevels,
     generator: torch.Generator | None = None,
+    cfa=None,
 ) -> torch.Tensor:
     """Add sensor noise to a clean mosaic.
 
@@ -214,31 +349,58 @@ def add_noise(
         black: black level, a number or a tensor broadcastable to ``dn``.
         levels: noise parameters at the ISO (:meth:`NoiseSpec.levels`).
         generator: source of randomness (its device must match ``dn``).
+        cfa: the mosaic's :class:`~rawsim.cfa.CFA`, needed to place a non-zero
+            ``channel_bias`` (physics model).
 
     Returns:
         Noisy DN, float, unrounded and unclipped. Differentiable with respect to
-        ``dn``: normal terms are reparameterised; the exact Poisson term passes the
-        gradient straight through (its mean is the signal).
+        ``dn``: normal terms are reparameterised; the exact Poisson term and the
+        Tukey-lambda draws pass the gradient straight through.
     """
     if levels.model == "none":
         return dn
     signal = dn - black
     positive = signal.clamp_min(0)
-    read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
     if levels.model == "gaussian":
+        read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
         shot = levels.shot_alpha * positive.sqrt() + levels.shot_beta
         sigma = torch.sqrt(levels.iso_gain * shot**2 + levels.read_sigma**2)
         return torch.addcmul(dn, sigma, read)
-    if levels.model == "poisson-gaussian":
-        k, read_var = levels.gain, levels.read_sigma**2
-        small = positive.detach() < EXACT_POISSON_BELOW * k
-        # σ² = K s + σ_read² where the normal law stands in for Poisson, σ_read² elsewhere.
-        sigma = (k * positive).masked_fill(small, 0.0).add(read_var).sqrt()
-        noisy = torch.addcmul(dn, sigma, read).reshape(-1)
-        idx = small.reshape(-1).nonzero().squeeze(1)
-        if idx.numel():
-            signal = positive.reshape(-1).index_select(0, idx)
-            shot = k * torch.poisson(signal.detach() / k, generator=generator) - signal
-            noisy = noisy.index_add(0, idx, shot.detach())
-        return noisy.reshape(dn.shape)
-    raise ParameterError(f"unknown noise model {levels.model!r}; valid: {', '.join(NOISE_MODELS)}")
+    if levels.model not in ("poisson-gaussian", "physics"):
+        raise ParameterError(
+            f"unknown noise model {levels.model!r}; valid: {', '.join(NOISE_MODELS)}"
+        )
+    physics = levels.model == "physics"
+    noisy = _add_shot(dn, positive, levels, 0.0 if physics else levels.read_sigma**2, generator)
+    if physics:
+        tl = sample_tukey_lambda(dn.shape, levels.tukey_lambda, generator, dn.device, dn.dtype)
+        noisy = noisy.add_(tl, alpha=levels.read_sigma)
+        b, c, h, _ = dn.shape
+        rows = torch.randn((b, c, h, 1), generator=generator, device=dn.device, dtype=dn.dtype)
+        noisy = noisy.add_(rows, alpha=levels.row_sigma)
+        if any(levels.channel_bias):
+            if cfa is None:
+                raise ParameterError("a channel bias needs the mosaic's CFA pattern")
+            bias = torch.tensor(levels.channel_bias, dtype=dn.dtype, device=dn.device)
+            tile = cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
+            noisy = noisy.add_(tile.repeat(dn.shape[-2] // 2, dn.shape[-1] // 2))
+    return noisy
+
+
+def _add_shot(dn, positive, levels: NoiseLevels, extra_var: float, generator) -> torch.Tensor:
+    """``dn`` + shot noise K·Poisson(s/K) − s (+ a normal of ``extra_var``).
+
+    Exact Poisson below :data:`EXACT_POISSON_BELOW` electrons; above, one normal of
+    the same variance stands in for shot (and the extra normal) noise.
+    """
+    k = levels.gain
+    read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
+    small = positive.detach() < EXACT_POISSON_BELOW * k
+    sigma = (k * positive).masked_fill(small, 0.0).add(extra_var).sqrt()
+    noisy = torch.addcmul(dn, sigma, read).reshape(-1)
+    idx = small.reshape(-1).nonzero().squeeze(1)
+    if idx.numel():
+        signal = positive.reshape(-1).index_select(0, idx)
+        shot = k * torch.poisson(signal.detach() / k, generator=generator) - signal
+        noisy = noisy.index_add(0, idx, shot.detach())
+    return noisy.reshape(dn.shape)

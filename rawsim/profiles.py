@@ -20,7 +20,14 @@ from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
 from rawsim.isp.levels import white_level_for_bits
-from rawsim.noise import GainCurve, NoiseSpec, SeedGaussian, SigmaCurve
+from rawsim.noise import (
+    DEFAULT_SPREAD,
+    GainCurve,
+    LambdaCurve,
+    NoiseSpec,
+    SeedGaussian,
+    SigmaCurve,
+)
 
 #: Keys of rawsim's format whose numbers must cite a source.
 SOURCED_KEYS = (
@@ -31,6 +38,10 @@ SOURCED_KEYS = (
     "noise.gain",
     "noise.read_sigma",
 )
+#: Physics-model keys: all or none; each cites a source when present.
+PHYSICS_KEYS = ("noise.tukey_sigma", "noise.tukey_lambda", "noise.row_sigma")
+#: Optional noise keys that cite a source when present.
+OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread")
 SEED_KEYS = (
     "sensor_size",
     "sensor_res",
@@ -103,11 +114,7 @@ class SensorProfile:
             "xyz_to_camera": [list(r) for r in self.xyz_to_camera],
             "white_balance": list(self.white_balance),
             "iso_range": None if self.iso_range is None else list(self.iso_range),
-            "noise": {
-                "gain": _curve_dict(self.noise.gain),
-                "read_sigma": _curve_dict(self.noise.read_sigma),
-                "gaussian": vars(self.noise.gaussian).copy(),
-            },
+            "noise": _noise_dict(self.noise),
             "gamma": self.gamma,
             "ccm_bias": None if self.ccm_bias is None else list(self.ccm_bias),
             "sensor_size_mm": self.size_mm,
@@ -115,6 +122,24 @@ class SensorProfile:
             "source": dict(self.source),
             "path": self.path,
         }
+
+
+def _noise_dict(noise: NoiseSpec) -> dict:
+    out = {
+        "gain": _curve_dict(noise.gain),
+        "read_sigma": _curve_dict(noise.read_sigma),
+        "gaussian": vars(noise.gaussian).copy(),
+    }
+    if noise.has_physics:
+        out["tukey_sigma"] = _curve_dict(noise.tukey_sigma)
+        out["tukey_lambda"] = {
+            "k": list(noise.tukey_lambda.k),
+            "lambda": list(noise.tukey_lambda.lam),
+        }
+        out["row_sigma"] = _curve_dict(noise.row_sigma)
+    out["channel_bias"] = list(noise.channel_bias)
+    out["spread"] = noise.spread
+    return out
 
 
 def _curve_dict(curve) -> dict:
@@ -251,11 +276,13 @@ class _Reader:
             if model == "linear":
                 return GainCurve(
                     "linear",
-                    slope=self.number(f"{key}.slope"),
+                    slope=self.number(f"{key}.slope", positive=True),
                     intercept=self.number(f"{key}.intercept", 0.0),
                 )
             if model == "table":
                 iso, k = self._table(key, "k")
+                if any(b <= a for a, b in zip(k, k[1:], strict=False)):
+                    self.fail(f"{key}.k", f"K must increase with ISO, got {list(k)}")
                 return GainCurve("table", iso=iso, k=k)
             self.fail(f"{key}.model", f"unknown gain model {model!r}; valid: linear, table")
         if model == "loglinear":
@@ -266,6 +293,15 @@ class _Reader:
             iso, sigma = self._table(key, "sigma")
             return SigmaCurve("table", iso=iso, sigma=sigma)
         self.fail(f"{key}.model", f"unknown sigma model {model!r}; valid: loglinear, table")
+
+    def lambda_curve(self, key: str) -> LambdaCurve:
+        k = self.numbers(f"{key}.k", positive=True)
+        lam = self.numbers(f"{key}.lambda", len(k))
+        if not k or any(b <= a for a, b in zip(k, k[1:], strict=False)):
+            self.fail(f"{key}.k", "must be a non-empty, strictly increasing list of gains")
+        if any(not -0.5 < v < 1 for v in lam):
+            self.fail(f"{key}.lambda", f"each λ must lie in (−0.5, 1), got {list(lam)}")
+        return LambdaCurve(k, lam)
 
     def _table(self, key: str, values: str):
         iso = self.numbers(f"{key}.iso", positive=True)
@@ -345,10 +381,25 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         )
     else:  # the seed model matching K and read σ at the base ISO
         gaussian = SeedGaussian(base, read(base, k_base), math.sqrt(k_base), 0.0)
+    physics = {key: r.has(key) for key in PHYSICS_KEYS}
+    if any(physics.values()) and not all(physics.values()):
+        missing = [k for k, v in physics.items() if not v]
+        r.fail(missing[0], "the physics model needs all of " + ", ".join(PHYSICS_KEYS))
+    spec = NoiseSpec(
+        gain,
+        read,
+        gaussian,
+        tukey_sigma=r.curve("noise.tukey_sigma", "sigma") if physics[PHYSICS_KEYS[0]] else None,
+        tukey_lambda=r.lambda_curve("noise.tukey_lambda") if physics[PHYSICS_KEYS[1]] else None,
+        row_sigma=r.curve("noise.row_sigma", "sigma") if physics[PHYSICS_KEYS[2]] else None,
+        channel_bias=r.numbers("noise.channel_bias", 4, (0.0, 0.0, 0.0, 0.0)),
+        spread=r.number("noise.spread", DEFAULT_SPREAD, minimum=0),
+    )
     source = r.raw("source")
     if not isinstance(source, dict):
         r.fail("source", "expected an object mapping keys to their sources")
-    for key in SOURCED_KEYS:
+    sourced = SOURCED_KEYS + tuple(k for k in OPTIONAL_SOURCED_KEYS if r.has(k))
+    for key in sourced:
         if not isinstance(source.get(key), str) or not source[key].strip():
             r.fail(f"source.{key}", "missing: every number needs a source")
     return SensorProfile(
@@ -362,7 +413,7 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         xyz_to_camera=xyz,
         white_balance=_gains(r, "white_balance", xyz),
         iso_range=(iso_range[0], iso_range[1]),
-        noise=NoiseSpec(gain, read, gaussian),
+        noise=spec,
         gamma=r.number("gamma", 2.2, positive=True),
         size_mm=r.numbers("sensor_size_mm", 2, None, positive=True),
         resolution=r.numbers("resolution", 2, None, positive=True),

@@ -118,11 +118,16 @@ class ProfileSensor(Sensor):
         self,
         dn: torch.Tensor,
         iso: float,
-        model: str = "poisson-gaussian",
+        model: str | NoiseLevels = "poisson-gaussian",
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """Add noise at ``iso``, round to integers and saturate to [0, white] DN."""
-        noisy = add_noise(dn, self.black_level, self.noise_levels(iso, model), generator)
+        """Add noise at ``iso``, round to integers and saturate to [0, white] DN.
+
+        ``model`` is a model name (its nominal levels at ``iso``) or already
+        resolved :class:`~rawsim.noise.NoiseLevels`, e.g. sampled ones.
+        """
+        levels = model if isinstance(model, NoiseLevels) else self.noise_levels(iso, model)
+        noisy = add_noise(dn, self.black_level, levels, generator, getattr(self, "cfa", None))
         return saturate(quantize(noisy), self.white_level)
 
 

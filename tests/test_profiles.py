@@ -4,12 +4,19 @@ import pytest
 import torch
 
 from rawsim.errors import ParameterError, ProfileError
-from rawsim.profiles import SOURCED_KEYS, list_profiles, load_profile, profile_dir
+from rawsim.profiles import PHYSICS_KEYS, SOURCED_KEYS, list_profiles, load_profile, profile_dir
 
 
 def test_bundled_profiles_load_with_sources():
     names = list_profiles()
-    assert {"sony_a7s2", "nikon_d850"} <= set(names) and len(names) >= 3
+    assert {
+        "sony_a7s2",
+        "nikon_d850",
+        "canon_eos_70d",
+        "canon_eos_700d",
+        "canon_eos_5d_mark_iv",
+        "nikon_d800e",
+    } <= set(names)
     for name in names:
         p = load_profile(name)
         assert p.name == name == name.lower()
@@ -20,10 +27,13 @@ def test_bundled_profiles_load_with_sources():
         for iso in (lo, hi):
             levels = p.noise.levels("poisson-gaussian", iso)
             assert levels.gain > 0 and levels.read_sigma > 0
-        assert (
-            p.noise.levels("poisson-gaussian", hi).gain
-            > p.noise.levels("poisson-gaussian", lo).gain
-        )
+        if hi > lo:
+            assert (
+                p.noise.levels("poisson-gaussian", hi).gain
+                > p.noise.levels("poisson-gaussian", lo).gain
+            )
+        if p.noise.has_physics:
+            assert all(isinstance(p.source[k], str) for k in PHYSICS_KEYS)
         assert p.white_balance[1] == 1.0
 
 
@@ -61,7 +71,21 @@ def test_user_profile_by_path(tmp_path, sony_json):
         (lambda d: d.update(cfa_pattern="XTRANS"), "cfa_pattern"),
         (lambda d: d.update(xyz_to_camera=[[1, 0], [0, 1]]), "xyz_to_camera"),
         (lambda d: d["noise"]["gain"].update(model="cubic"), "noise.gain.model"),
-        (lambda d: d["noise"]["read_sigma"].pop("bias"), "noise.read_sigma.bias"),
+        (lambda d: d["noise"]["row_sigma"].pop("bias"), "noise.row_sigma.bias"),
+        (lambda d: d["noise"]["read_sigma"].update(sigma=[1, 2]), "noise.read_sigma.sigma"),
+        (lambda d: d["noise"].pop("row_sigma"), "noise.row_sigma"),
+        (lambda d: d["noise"]["tukey_lambda"].update(k=[5, 1]), "noise.tukey_lambda.k"),
+        (
+            lambda d: d["noise"]["tukey_lambda"].update(**{"lambda": [0, -0.7]}),
+            "noise.tukey_lambda.lambda",
+        ),
+        (lambda d: d["source"].pop("noise.tukey_sigma"), "source.noise.tukey_sigma"),
+        (lambda d: d["noise"].update(channel_bias=[1, 2]), "noise.channel_bias"),
+        (
+            lambda d: d["noise"].update(gain={"model": "table", "iso": [100, 800], "k": [1, 0.5]}),
+            "noise.gain.k",
+        ),
+        (lambda d: d["noise"].update(gain={"model": "linear", "slope": -1}), "noise.gain.slope"),
         (lambda d: d["source"].pop("noise.gain"), "source.noise.gain"),
         (lambda d: d.update(iso_range=[800, 100]), "iso_range"),
         (lambda d: d.update(bit_depth=20), "bit_depth"),

@@ -26,7 +26,7 @@ from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
 from rawsim.isp.lens_shading import radial_gain
 from rawsim.isp.levels import quantize, saturate
-from rawsim.noise import NOISE_MODELS
+from rawsim.noise import NOISE_MODELS, NoiseLevels
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
 from rawsim.seeds import derive_seed
@@ -42,7 +42,7 @@ def unprocess_tensor(
     image: torch.Tensor,
     params: UnprocessParams,
     *,
-    noise: str = "poisson-gaussian",
+    noise: str | NoiseLevels = "poisson-gaussian",
     generator: torch.Generator | None = None,
     display_referred: bool = True,
     code_max: int | None = None,
@@ -57,7 +57,8 @@ def unprocess_tensor(
             values: display-referred in [0, 1] if ``display_referred``, else
             scene-linear (1.0 = white level before exposure).
         params: the image's :class:`UnprocessParams` (ISO, matrix, gains, …).
-        noise: noise model name (``none``, ``gaussian``, ``poisson-gaussian``).
+        noise: noise model name (one of ``NOISE_MODELS``, nominal levels at the
+            ISO) or resolved :class:`~rawsim.noise.NoiseLevels` (e.g. sampled).
         generator: randomness for the noise; must live on ``image``'s device.
         clean: also return the noise-free mosaic.
 
@@ -66,7 +67,9 @@ def unprocess_tensor(
         None unless asked for. Not differentiable (use the sensor's stage methods
         for gradients).
     """
-    check_choice("noise model", noise, NOISE_MODELS)
+    if not isinstance(noise, NoiseLevels):
+        check_choice("noise model", noise, NOISE_MODELS)
+        noise = sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
     if image.ndim != 4 or image.shape[1] != 3:
         raise ParameterError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
     b, _, h, w = image.shape
@@ -86,7 +89,6 @@ def unprocess_tensor(
     shading = None
     if params.vignetting > 0:
         shading = radial_gain(h, w, strength=params.vignetting, device=image.device)
-    sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
     noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
     clean_out = torch.empty_like(noisy) if clean else None
     with values_checked(False):
@@ -133,7 +135,8 @@ class UnprocessOptions:
         profile: the sensor profile.
         iso: fixed ISO, or None when ``iso_range`` is given.
         iso_range: (min, max) for log-uniform ISO per file.
-        randomize: sample Brooks et al.'s matrix, gains and brightness per file.
+        randomize: sample Brooks et al.'s matrix, gains and brightness per file, and
+            the noise levels around the profile's fits (ELD).
         clean: also write the noise-free mosaic.
         formats: output formats, a subset of ("dng", "npz").
         noise: noise model name.
@@ -197,18 +200,21 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     image = torch.from_numpy(decoded.pixels).to(device).permute(2, 0, 1).unsqueeze(0)
     if image.dtype == torch.uint16:  # few kernels take uint16; codes fit in int32
         image = image.to(torch.int32)
+    if options.randomize:  # drawn after the params, from the same generator
+        levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
+    else:
+        levels = sensor.noise_levels(params.iso, options.noise)
     noise_gen = torch.Generator(device=device).manual_seed(derive_seed(task.seed, "noise"))
     noisy, clean = unprocess_tensor(
         sensor,
         image,
         params,
-        noise=options.noise,
+        noise=levels,
         generator=noise_gen,
         display_referred=not linear_input,
         code_max=decoded.code_max,
         clean=options.clean,
     )
-    levels = sensor.noise_levels(params.iso, options.noise)
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = noisy[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
     clean_np = (
