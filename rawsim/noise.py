@@ -243,16 +243,27 @@ def tukey_lambda_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
 
     ``Q(u) = (u^λ − (1 − u)^λ) / λ``, and the logistic ``ln(u / (1 − u))`` at λ = 0.
     """
+    return _tukey_numerator(u.clone(), lam).div_(lam if abs(lam) >= 1e-6 else 1.0)
+
+
+def _tukey_numerator(u: torch.Tensor, lam: float) -> torch.Tensor:
+    """``u^λ − (1 − u)^λ`` (``ln u − ln(1 − u)`` at λ = 0), overwriting ``u``."""
+    low = u.log()
+    high = u.neg_().log1p_()
     if abs(lam) < 1e-6:
-        return torch.log(u / (1 - u))
-    return (u.log().mul_(lam).exp_() - (1 - u).log_().mul_(lam).exp_()).div_(lam)
+        return low.sub_(high)
+    return low.mul_(lam).exp_().sub_(high.mul_(lam).exp_())
+
+
+def _uniform(shape, generator, device, dtype) -> torch.Tensor:
+    """Uniform draws in (0, 1): ``torch.rand``'s 0 becomes half its smallest step."""
+    u = torch.rand(shape, generator=generator, device=device, dtype=dtype)
+    return u.clamp_min_(torch.finfo(dtype).eps / 4)
 
 
 def sample_tukey_lambda(shape, lam: float, generator=None, device=None, dtype=torch.float32):
     """Standard Tukey-lambda draws (scale 1) of ``shape`` by inverse transform sampling."""
-    tiny = torch.finfo(dtype).tiny
-    u = torch.rand(shape, generator=generator, device=device, dtype=dtype).clamp_(tiny, 1 - 1e-7)
-    return tukey_lambda_quantile(u, lam)
+    return tukey_lambda_quantile(_uniform(shape, generator, device, dtype), lam)
 
 
 @dataclass(frozen=True)
@@ -373,8 +384,10 @@ def add_noise(
     physics = levels.model == "physics"
     noisy = _add_shot(dn, positive, levels, 0.0 if physics else levels.read_sigma**2, generator)
     if physics:
-        tl = sample_tukey_lambda(dn.shape, levels.tukey_lambda, generator, dn.device, dn.dtype)
-        noisy = noisy.add_(tl, alpha=levels.read_sigma)
+        lam = levels.tukey_lambda
+        u = _uniform(dn.shape, generator, dn.device, dn.dtype)
+        scale = levels.read_sigma / (lam if abs(lam) >= 1e-6 else 1.0)
+        noisy = noisy.add_(_tukey_numerator(u, lam), alpha=scale)
         b, c, h, _ = dn.shape
         rows = torch.randn((b, c, h, 1), generator=generator, device=dn.device, dtype=dn.dtype)
         noisy = noisy.add_(rows, alpha=levels.row_sigma)
@@ -396,11 +409,14 @@ def _add_shot(dn, positive, levels: NoiseLevels, extra_var: float, generator) ->
     k = levels.gain
     read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
     small = positive.detach() < EXACT_POISSON_BELOW * k
-    sigma = (k * positive).masked_fill(small, 0.0).add(extra_var).sqrt()
+    if extra_var:
+        sigma = (k * positive).masked_fill(small, 0.0).add(extra_var).sqrt()
+    else:
+        sigma = positive.sqrt().mul_(math.sqrt(k)).masked_fill_(small, 0.0)
     noisy = torch.addcmul(dn, sigma, read).reshape(-1)
     idx = small.reshape(-1).nonzero().squeeze(1)
     if idx.numel():
         signal = positive.reshape(-1).index_select(0, idx)
         shot = k * torch.poisson(signal.detach() / k, generator=generator) - signal
-        noisy = noisy.index_add(0, idx, shot.detach())
+        noisy = noisy.index_add_(0, idx, shot.detach())
     return noisy.reshape(dn.shape)
