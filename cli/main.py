@@ -20,6 +20,7 @@ COMMANDS = {
     "process": ("rawsim_cli.process", "Render camera raws through rawsim's ISP."),
     "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
+    "calibrate": ("rawsim_cli.calibrate", "Fit a noise profile from a camera's raws."),
 }
 
 

@@ -56,23 +56,47 @@ def list_cmd(as_json):
 @click.argument("profile", metavar="NAME|PATH")
 @click.option("--iso", type=float, help="Also print the noise model's values at this ISO.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option(
+    "--plot",
+    type=click.Path(dir_okay=False),
+    help="Write a PNG of noise σ versus signal at several ISOs.",
+)
 @usage_errors
-def show_cmd(profile, iso, as_json):
+def show_cmd(profile, iso, as_json, plot):
     """Show a profile: levels, matrix, white balance, noise and sources.
+
+    With --iso N --json only the noise model's values at that ISO are printed:
+    K (DN/e⁻), read_sigma, row_sigma and lambda of the physics model (null where
+    the profile has no physics parameters), and each model's full values.
 
     \b
     Example:
       rawsim profiles show nikon_d850 --iso 6400 --json
+      rawsim profiles show sony_a7s2 --plot noise.png
     """
     from rawsim.profiles import load_profile
 
     p = load_profile(profile)
+    if plot:
+        from rawsim.plots import plot_noise_profile
+
+        click.echo(f"wrote {plot_noise_profile(p, plot)}", err=True)
     data = p.to_dict()
     if iso is not None:
+        models = ["poisson-gaussian", "gaussian"] + (["physics"] if p.noise.has_physics else [])
+        at = {m: p.noise.levels(m, p.check_iso(iso)).to_dict() for m in models}
+        main = at.get("physics", at["poisson-gaussian"])
         data["at_iso"] = {
-            m: p.noise.levels(m, p.check_iso(iso)).to_dict()
-            for m in ("poisson-gaussian", "gaussian")
+            "iso": iso,
+            "K": main["gain_dn_per_electron"],
+            "read_sigma": main["read_sigma_dn"],
+            "row_sigma": main.get("row_sigma_dn"),
+            "lambda": main.get("tukey_lambda"),
+            "models": at,
         }
+        if as_json:
+            click.echo(json.dumps(data["at_iso"], indent=2))
+            return
     if as_json:
         click.echo(json.dumps(data, indent=2))
         return
@@ -89,7 +113,7 @@ def show_cmd(profile, iso, as_json):
     click.echo(f"  noise K(ISO): {data['noise']['gain']}")
     click.echo(f"  read σ: {data['noise']['read_sigma']}")
     if iso is not None:
-        for model, values in data["at_iso"].items():
+        for model, values in data["at_iso"]["models"].items():
             click.echo(
                 f"  at ISO {iso:g} ({model}): "
                 + ", ".join(

@@ -40,6 +40,8 @@ PATCH_QUANTILE = 0.1
 BINS = 48
 #: Tiles whose brightest pixel reaches this fraction of the range are dropped.
 SATURATION = 0.95
+#: Smallest K written to a profile (DN/e⁻): noise-free data gives K ≈ 0.
+MIN_GAIN = 1e-6
 LAMBDA_GRID = np.round(np.arange(-0.45, 0.61, 0.01), 2)
 
 
@@ -364,10 +366,15 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
     """A rawsim profile (JSON-ready) from per-ISO fits and one of the raws."""
     fits = sorted(fits, key=lambda f: f.iso)
     isos = [f.iso for f in fits]
+    warnings = []
+    for f in fits:
+        if not f.K > MIN_GAIN:
+            warnings.append(
+                f"ISO {f.iso:g}: fitted K {f.K:.3g} DN/e⁻ (no measurable shot noise); "
+                f"floored at {MIN_GAIN:g}"
+            )
+            f.K = MIN_GAIN * (1 + 1e-3 * len(warnings))  # keeps K increasing with ISO
     ks = [f.K for f in fits]
-    if any(k <= 0 for k in ks):
-        pairs = dict(zip(isos, ks, strict=True))
-        raise ParameterError(f"fitted K is not positive at some ISO: {pairs}")
     how = (
         f"rawsim calibrate ({'flat-field' if method == 'flat' else 'smooth-patch, less accurate'}"
         f" method) on {sum(f.frames for f in fits)} frame(s)"
@@ -429,4 +436,5 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
         "noise": noise,
         "source": source,
         "calibration": [f.to_dict() for f in fits],
+        "warnings": warnings,
     }

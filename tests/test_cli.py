@@ -12,6 +12,7 @@ import pytest
 import rawpy
 from click.testing import CliRunner
 
+from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA, ROOT
 
@@ -287,7 +288,9 @@ def test_profiles_commands():
     rows = json.loads(run("profiles", "list", "--json").output)
     assert {row["name"] for row in rows} >= {"sony_a7s2", "nikon_d850", "canon_eos_70d"}
     shown = json.loads(run("profiles", "show", "sony_a7s2", "--iso", 1600, "--json").output)
-    assert shown["at_iso"]["poisson-gaussian"]["gain_dn_per_electron"] == pytest.approx(1.52543)
+    assert shown["K"] == pytest.approx(1.52543)
+    assert shown["models"]["poisson-gaussian"]["read_sigma_dn"] == pytest.approx(6.30)
+    assert shown["lambda"] == pytest.approx(load_profile("sony_a7s2").noise.tukey_lambda(1.52543))
     assert "source[noise.gain]" in run("profiles", "show", "nikon_d850").output
     assert run("profiles", "show", "nope").exit_code == 2
 

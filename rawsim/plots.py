@@ -1,0 +1,90 @@
+"""PNG plots of noise models and calibration fits (matplotlib, written atomically)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from rawsim.io.atomic import atomic_output
+from rawsim.profiles import SensorProfile
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_isos(profile: SensorProfile, count: int = 5) -> list[float]:
+    """``count`` ISOs spread log-evenly over the profile's range (rounded)."""
+    lo, hi = profile.iso_range
+    if hi <= lo:
+        return [lo]
+    logs = np.linspace(math.log(lo), math.log(hi), count)
+    return sorted({float(round(math.exp(v))) for v in logs})
+
+
+def plot_noise_profile(profile: SensorProfile, path: str | Path, models=None) -> Path:
+    """σ (DN) versus signal above black at several ISOs, log-log, one line per model."""
+    plt = _figure()
+    models = models or (["physics"] if profile.noise.has_physics else []) + ["poisson-gaussian"]
+    span = profile.white_level - profile.black_level
+    signal = np.geomspace(1.0, span, 200)
+    fig, ax = plt.subplots(figsize=(7, 5), dpi=100)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, iso in enumerate(plot_isos(profile)):
+        for j, model in enumerate(models):
+            levels = profile.noise.levels(model, iso)
+            sigma = np.sqrt(levels.variance(signal).numpy())
+            ax.plot(
+                signal,
+                sigma,
+                color=colours[i % len(colours)],
+                linestyle="-" if j == 0 else "--",
+                label=f"ISO {iso:g} ({model})",
+            )
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="signal above black (DN)",
+        ylabel="noise σ (DN)",
+        title=f"{profile.make} {profile.model} ({profile.name})",
+    )
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _save(fig, plt, path)
+
+
+def plot_calibration(fits, path: str | Path, title: str = "") -> Path:
+    """Variance versus mean (DN) per channel with the fitted line, one panel per ISO."""
+    plt = _figure()
+    n = len(fits)
+    fig, axes = plt.subplots(1, n, figsize=(5 * n, 4.2), dpi=100, squeeze=False)
+    for ax, fit in zip(axes[0], fits, strict=True):
+        top = 0.0
+        for name, (means, variances) in fit.points.items():
+            ax.plot(means, variances, "o", markersize=3, label=name)
+            top = max(top, float(np.max(means)) if len(means) else 0.0)
+        x = np.linspace(0, top or 1.0, 50)
+        offset = fit.read_sigma**2 + 1 / 12
+        ax.plot(x, fit.K * x + offset, "k-", label=f"K {fit.K:.4g}, σ_read {fit.read_sigma:.3g}")
+        ax.set(xlabel="mean above black (DN)", ylabel="variance (DN²)", title=f"ISO {fit.iso:g}")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _save(fig, plt, path)
+
+
+def _save(fig, plt, path) -> Path:
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path
