@@ -94,11 +94,8 @@ def show_cmd(profile, iso, as_json, plot):
             "lambda": main.get("tukey_lambda"),
             "models": at,
         }
-        if as_json:
-            click.echo(json.dumps(data["at_iso"], indent=2))
-            return
     if as_json:
-        click.echo(json.dumps(data, indent=2))
+        click.echo(json.dumps(data if iso is None else data["at_iso"], indent=2))
         return
     click.echo(f"{p.name}: {p.make} {p.model}")
     click.echo(

@@ -150,15 +150,11 @@ def command(
     if (iso is None) == (not iso_range):
         raise click.UsageError("give exactly one of --iso N or --iso-range MIN MAX", ctx)
     prof = load_profile(profile)
-    if iso is not None:
-        prof.check_iso(iso)
-    else:
-        for value in iso_range:
-            prof.check_iso(value)
-        if iso_range[0] > iso_range[1]:
-            raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
     for value in (iso,) if iso is not None else iso_range:
+        prof.check_iso(value)
         prof.noise.levels(noise, value)  # e.g. a profile without physics parameters
+    if iso is None and iso_range[0] > iso_range[1]:
+        raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
     resolve_device(device)
     options = UnprocessOptions(
         profile=prof,

@@ -73,6 +73,13 @@ class IsoFit:
     darks: int = 0
     points: dict = field(default_factory=dict)  # for the plot: channel → (means, vars)
 
+    @property
+    def tukey_sigma(self) -> float | None:
+        """Scale of the Tukey-lambda law with shape λ and standard deviation ``read_sigma``."""
+        if self.lam is None:
+            return None
+        return self.read_sigma / math.sqrt(tukey_lambda_variance(self.lam))
+
     def to_dict(self) -> dict:
         return {
             "iso": self.iso,
@@ -80,9 +87,7 @@ class IsoFit:
             "read_sigma": self.read_sigma,
             "row_sigma": self.row_sigma,
             "lambda": self.lam,
-            "tukey_sigma": None
-            if self.lam is None
-            else self.read_sigma / math.sqrt(tukey_lambda_variance(self.lam)),
+            "tukey_sigma": self.tukey_sigma,
             "channels": self.channels,
             "frames": self.frames,
             "dark_frames": self.darks,
@@ -92,14 +97,20 @@ class IsoFit:
 def planes_of(raw: RawImage) -> torch.Tensor:
     """The raw's planes above black, float64: (4, H/2, W/2) R, Gr, Gb, B, or (3, H, W)."""
     data = torch.from_numpy(raw.data.astype(np.float64))
+    black = torch.as_tensor(np.asarray(raw.black_level, dtype=np.float64))
     if raw.cfa is None:
-        black = torch.as_tensor(np.asarray(raw.black_level, dtype=np.float64))
         return (data - black).permute(2, 0, 1)
-    h, w = data.shape
-    tiled = torch.from_numpy(
-        np.tile(np.asarray(raw.black_level, dtype=np.float64), (h // 2, w // 2))
-    )
-    return raw.cfa.pack((data - tiled)[None, None])[0]
+    return (raw.cfa.pack(data[None, None]) - raw.cfa.pack(black[None, None]))[0]
+
+
+def _tiles(x: torch.Tensor, size: int) -> torch.Tensor:
+    """Whole ``size``×``size`` tiles of (C, H, W), row-major: (C, N, size, size)."""
+    c, h, w = x.shape
+    ny, nx = h // size, w // size
+    if ny == 0 or nx == 0:
+        raise ParameterError(f"image too small for {size}×{size} tiles per channel")
+    x = x[:, : ny * size, : nx * size].reshape(c, ny, size, nx, size).permute(0, 1, 3, 2, 4)
+    return x.reshape(c, ny * nx, size, size)
 
 
 def tile_stats(planes: torch.Tensor, span: float, tile: int = TILE) -> TileStats:
@@ -109,12 +120,7 @@ def tile_stats(planes: torch.Tensor, span: float, tile: int = TILE) -> TileStats
     gradients); then the row means of the residual split its variance into the
     rows' offsets (``row_var``) and the rest (``var``).
     """
-    c, h, w = planes.shape
-    ny, nx = h // tile, w // tile
-    if ny == 0 or nx == 0:
-        raise ParameterError(f"image too small for {tile}×{tile} tiles per channel")
-    x = planes[:, : ny * tile, : nx * tile].reshape(c, ny, tile, nx, tile).permute(0, 1, 3, 2, 4)
-    x = x.reshape(c, ny * nx, tile, tile)
+    x = _tiles(planes, tile)
     mean = x.mean(dim=(-2, -1))
     t = torch.arange(tile, dtype=x.dtype) - (tile - 1) / 2
     norm = float((t**2).sum()) * tile
@@ -247,8 +253,9 @@ def calibrate_iso(
         stats = [tile_stats(planes_of(r), span, tile) for r in flats]
     else:
         stats = [patch_stats(planes_of(r), span) for r in flats]
-    dark_tiles = [tile_stats(planes_of(r), span, tile) for r in darks]
-    dark = [dark_stats(planes_of(r)) for r in darks]
+    dark_planes = [planes_of(r) for r in darks]
+    dark_tiles = [tile_stats(p, span, tile) for p in dark_planes]
+    dark = [dark_stats(p) for p in dark_planes]
     nch = stats[0].mean.shape[0]
     names = CHANNELS if nch == 4 else ("R", "G", "B")
     if method == "flat":
@@ -317,17 +324,11 @@ def patch_stats(planes: torch.Tensor, span: float, blocks: int = PATCH_BLOCKS) -
     pixel variance. Per tile of ``blocks``×``blocks`` details, the variance is
     estimated from the median absolute deviation, which ignores a few edges.
     """
-    c, h, w = planes.shape
+    _, h, w = planes.shape
     x = planes[:, : h // 2 * 2, : w // 2 * 2]
     d = (x[:, 0::2, 0::2] - x[:, 0::2, 1::2] - x[:, 1::2, 0::2] + x[:, 1::2, 1::2]) / 2
-    ny, nx = d.shape[1] // blocks, d.shape[2] // blocks
-    if ny == 0 or nx == 0:
-        raise ParameterError(f"image too small for {2 * blocks}×{2 * blocks} tiles per channel")
-    d = d[:, : ny * blocks, : nx * blocks].reshape(c, ny, blocks, nx, blocks)
-    d = d.permute(0, 1, 3, 2, 4).reshape(c, ny * nx, blocks * blocks)
-    t = 2 * blocks
-    xt = x[:, : ny * t, : nx * t].reshape(c, ny, t, nx, t).permute(0, 1, 3, 2, 4)
-    xt = xt.reshape(c, ny * nx, t * t)
+    d = _tiles(d, blocks).flatten(-2)
+    xt = _tiles(x, 2 * blocks).flatten(-2)
     mad = (d - d.median(dim=-1, keepdim=True).values).abs().median(dim=-1).values
     var = (MAD_TO_SIGMA * mad) ** 2
     valid = xt.amax(dim=-1) < SATURATION * span
@@ -356,7 +357,7 @@ def same_camera(raws: list[RawImage]) -> None:
 
 
 def _loglinear(ks: list[float], sigmas: list[float]) -> dict:
-    """ln σ = slope · ln K + bias by least squares (a single point: a constant table)."""
+    """ln σ = slope · ln K + bias by least squares (two or more points)."""
     lk, ls = np.log(ks), np.log(sigmas)
     slope, bias = np.polyfit(lk, ls, 1)
     return {"model": "loglinear", "slope": float(slope), "bias": float(bias)}
@@ -414,8 +415,7 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
         "noise.read_sigma": how + ("; σ from dark frames" if fits[0].darks else ""),
     }
     if all(f.lam is not None and f.row_sigma for f in fits):
-        tl = [f.read_sigma / math.sqrt(tukey_lambda_variance(f.lam)) for f in fits]
-        noise["tukey_sigma"] = sigma_curve(tl)
+        noise["tukey_sigma"] = sigma_curve([f.tukey_sigma for f in fits])
         noise["tukey_lambda"] = {"k": ks, "lambda": [f.lam for f in fits]}
         noise["row_sigma"] = sigma_curve([f.row_sigma for f in fits])
         bias = [np.mean([f.channels[c]["bias"] for f in fits]) for c in CHANNELS]

@@ -35,16 +35,21 @@ NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
 DEFAULT_SPREAD = 0.1
 EXACT_POISSON_BELOW = 100.0
 QUANTIZATION_VARIANCE = 1.0 / 12.0
+#: |λ| below this is the Tukey-lambda law's λ → 0 limit, the logistic law.
+LOGISTIC_LAMBDA = 1e-6
+
+
+def _interp(t: float, xs: list[float], ys: list[float]) -> float:
+    """Piecewise-linear interpolation through (xs, ys), extrapolating the end segments."""
+    i = max(0, min(len(xs) - 2, sum(1 for v in xs[1:-1] if t > v)))
+    w = (t - xs[i]) / (xs[i + 1] - xs[i])
+    return ys[i] + w * (ys[i + 1] - ys[i])
 
 
 def _interp_loglog(x: float, xs: tuple[float, ...], ys: tuple[float, ...]) -> float:
     """Piecewise-linear interpolation in log-log space, extrapolating the end segments."""
     lx = [math.log(v) for v in xs]
-    ly = [math.log(v) for v in ys]
-    t = math.log(x)
-    i = max(0, min(len(lx) - 2, sum(1 for v in lx[1:-1] if t > v)))
-    w = (t - lx[i]) / (lx[i + 1] - lx[i])
-    return math.exp(ly[i] + w * (ly[i + 1] - ly[i]))
+    return math.exp(_interp(math.log(x), lx, [math.log(v) for v in ys]))
 
 
 @dataclass(frozen=True)
@@ -118,13 +123,8 @@ class LambdaCurve:
     def __call__(self, k: float) -> float:
         if len(self.k) == 1:
             return self.lam[0]
-        t = min(max(math.log(k), math.log(self.k[0])), math.log(self.k[-1]))
-        for i in range(len(self.k) - 1):
-            lo, hi = math.log(self.k[i]), math.log(self.k[i + 1])
-            if t <= hi or i == len(self.k) - 2:
-                w = (t - lo) / (hi - lo)
-                return self.lam[i] + w * (self.lam[i + 1] - self.lam[i])
-        raise AssertionError("unreachable")
+        logs = [math.log(v) for v in self.k]
+        return _interp(min(max(math.log(k), logs[0]), logs[-1]), logs, list(self.lam))
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -231,7 +231,7 @@ def tukey_lambda_variance(lam: float) -> float:
     """Variance of the standard Tukey-lambda law (scale 1); infinite for λ ≤ −1/2."""
     if lam <= -0.5:
         return math.inf
-    if abs(lam) < 1e-6:
+    if abs(lam) < LOGISTIC_LAMBDA:
         return math.pi**2 / 3
     return (2 / lam**2) * (
         1 / (1 + 2 * lam) - math.exp(2 * math.lgamma(lam + 1) - math.lgamma(2 * lam + 2))
@@ -243,16 +243,21 @@ def tukey_lambda_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
 
     ``Q(u) = (u^λ − (1 − u)^λ) / λ``, and the logistic ``ln(u / (1 − u))`` at λ = 0.
     """
-    return _tukey_numerator(u.clone(), lam).div_(lam if abs(lam) >= 1e-6 else 1.0)
+    return _tukey_numerator(u.clone(), lam).div_(_tukey_divisor(lam))
 
 
 def _tukey_numerator(u: torch.Tensor, lam: float) -> torch.Tensor:
     """``u^λ − (1 − u)^λ`` (``ln u − ln(1 − u)`` at λ = 0), overwriting ``u``."""
     low = u.log()
     high = u.neg_().log1p_()
-    if abs(lam) < 1e-6:
+    if abs(lam) < LOGISTIC_LAMBDA:
         return low.sub_(high)
     return low.mul_(lam).exp_().sub_(high.mul_(lam).exp_())
+
+
+def _tukey_divisor(lam: float) -> float:
+    """What divides :func:`_tukey_numerator` to give the quantile: λ, or 1 in the limit."""
+    return 1.0 if abs(lam) < LOGISTIC_LAMBDA else lam
 
 
 def _uniform(shape, generator, device, dtype) -> torch.Tensor:
@@ -386,7 +391,7 @@ def add_noise(
     if physics:
         lam = levels.tukey_lambda
         u = _uniform(dn.shape, generator, dn.device, dn.dtype)
-        scale = levels.read_sigma / (lam if abs(lam) >= 1e-6 else 1.0)
+        scale = levels.read_sigma / _tukey_divisor(lam)
         noisy = noisy.add_(_tukey_numerator(u, lam), alpha=scale)
         b, c, h, _ = dn.shape
         rows = torch.randn((b, c, h, 1), generator=generator, device=dn.device, dtype=dn.dtype)

@@ -19,10 +19,10 @@ from rawsim.pipelines.unprocess import unprocess_tensor
 from rawsim.profiles import list_profiles, load_profile
 from rawsim.sensors import RGBSensor
 from rawsim_cli.main import cli
+from tests.conftest import DATA
 
 SENSOR = RGBSensor.from_profile("canon_eos_70d")
 ISOS = (400, 1600, 6400)
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _write(path: Path, mosaic: np.ndarray, iso: float, model: str = "EOS 70D") -> Path:
