@@ -16,6 +16,7 @@ def test_bundled_profiles_load_with_sources():
         "canon_eos_700d",
         "canon_eos_5d_mark_iv",
         "nikon_d800e",
+        "oppo_reno10x",
     } <= set(names)
     for name in names:
         p = load_profile(name)
@@ -42,6 +43,17 @@ def test_sony_a7s2_published_numbers():
     k = p.noise.levels("poisson-gaussian", 1600).gain
     assert k == pytest.approx(1.53, abs=0.01)  # PMN: ISO 1600 → K 1.53
     assert (p.black_level, p.white_level) == (512, 16383)
+
+
+@pytest.mark.parametrize("iso", [100, 250, 1000, 1600, 4000, 6400])
+def test_oppo_reno10x_follows_the_pmrid_polynomials(iso):
+    """PMRID (ECCV 2020) publishes K(ISO) and the read variance B(ISO) for the phone."""
+    p = load_profile("oppo_reno10x")
+    levels = p.noise.levels("poisson-gaussian", iso)
+    assert levels.gain == pytest.approx(0.0005995267 * iso + 0.00868861, rel=1e-6)
+    variance = 7.11772e-7 * iso**2 + 6.514934e-4 * iso + 0.11492713
+    assert levels.read_sigma == pytest.approx(variance**0.5, rel=0.02)  # table, log-interpolated
+    assert (p.black_level, p.white_level, p.cfa.pattern) == (64, 1023, "BGGR")
 
 
 def _write(tmp_path, data, name="p.json"):
