@@ -21,6 +21,16 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
 @click.command("unprocess")
 @files_in_out
 @profile_opt
+@click.option(
+    "--sensor",
+    "sensor_kind",
+    type=click.Choice(["rgb", "mono"]),
+    default="rgb",
+    show_default=True,
+    help="rgb: the profile's Bayer CFA; mono: no colour filter (grey = mean of linear "
+    "R, G, B, or the profile's green spectral response), the profile's levels and noise, "
+    "written as a one-sample LinearRaw DNG.",
+)
 @click.option("--iso", type=float, help="ISO of every capture (within the profile's range).")
 @click.option(
     "--iso-range",
@@ -96,6 +106,7 @@ def command(
     inputs,
     out_dir,
     profile,
+    sensor_kind,
     iso,
     iso_range,
     seed,
@@ -171,6 +182,7 @@ def command(
         safe_white_balance=wb_inverse == "safe",
         device=device,
         seed=seed,
+        sensor=sensor_kind,
     )
     run_files(
         ctx,

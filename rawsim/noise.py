@@ -365,8 +365,9 @@ def add_noise(
         black: black level, a number or a tensor broadcastable to ``dn``.
         levels: noise parameters at the ISO (:meth:`NoiseSpec.levels`).
         generator: source of randomness (its device must match ``dn``).
-        cfa: the mosaic's :class:`~rawsim.cfa.CFA`, needed to place a non-zero
-            ``channel_bias`` (physics model).
+        cfa: the mosaic's :class:`~rawsim.cfa.CFA`, to place a non-zero
+            ``channel_bias`` (physics model); None for a monochrome sensor, which
+            gets the mean of the four biases.
 
     Returns:
         Noisy DN, float, unrounded and unclipped. Differentiable with respect to
@@ -396,9 +397,9 @@ def add_noise(
         b, c, h, _ = dn.shape
         rows = torch.randn((b, c, h, 1), generator=generator, device=dn.device, dtype=dn.dtype)
         noisy = noisy.add_(rows, alpha=levels.row_sigma)
-        if any(levels.channel_bias):
-            if cfa is None:
-                raise ParameterError("a channel bias needs the mosaic's CFA pattern")
+        if any(levels.channel_bias) and cfa is None:  # monochrome: one mean offset
+            noisy = noisy.add_(sum(levels.channel_bias) / len(levels.channel_bias))
+        elif any(levels.channel_bias):
             bias = torch.tensor(levels.channel_bias, dtype=dn.dtype, device=dn.device)
             tile = cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
             noisy = noisy.add_(tile.repeat(dn.shape[-2] // 2, dn.shape[-1] // 2))

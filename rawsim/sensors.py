@@ -110,6 +110,32 @@ class ProfileSensor(Sensor):
     def white_level(self) -> float:
         return self.profile.white_level
 
+    def default_params(self, iso: float, **fixed) -> UnprocessParams:
+        """The profile's own matrix and daylight white balance at ``iso``."""
+        return sample_params(self.profile, iso=iso, **fixed)
+
+    def _params(self, params: UnprocessParams | None) -> UnprocessParams:
+        lowest = self.profile.iso_range[0] if self.profile.iso_range else 100.0
+        return params or self.default_params(lowest)
+
+    def _to_dn(self, x: torch.Tensor, params, shading: torch.Tensor | None) -> torch.Tensor:
+        """Normalised (B, C, H, W) → DN: vignetting (``shading`` or the params'), levels."""
+        if shading is None and params is not None and params.vignetting > 0:
+            shading = radial_gain(
+                *x.shape[-2:], strength=params.vignetting, device=x.device, dtype=x.dtype
+            )
+        if shading is not None:
+            x = invert_lens_shading(x, shading)
+        return denormalize_levels(x, self.black_level, self.white_level)
+
+    def _linear_light(self, image: torch.Tensor, in_type: str, p: UnprocessParams) -> torch.Tensor:
+        """(B, 3, H, W) display or linear sRGB → linear light with exposure and brightness."""
+        check_choice("in_type", in_type, IN_TYPES)
+        check_image(image, "image", channels=3)
+        x = display_to_linear(image, p.tone, p.transfer) if in_type == "rgb" else image
+        scale = 2.0**p.exposure_ev / p.brightness
+        return x * scale if scale != 1.0 else x
+
     def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
         """Noise parameters at ``iso``; the ISO must lie in the profile's range."""
         return self.profile.noise.levels(model, self.profile.check_iso(iso))
@@ -138,10 +164,6 @@ class RGBSensor(ProfileSensor):
     def cfa(self) -> CFA:
         return self.profile.cfa
 
-    def default_params(self, iso: float, **fixed) -> UnprocessParams:
-        """The profile's own matrix and daylight white balance at ``iso``."""
-        return sample_params(self.profile, iso=iso, **fixed)
-
     def response_curve(self, spectral: torch.Tensor) -> torch.Tensor:
         """Spectral image (B, Nλ, H, W) → (B, 3, H, W) through the channel responses.
 
@@ -163,15 +185,8 @@ class RGBSensor(ProfileSensor):
         and brightness, sRGB → camera matrix, inverse white balance. Values above 1
         are kept (they saturate later at the white level); nothing is clipped.
         """
-        check_choice("in_type", in_type, IN_TYPES)
-        check_image(image, "image", channels=3)
-        p = params or self.default_params(
-            self.profile.iso_range[0] if self.profile.iso_range else 100.0
-        )
-        x = display_to_linear(image, p.tone, p.transfer) if in_type == "rgb" else image
-        scale = 2.0**p.exposure_ev / p.brightness
-        if scale != 1.0:
-            x = x * scale
+        p = self._params(params)
+        x = self._linear_light(image, in_type, p)
         if p.ccm_bias is not None:
             x = x - torch.tensor(p.ccm_bias, dtype=x.dtype, device=x.device).reshape(1, 3, 1, 1)
         x = apply_color_matrix(x, camera_from_srgb(p.xyz_to_camera).to(x.dtype))
@@ -188,17 +203,7 @@ class RGBSensor(ProfileSensor):
         (``shading`` overrides the radial gain map, e.g. a strip of a larger one),
         and scales [0, 1] to [black, white]. Not clipped: see :meth:`simu_noise`.
         """
-        mosaic = self.cfa.mosaic(camera_rgb)
-        if shading is None and params is not None and params.vignetting > 0:
-            shading = radial_gain(
-                *mosaic.shape[-2:],
-                strength=params.vignetting,
-                device=mosaic.device,
-                dtype=mosaic.dtype,
-            )
-        if shading is not None:
-            mosaic = invert_lens_shading(mosaic, shading)
-        return denormalize_levels(mosaic, self.black_level, self.white_level)
+        return self._to_dn(self.cfa.mosaic(camera_rgb), params, shading)
 
     def bayer2rggb(self, dn: torch.Tensor) -> torch.Tensor:
         """Mosaic DN (B, 1, H, W) → normalised planes (B, 4, H/2, W/2) in R, Gr, Gb, B order."""
@@ -227,12 +232,21 @@ class MonoSensor(ProfileSensor):
         return torch.einsum("l,blhw->bhw", w / w.sum(), x).unsqueeze(1)
 
     def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
-        """(B, 3, H, W) display or linear RGB → linear grey (B, 1, H, W)."""
-        return self.response_curve(super().unprocess(image, in_type))
+        """(B, 3, H, W) display or linear sRGB → linear grey (B, 1, H, W).
 
-    def linrgb2raw(self, x: torch.Tensor, params=None) -> torch.Tensor:
-        """Linear grey (B, 1, H, W), white at 1 → DN. Not clipped or rounded."""
-        return denormalize_levels(x, self.black_level, self.white_level)
+        Display decode (``in_type="rgb"``), exposure and brightness as for RGB,
+        then :meth:`response_curve`. No matrix or white balance: there is no filter.
+        """
+        return self.response_curve(self._linear_light(image, in_type, self._params(params)))
+
+    def linrgb2raw(
+        self, x: torch.Tensor, params=None, shading: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Linear grey (B, 1, H, W), white at 1 → DN, with vignetting as for RGB.
+
+        Not clipped or rounded: see :meth:`simu_noise`.
+        """
+        return self._to_dn(x, params, shading)
 
     def process(self, dn: torch.Tensor) -> torch.Tensor:
         """Black-level compensation, then gamma."""

@@ -28,7 +28,8 @@ class DngInfo:
     """The metadata written into a DNG.
 
     Attributes:
-        cfa: the mosaic's CFA pattern.
+        cfa: the mosaic's CFA pattern, or None for a monochrome sensor (one
+            sample per pixel, LinearRaw, no colour tags).
         black_level, white_level: DN.
         xyz_to_camera: (3, 3) D65 XYZ → camera matrix (ColorMatrix1).
         as_shot_neutral: camera response to the scene white, 1 / white-balance gains.
@@ -40,7 +41,7 @@ class DngInfo:
         software: writer name.
     """
 
-    cfa: CFA
+    cfa: CFA | None
     black_level: float
     white_level: float
     xyz_to_camera: tuple
@@ -67,7 +68,7 @@ def _rationals(values, signed: bool) -> tuple[int, ...]:
 
 def dng_tags(info: DngInfo) -> list[tuple]:
     """tifffile ``extratags`` for ``info``: (code, type, count, value, writeonce)."""
-    matrix = [v for row in info.xyz_to_camera for v in row]
+    matrix = [v for row in info.xyz_to_camera for v in row] if info.cfa is not None else []
     iso = int(round(info.iso))
     tags = [
         (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
@@ -76,28 +77,34 @@ def dng_tags(info: DngInfo) -> list[tuple]:
         (271, "s", 0, info.make, True),
         (272, "s", 0, info.model, True),
         (274, "H", 1, int(info.orientation), True),
-        (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
-        (33422, "B", 4, tuple(info.cfa.dng_pattern), True),  # CFAPattern
-        (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
-        (50711, "H", 1, 1, True),  # CFALayout: rectangular
         (50713, "H", 2, (1, 1), True),  # BlackLevelRepeatDim
         (50714, "2I", 1, _rationals([info.black_level], False), True),  # BlackLevel
         (50717, "I", 1, int(round(info.white_level)), True),  # WhiteLevel
-        (50721, "2i", 9, _rationals(matrix, True), True),  # ColorMatrix1
-        (50778, "H", 1, ILLUMINANT_D65, True),  # CalibrationIlluminant1
-        (50728, "2I", 3, _rationals(info.as_shot_neutral, False), True),  # AsShotNeutral
         (50730, "2i", 1, _rationals([info.baseline_exposure], True), True),  # BaselineExposure
         # ISO as TIFF/EP places it, in IFD0 (Adobe, exiftool); LibRaw reads the EXIF IFD.
         (34855, "H", 1, min(iso, 65535), True),
         (_EXIF_PLACEHOLDER, "I", 1, 0, True),  # becomes the ExifIFD pointer, see below
     ]
+    if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
+        tags += [
+            (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
+            (33422, "B", 4, tuple(info.cfa.dng_pattern), True),  # CFAPattern
+            (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
+            (50711, "H", 1, 1, True),  # CFALayout: rectangular
+            (50721, "2i", 9, _rationals(matrix, True), True),  # ColorMatrix1
+            (50778, "H", 1, ILLUMINANT_D65, True),  # CalibrationIlluminant1
+            (50728, "2I", 3, _rationals(info.as_shot_neutral, False), True),  # AsShotNeutral
+        ]
     if info.noise_profile is not None:
         tags.append((51041, "d", 2, tuple(float(v) for v in info.noise_profile), True))
     return tags
 
 
 def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
-    """Write a (H, W) uint16 CFA mosaic with ``info`` as an uncompressed DNG at ``path``."""
+    """Write a (H, W) uint16 mosaic with ``info`` as an uncompressed DNG at ``path``.
+
+    A CFA mosaic when ``info.cfa`` is set; otherwise monochrome LinearRaw data.
+    """
     import tifffile
 
     mosaic = np.ascontiguousarray(mosaic)
@@ -106,13 +113,17 @@ def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
     tifffile.imwrite(
         path,
         mosaic,
-        photometric=32803,  # CFA
+        # tifffile refuses one-sample LinearRaw: mono is written MinIsBlack, then retagged
+        photometric=32803 if info.cfa is not None else "minisblack",
         subfiletype=0,
         metadata=None,
         software=info.software,
         extratags=dng_tags(info),
     )
     _append_exif_ifd(path, int(round(info.iso)))
+    if info.cfa is None:
+        with tifffile.TiffFile(path, mode="r+") as tif:
+            tif.pages.first.tags["PhotometricInterpretation"].overwrite(34892)  # LinearRaw
 
 
 def _append_exif_ifd(path: str | Path, iso: int) -> None:

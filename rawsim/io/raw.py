@@ -9,6 +9,8 @@ real files are handled here, each with a warning in ``RawImage.warnings``:
   world (decided by the ISP's ``auto`` mode);
 * files without a CFA (LinearRaw DNGs): read as 3-channel linear data and
   rendered without demosaicking;
+* monochrome files (one colour, no filter): read as (H, W, 1) grey data and
+  rendered without demosaicking or colour stages;
 * non-Bayer mosaics (X-Trans, four-colour): rejected as not supported yet.
 """
 
@@ -31,10 +33,11 @@ class RawImage:
     """A camera raw, decoded.
 
     Attributes:
-        data: (H, W) mosaic in DN for a CFA sensor, or (H, W, 3) linear data when
-            the file has no CFA (``cfa`` is None). uint16.
-        cfa: the Bayer pattern, None for 3-channel data.
-        black_level: (2, 2) black per CFA tile site (DN), or (3,) per channel.
+        data: (H, W) mosaic in DN for a CFA sensor, or (H, W, C) linear data when
+            the file has no CFA (``cfa`` is None): C = 3, or 1 for a monochrome
+            sensor. uint16.
+        cfa: the Bayer pattern, None for 3-channel or monochrome data.
+        black_level: (2, 2) black per CFA tile site (DN), or (C,) per channel.
         white_level: saturation level (DN).
         as_shot_wb: camera white-balance gains (R, G, B), G = 1, or None if unknown.
         daylight_wb: daylight gains (R, G, B), G = 1, or None if unknown.
@@ -104,6 +107,9 @@ def read_raw(path: str | Path) -> RawImage:
     try:
         with rawpy.imread(str(path)) as raw:
             pattern = raw.raw_pattern
+            mono = int(raw.num_colors) == 1 and raw.raw_image_visible.ndim == 2
+            if mono:
+                pattern = None
             if pattern is not None and np.asarray(pattern).shape == (2, 2):
                 # The colours of the visible area's first tile (its origin may be odd).
                 pattern = raw.raw_colors_visible[:2, :2]
@@ -133,7 +139,11 @@ def read_raw(path: str | Path) -> RawImage:
         reason = " ".join(str(err).strip("b'\"").split()) or type(err).__name__
         raise UnsupportedInputError(f"{path}: cannot decode raw data ({reason})") from None
 
-    if pattern is None:
+    if mono:
+        data = data[:, :, None]
+        cfa = None
+        black_level = black[:1].copy()
+    elif pattern is None:
         if data.ndim != 3 or data.shape[2] < 3 or colors != 3:
             raise UnsupportedInputError(f"{path}: no CFA and not 3-channel data")
         data = np.ascontiguousarray(data[:, :, :3])
@@ -159,7 +169,10 @@ def read_raw(path: str | Path) -> RawImage:
     if not white > float(np.max(black_level)):
         raise UnsupportedInputError(f"{path}: white level {white:g} is not above black")
 
-    if np.allclose(xyz, 0):
+    if mono:  # no colour: no matrix, no white balance
+        xyz_out = cam_srgb_out = None
+        camera_wb = daylight_wb = None
+    elif np.allclose(xyz, 0):
         xyz_out = None
         if np.allclose(cam_srgb, 0):
             warnings.append("no colour matrix in the file: camera RGB is treated as sRGB")
@@ -176,8 +189,8 @@ def read_raw(path: str | Path) -> RawImage:
         cfa=cfa,
         black_level=black_level,
         white_level=white,
-        as_shot_wb=_gains(camera_wb, "as-shot", warnings),
-        daylight_wb=_gains(daylight_wb, "daylight", warnings),
+        as_shot_wb=None if mono else _gains(camera_wb, "as-shot", warnings),
+        daylight_wb=None if mono else _gains(daylight_wb, "daylight", warnings),
         xyz_to_camera=xyz_out,
         camera_to_srgb=cam_srgb_out,
         orientation=_FLIP_TO_ORIENTATION.get(flip, 1),

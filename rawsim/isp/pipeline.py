@@ -158,6 +158,8 @@ STAGES: dict[str, dict[str, Param]] = {
 _DISABLED_BY_DEFAULT = {"dead_pixel", "lens_shading", "anti_aliasing", "denoise", "ycbcr"}
 _MOSAIC_ONLY = {"dead_pixel", "anti_aliasing", "demosaic"}
 _RGB_ONLY = {"color_matrix", "ycbcr", "orientation"}
+#: Stages that need colour channels: skipped for monochrome data.
+_COLOUR_ONLY = {"white_balance", "highlights", "color_matrix", "ycbcr"}
 
 
 def default_config() -> list[dict]:
@@ -414,12 +416,16 @@ def build_isp(config: list[dict], raw) -> Isp:
     info: dict = {"warnings": warnings}
     stages: list[tuple[str, nn.Module]] = []
     cfa = raw.cfa
+    mono = cfa is None and raw.data.shape[-1] == 1
+    info["monochrome"] = mono  # grey data: no colour stages
     for s in config:
         name = s["name"]
         if not s["enabled"]:
             continue
         if cfa is None and name in _MOSAIC_ONLY:
-            continue  # 3-channel data: nothing to demosaic or filter per plane
+            continue  # 3-channel or grey data: nothing to demosaic or filter per plane
+        if mono and name in _COLOUR_ONLY:
+            continue
         if name == "black_level":
             module = Levels(_black_map(raw), raw.white_level)
         elif name == "dead_pixel":

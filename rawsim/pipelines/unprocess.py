@@ -30,15 +30,16 @@ from rawsim.noise import NOISE_MODELS, NoiseLevels
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
 from rawsim.seeds import derive_seed
-from rawsim.sensors import RGBSensor, display_to_linear
+from rawsim.sensors import MonoSensor, ProfileSensor, RGBSensor, display_to_linear
 
 STRIP_ROWS = 128
 INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
+SENSOR_KINDS = ("rgb", "mono")
 
 
 @torch.no_grad()
 def unprocess_tensor(
-    sensor: RGBSensor,
+    sensor: ProfileSensor,
     image: torch.Tensor,
     params: UnprocessParams,
     *,
@@ -63,9 +64,10 @@ def unprocess_tensor(
         clean: also return the noise-free mosaic.
 
     Returns:
-        ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white], ``clean``
-        None unless asked for. Not differentiable (use the sensor's stage methods
-        for gradients).
+        ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a Bayer
+        mosaic for an :class:`RGBSensor`, grey for a :class:`MonoSensor`),
+        ``clean`` None unless asked for. Not differentiable (see
+        :func:`rawsim.api.unprocess` for gradients).
     """
     if not isinstance(noise, NoiseLevels):
         check_choice("noise model", noise, NOISE_MODELS)
@@ -146,6 +148,8 @@ class UnprocessOptions:
         safe_white_balance: highlight-preserving inverse white balance.
         device: ``cpu``, ``cuda`` or ``auto``.
         seed: the run's seed (recorded in the sidecar).
+        sensor: ``rgb`` (the profile's Bayer CFA) or ``mono`` (no filter, the
+            profile's levels and noise).
     """
 
     profile: SensorProfile
@@ -162,6 +166,12 @@ class UnprocessOptions:
     safe_white_balance: bool = True
     device: str = "cpu"
     seed: int = 0
+    sensor: str = "rgb"
+
+    def make_sensor(self) -> ProfileSensor:
+        """The sensor simulated: :class:`RGBSensor` or :class:`MonoSensor`."""
+        check_choice("sensor", self.sensor, SENSOR_KINDS)
+        return (MonoSensor if self.sensor == "mono" else RGBSensor)(self.profile)
 
     def output_suffixes(self) -> dict[str, str]:
         """Output kinds of every file → file-name suffixes."""
@@ -175,16 +185,34 @@ class UnprocessOptions:
         return out
 
 
-def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
-    """Unprocess one image file into the outputs named by ``task``.
+@dataclass(frozen=True)
+class Simulation:
+    """One simulated capture: mosaics (1, 1, H, W) DN, and the values drawn."""
 
-    Each output is written atomically. Returns the sidecar's metadata.
+    noisy: torch.Tensor
+    clean: torch.Tensor | None
+    params: UnprocessParams
+    levels: NoiseLevels
+
+
+def simulate(
+    sensor: ProfileSensor,
+    image: torch.Tensor,
+    options: UnprocessOptions,
+    seed: int,
+    *,
+    display_referred: bool = True,
+    code_max: int | None = None,
+) -> Simulation:
+    """Simulate one image (1, 3, H, W) as the files job does, from its ``seed``.
+
+    Parameters come from a generator seeded with ``derive_seed(seed, "params")``
+    (then, under ``randomize``, the noise levels from the same generator), the
+    noise from one seeded with ``derive_seed(seed, "noise")`` on the image's
+    device. The files job passes ``derive_seed(run_seed, key)``: the same seed
+    gives the same capture through the files or the Python API.
     """
-    decoded = read_image(task.source)
-    device = resolve_device(options.device)
-    sensor = RGBSensor(options.profile)
-    params_gen = torch.Generator().manual_seed(derive_seed(task.seed, "params"))
-    linear_input = decoded.is_float
+    params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
     params = sample_params(
         options.profile,
         iso=options.iso,
@@ -192,35 +220,54 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         randomize=options.randomize,
         generator=params_gen,
         exposure_ev=options.exposure_ev,
-        tone="none" if linear_input else options.tone,
-        transfer="linear" if linear_input else options.transfer,
+        tone=options.tone if display_referred else "none",
+        transfer=options.transfer if display_referred else "linear",
         vignetting=options.vignetting,
         safe_white_balance=options.safe_white_balance,
     )
-    image = torch.from_numpy(decoded.pixels).to(device).permute(2, 0, 1).unsqueeze(0)
-    if image.dtype == torch.uint16:  # few kernels take uint16; codes fit in int32
-        image = image.to(torch.int32)
     if options.randomize:  # drawn after the params, from the same generator
         levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
     else:
         levels = sensor.noise_levels(params.iso, options.noise)
-    noise_gen = torch.Generator(device=device).manual_seed(derive_seed(task.seed, "noise"))
+    noise_gen = torch.Generator(device=image.device).manual_seed(derive_seed(seed, "noise"))
     noisy, clean = unprocess_tensor(
         sensor,
         image,
         params,
         noise=levels,
         generator=noise_gen,
-        display_referred=not linear_input,
-        code_max=decoded.code_max,
+        display_referred=display_referred,
+        code_max=code_max,
         clean=options.clean,
     )
+    return Simulation(noisy, clean, params, levels)
+
+
+def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
+    """Unprocess one image file into the outputs named by ``task``.
+
+    Each output is written atomically. Returns the sidecar's metadata.
+    """
+    decoded = read_image(task.source)
+    device = resolve_device(options.device)
+    image = torch.from_numpy(decoded.pixels).to(device).permute(2, 0, 1).unsqueeze(0)
+    if image.dtype == torch.uint16:  # few kernels take uint16; codes fit in int32
+        image = image.to(torch.int32)
+    sim = simulate(
+        options.make_sensor(),
+        image,
+        options,
+        task.seed,
+        display_referred=not decoded.is_float,
+        code_max=decoded.code_max,
+    )
+    noisy, clean, params, levels = sim.noisy, sim.clean, sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = noisy[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
     clean_np = (
         None if clean is None else clean[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
     )
-    info = _dng_info(options.profile, params, levels, decoded.orientation)
+    info = _dng_info(options, params, levels, decoded.orientation)
     if "dng" in task.outputs:
         with atomic_output(task.outputs["dng"]) as tmp:
             write_dng(tmp, noisy_np, info)
@@ -228,15 +275,16 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         with atomic_output(task.outputs["clean_dng"]) as tmp:
             write_dng(tmp, clean_np, replace(info, noise_profile=None))
     if "npz" in task.outputs:
-        cfa = options.profile.cfa
-        arrays = {"mosaic": _pack(cfa, noisy_np)}
+        mono = options.sensor == "mono"
+        pack = (lambda m: m[None]) if mono else (lambda m: _pack(options.profile.cfa, m))
+        arrays = {"mosaic": pack(noisy_np)}
         if clean_np is not None:
-            arrays["clean"] = _pack(cfa, clean_np)
+            arrays["clean"] = pack(clean_np)
         with atomic_output(task.outputs["npz"]) as tmp, open(tmp, "wb") as fh:
             np.savez(
                 fh,
                 **arrays,
-                planes=np.array(PACKED_PLANES),
+                planes=np.array(["Y"] if mono else PACKED_PLANES),
                 metadata=np.array(json.dumps(metadata)),
             )
     with atomic_output(task.outputs["json"]) as tmp:
@@ -250,9 +298,10 @@ def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
     return planes[0].numpy().astype(np.uint16)
 
 
-def _dng_info(profile: SensorProfile, params: UnprocessParams, levels, orientation) -> DngInfo:
+def _dng_info(options: UnprocessOptions, params: UnprocessParams, levels, orientation) -> DngInfo:
+    profile = options.profile
     return DngInfo(
-        cfa=profile.cfa,
+        cfa=None if options.sensor == "mono" else profile.cfa,
         black_level=profile.black_level,
         white_level=profile.white_level,
         xyz_to_camera=params.xyz_to_camera,
@@ -290,8 +339,9 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
             "model": profile.model,
             "path": profile.path,
         },
-        "cfa_pattern": profile.cfa.pattern,
-        "packed_planes": list(PACKED_PLANES),
+        "sensor": options.sensor,
+        "cfa_pattern": None if options.sensor == "mono" else profile.cfa.pattern,
+        "packed_planes": ["Y"] if options.sensor == "mono" else list(PACKED_PLANES),
         "bit_depth": profile.bit_depth,
         "black_level": profile.black_level,
         "white_level": profile.white_level,
