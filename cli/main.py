@@ -21,6 +21,7 @@ COMMANDS = {
     "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
     "calibrate": ("rawsim_cli.calibrate", "Fit a noise profile from a camera's raws."),
+    "events": ("rawsim_cli.events", "Simulate event-camera (DVS) counts from frames."),
 }
 
 

@@ -1,0 +1,187 @@
+"""Batch unprocessing and processing for training pipelines.
+
+:func:`unprocess` simulates a batch of captures, each from its own seed, exactly
+as ``rawsim unprocess`` simulates a file; :func:`process` renders the mosaics
+back to RGB through the ISP. Both are differentiable where the maths allows.
+Shapes: images (B, 3, H, W) with H, W even; mosaics (B, 1, H, W) in DN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from rawsim.errors import ParameterError
+from rawsim.io.raw import RawImage
+from rawsim.isp.pipeline import build_isp, default_config, override, validate_config
+from rawsim.pipelines.unprocess import INTEGER_DTYPES, UnprocessOptions, simulate
+from rawsim.seeds import derive_seed
+from rawsim.sensors import MonoSensor, ProfileSensor
+
+
+def file_seed(run_seed: int, key: str) -> int:
+    """The seed ``rawsim unprocess --seed RUN_SEED`` gives the input whose key is ``key``.
+
+    The key is the file's path relative to the input folder given on the
+    command line (or its name, for a file given directly), with ``/`` separators.
+    """
+    return derive_seed(run_seed, key)
+
+
+def unprocess(
+    images: torch.Tensor,
+    sensor: ProfileSensor,
+    seeds: Sequence[int],
+    *,
+    iso: float | Sequence[float] | None = None,
+    iso_range: tuple[float, float] | None = None,
+    randomize: bool = False,
+    noise: str = "poisson-gaussian",
+    tone: str = "none",
+    transfer: str = "srgb",
+    exposure_ev: float = 0.0,
+    vignetting: float = 0.0,
+    safe_white_balance: bool = True,
+    display_referred: bool = True,
+    code_max: int | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, list[dict]]:
+    """Simulate the raw captures of a batch: returns ``(noisy, clean, metadata)``.
+
+    Args:
+        images: (B, 3, H, W) on any device: integer codes (uint8/uint16/int32, with
+            ``code_max`` the full-scale code) or floats, display-referred in [0, 1]
+            unless ``display_referred`` is False (then scene-linear).
+        sensor: an :class:`~rawsim.sensors.RGBSensor` (Bayer mosaic) or a
+            :class:`~rawsim.sensors.MonoSensor` (grey).
+        seeds: one int per sample. Sample i is bit for bit what the files job
+            writes for a file whose seed is ``seeds[i]`` (see :func:`file_seed`),
+            on the same device.
+        iso: one ISO for all, one per sample, or None with ``iso_range``
+            (log-uniform per sample, from its seed).
+        randomize, noise, tone, transfer, exposure_ev, vignetting,
+        safe_white_balance: as the ``rawsim unprocess`` options.
+
+    Returns:
+        ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
+        ``metadata``: one dict per sample (seed, ISO, sampled parameters, noise
+        levels, levels and CFA). If ``images`` requires grad (floats only),
+        ``clean`` is the unrounded DN with its graph and ``noisy`` is ``clean``
+        plus the sampled noise (held constant), so gradients reach the images.
+    """
+    b = images.shape[0] if images.ndim == 4 else 0
+    if len(seeds) != b:
+        raise ParameterError(f"need one seed per image: {len(seeds)} seeds for a batch of {b}")
+    isos = list(iso) if isinstance(iso, Sequence) else [iso] * b
+    if len(isos) != b:
+        raise ParameterError(f"need one ISO per image: {len(isos)} ISOs for a batch of {b}")
+    options = UnprocessOptions(
+        profile=sensor.profile,
+        iso_range=iso_range,
+        randomize=randomize,
+        clean=True,
+        noise=noise,
+        tone=tone,
+        transfer=transfer,
+        exposure_ev=exposure_ev,
+        vignetting=vignetting,
+        safe_white_balance=safe_white_balance,
+        sensor="mono" if isinstance(sensor, MonoSensor) else "rgb",
+    )
+    grad = torch.is_grad_enabled() and images.requires_grad
+    if grad and images.dtype in INTEGER_DTYPES:
+        raise ParameterError("gradients need float images")
+    noisy, clean, metadata = [], [], []
+    for i in range(b):
+        sim = simulate(
+            sensor,
+            images[i : i + 1].detach(),
+            replace(options, iso=isos[i]),
+            int(seeds[i]),
+            display_referred=display_referred,
+            code_max=code_max,
+        )
+        c = sim.clean
+        if grad:
+            in_type = "rgb" if display_referred else "linear_rgb"
+            c = sensor.linrgb2raw(
+                sensor.unprocess(images[i : i + 1], in_type, sim.params), sim.params
+            )
+            noisy.append(c + (sim.noisy - c).detach())
+        else:
+            noisy.append(sim.noisy)
+        clean.append(c)
+        metadata.append(_metadata(sensor, options, int(seeds[i]), sim))
+    return torch.cat(noisy), torch.cat(clean), metadata
+
+
+def _metadata(sensor: ProfileSensor, options: UnprocessOptions, seed: int, sim) -> dict:
+    p = sensor.profile
+    mono = options.sensor == "mono"
+    return {
+        "seed": seed,
+        "iso": sim.params.iso,
+        "sensor": options.sensor,
+        "cfa_pattern": None if mono else p.cfa.pattern,
+        "black_level": p.black_level,
+        "white_level": p.white_level,
+        "params": sim.params.to_dict(),
+        "noise": sim.levels.to_dict(),
+    }
+
+
+def process(
+    mosaics: torch.Tensor,
+    sensor: ProfileSensor,
+    metadata: Sequence[dict],
+    config: list[dict] | None = None,
+    **changes,
+) -> torch.Tensor:
+    """Render mosaics from :func:`unprocess` back to images through the ISP.
+
+    Args:
+        mosaics: (B, 1, H, W) DN.
+        sensor: the sensor that recorded them.
+        metadata: :func:`unprocess`'s dicts: each sample's white balance and
+            matrix are used (``white_balance`` mode ``camera``).
+        config: an ISP config (see ``rawsim isp show``); default: the default ISP.
+        changes: stage overrides as ``rawsim process`` takes them, e.g.
+            ``demosaic="bilinear"``.
+
+    Returns:
+        (B, 3, H, W) display-referred sRGB (B, 1, H, W for a mono sensor).
+        Differentiable when gradients are enabled (the ISP then runs full frame).
+    """
+    if mosaics.ndim != 4 or mosaics.shape[1] != 1 or len(metadata) != mosaics.shape[0]:
+        raise ParameterError(
+            f"need mosaics (B, 1, H, W) and one metadata dict each, got "
+            f"{tuple(mosaics.shape)} and {len(metadata)}"
+        )
+    config = validate_config(config if config is not None else default_config())
+    if changes:
+        config = override(config, **changes)
+    mono = isinstance(sensor, MonoSensor)
+    p = sensor.profile
+    outs = []
+    for i, meta in enumerate(metadata):
+        params = meta["params"]
+        raw = RawImage(
+            data=np.empty((0, 0, 1) if mono else (0, 0), dtype=np.uint16),
+            cfa=None if mono else p.cfa,
+            black_level=np.full((1,) if mono else (2, 2), p.black_level),
+            white_level=p.white_level,
+            as_shot_wb=None if mono else tuple(params["wb_gains"]),
+            daylight_wb=None,
+            xyz_to_camera=None if mono else np.asarray(params["xyz_to_camera"]),
+            camera_to_srgb=None,
+            orientation=1,
+            iso=meta["iso"],
+            make=p.make,
+            model=p.model,
+            path="<tensor>",
+        )
+        isp = build_isp(config, raw).to(mosaics.device)
+        outs.append(isp(mosaics[i : i + 1]))
+    return torch.cat(outs)

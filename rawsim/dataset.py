@@ -1,0 +1,130 @@
+"""A ``torch.utils.data.Dataset`` of noisy/clean raw pairs made on the fly from images."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from torch.utils.data import Dataset
+
+from rawsim.api import unprocess
+from rawsim.batch import discover
+from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.io.images import IMAGE_EXTENSIONS, read_image
+from rawsim.seeds import derive_seed
+from rawsim.sensors import MonoSensor, ProfileSensor
+
+
+class UnprocessDataset(Dataset):
+    """Random crops of a folder's images, unprocessed into noisy and clean raws.
+
+    Item ``i`` is drawn from the seed ``derive_seed(seed, epoch, key)`` of its
+    image's key (path relative to ``root``): the same index, seed and epoch give
+    the same tensors in any worker, process or order. Call :meth:`set_epoch`
+    before each epoch for new crops, parameters and noise (DataLoader workers
+    copy the dataset when an epoch's iterator starts, so this works with
+    ``num_workers > 0`` unless ``persistent_workers`` is set).
+
+    Each item is a dict:
+
+    * ``noisy``, ``clean``: float32, black at 0 and white at 1 (``normalize``) or
+      DN; shape (4, S/2, S/2) in R, Gr, Gb, B order (``layout="packed"``) or
+      (1, S, S) (``"mosaic"``; a mono sensor always gives (1, S, S));
+    * ``iso``, ``gain`` (K, DN/e⁻), ``read_sigma`` (DN): float32 scalars;
+    * ``wb_gains`` (3,) and ``xyz_to_camera`` (3, 3): the parameters used;
+    * ``index``: the item's index.
+
+    Args:
+        root: folder of images (searched recursively, as the CLI does).
+        sensor: the sensor simulated.
+        crop: crop size S in pixels, even; crops start on even rows and columns,
+            so every crop has the sensor's CFA phase.
+        seed: the dataset's seed.
+        iso, iso_range, randomize, noise: as for :func:`rawsim.api.unprocess`
+            (default: log-uniform ISO over the profile's range, randomized).
+        layout: ``packed`` or ``mosaic``.
+        normalize: scale DN to [0, 1] above black.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        sensor: ProfileSensor,
+        *,
+        crop: int = 256,
+        seed: int = 0,
+        iso: float | None = None,
+        iso_range: tuple[float, float] | None = None,
+        randomize: bool = True,
+        noise: str = "poisson-gaussian",
+        layout: str = "packed",
+        normalize: bool = True,
+    ) -> None:
+        if crop < 2 or crop % 2:
+            raise ParameterError(f"crop must be an even number of pixels ≥ 2, got {crop}")
+        if layout not in ("packed", "mosaic"):
+            raise ParameterError(f"layout must be 'packed' or 'mosaic', got {layout!r}")
+        found, missing = discover([root], IMAGE_EXTENSIONS)
+        if missing or not found:
+            raise ParameterError(f"{root}: no images found")
+        self.files: Sequence[tuple[Path, str]] = found
+        self.sensor, self.crop, self.seed, self.epoch = sensor, crop, seed, 0
+        if iso is None and iso_range is None:
+            iso_range = sensor.profile.iso_range
+        self.iso, self.iso_range = iso, iso_range
+        self.randomize, self.noise = randomize, noise
+        self.layout, self.normalize = layout, normalize
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch whose crops, parameters and noise the items use."""
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def __getitem__(self, index: int) -> dict:
+        path, key = self.files[index]
+        seed = derive_seed(self.seed, self.epoch, key)
+        decoded = read_image(path)
+        h, w = decoded.pixels.shape[:2]
+        s = self.crop
+        if h < s or w < s:
+            raise UnsupportedInputError(f"{path}: {w}×{h} is smaller than the {s}×{s} crop")
+        g = torch.Generator().manual_seed(derive_seed(seed, "crop"))
+        top = 2 * int(torch.randint((h - s) // 2 + 1, (1,), generator=g))
+        left = 2 * int(torch.randint((w - s) // 2 + 1, (1,), generator=g))
+        pixels = torch.from_numpy(decoded.pixels[top : top + s, left : left + s].copy())
+        image = pixels.permute(2, 0, 1)[None]
+        if image.dtype == torch.uint16:
+            image = image.to(torch.int32)
+        noisy, clean, meta = unprocess(
+            image,
+            self.sensor,
+            [seed],
+            iso=self.iso,
+            iso_range=self.iso_range,
+            randomize=self.randomize,
+            noise=self.noise,
+            display_referred=not decoded.is_float,
+            code_max=decoded.code_max,
+        )
+        m = meta[0]
+        return {
+            "noisy": self._arrange(noisy),
+            "clean": self._arrange(clean),
+            "iso": torch.tensor(m["iso"], dtype=torch.float32),
+            "gain": torch.tensor(m["noise"].get("gain_dn_per_electron", 0.0), dtype=torch.float32),
+            "read_sigma": torch.tensor(m["noise"]["read_sigma_dn"], dtype=torch.float32),
+            "wb_gains": torch.tensor(m["params"]["wb_gains"], dtype=torch.float32),
+            "xyz_to_camera": torch.tensor(m["params"]["xyz_to_camera"], dtype=torch.float32),
+            "index": index,
+        }
+
+    def _arrange(self, dn: torch.Tensor) -> torch.Tensor:
+        """(1, 1, S, S) DN → the item's layout and scale."""
+        black, white = self.sensor.black_level, self.sensor.white_level
+        x = (dn - black) / (white - black) if self.normalize else dn
+        if self.layout == "packed" and not isinstance(self.sensor, MonoSensor):
+            return self.sensor.cfa.pack(x)[0]
+        return x[0]
