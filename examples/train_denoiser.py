@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> list[float]:
             opt.zero_grad()
             loss.backward()
             opt.step()
-            losses.append(float(loss))
+            losses.append(loss.item())
             before, after = psnr(noisy, clean), psnr(out.detach(), clean)
             print(
                 f"step {step + 1:4d}  loss {losses[-1]:.5f}  "

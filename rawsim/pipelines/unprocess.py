@@ -54,7 +54,8 @@ def unprocess_tensor(
     Args:
         image: (B, 3, H, W), H and W even. Either integer codes (uint8/uint16/int32,
             decoded through a lookup table of the display transform, with
-            ``code_max`` the full-scale code, default the dtype's maximum), or float
+            ``code_max`` the full-scale code, default the dtype's maximum; int32
+            needs it), or float
             values: display-referred in [0, 1] if ``display_referred``, else
             scene-linear (1.0 = white level before exposure).
         params: the image's :class:`UnprocessParams` (ISO, matrix, gains, …).
@@ -79,6 +80,8 @@ def unprocess_tensor(
         raise ParameterError(f"image height and width must be even, got {h}×{w}")
     lut = None
     if image.dtype in INTEGER_DTYPES:
+        if image.dtype == torch.int32 and code_max is None:
+            raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
         top = code_max or int(torch.iinfo(image.dtype).max)
         if int(image.min()) < 0 or int(image.max()) > top:
             raise ParameterError(f"integer codes must lie in [0, {top}]")

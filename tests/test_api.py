@@ -1,0 +1,130 @@
+"""Python API: batch unprocess ≡ the files job, gradients, process, Dataset, example."""
+
+import numpy as np
+import pytest
+import rawpy
+import torch
+from click.testing import CliRunner
+from torch.utils.data import DataLoader
+
+import rawsim
+from rawsim.errors import ParameterError
+from rawsim.io.images import read_image
+from rawsim_cli.main import cli
+from tests.conftest import DATA, ROOT
+
+
+@pytest.fixture(scope="module")
+def sensor():
+    return rawsim.RGBSensor.from_profile("canon_eos_70d")
+
+
+def _codes(name):
+    decoded = read_image(DATA / "srgb" / name)
+    return torch.from_numpy(decoded.pixels).permute(2, 0, 1)[None].to(torch.int32), decoded
+
+
+@pytest.mark.parametrize("mono", [False, True])
+def test_batch_unprocess_matches_the_files_job_bit_for_bit(sensor, tmp_path, mono):
+    names = ["chelsea.png", "rocket.jpg"]
+    args = ["unprocess", *(DATA / "srgb" / n for n in names), "-o", tmp_path, "--seed", 11]
+    args += ["--profile", "canon_eos_70d", "--iso-range", 200, 6400, "--randomize"]
+    args += ["--noise", "physics", "--clean", "--sensor", "mono" if mono else "rgb"]
+    r = CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    images = [_codes(n) for n in names]
+    # rocket.jpg is 427×640: the files job crops odd sizes to even, so compare like for like
+    h = min(im.shape[-2] for im, _ in images)
+    w = min(im.shape[-1] for im, _ in images)
+    dev = rawsim.MonoSensor(sensor.profile) if mono else sensor
+    for (image, decoded), name in zip(images, names, strict=True):
+        assert decoded.code_max == 255
+        seeds = [rawsim.file_seed(11, name)]
+        noisy, clean, meta = rawsim.unprocess(
+            image, dev, seeds, iso_range=(200, 6400), randomize=True, noise="physics", code_max=255
+        )
+        stem = name.rsplit(".", 1)[0]
+        for kind, got in (("dng", noisy), ("clean.dng", clean)):
+            with rawpy.imread(str(tmp_path / f"{stem}.{kind}")) as raw:
+                ref = raw.raw_image.copy()
+            assert np.array_equal(got[0, 0].numpy().astype(np.uint16), ref)
+        assert meta[0]["iso"] == pytest.approx(
+            rawpy.imread(str(tmp_path / f"{stem}.dng")).other.iso_speed, abs=0.5
+        )
+    # a batch is the samples one by one, in any order
+    crop = torch.cat([im[..., :h, :w] for im, _ in images])
+    seeds = [5, 9]
+    kw = {"noise": "physics", "code_max": 255}
+    both, _, meta = rawsim.unprocess(crop, dev, seeds, iso=[400, 3200], **kw)
+    one, _, _ = rawsim.unprocess(crop[1:], dev, seeds[1:], iso=3200, **kw)
+    assert torch.equal(both[1:], one) and [m["iso"] for m in meta] == [400, 3200]
+
+
+def test_gradients_flow_through_unprocess_and_process(sensor):
+    image, _ = _codes("chelsea.png")
+    x = (image[..., :64, :96].float() / 255).requires_grad_()
+    noisy, clean, meta = rawsim.unprocess(x, sensor, [1], iso=1600)
+    assert noisy.requires_grad and clean.requires_grad
+    rgb = rawsim.process(noisy, sensor, meta, demosaic="bilinear")
+    assert rgb.shape == (1, 3, 64, 96)
+    rgb.mean().backward()
+    assert torch.isfinite(x.grad).all() and x.grad.abs().sum() > 0
+    with torch.no_grad():
+        ref, _, _ = rawsim.unprocess(x, sensor, [1], iso=1600)
+    assert torch.allclose(noisy.detach(), ref, atol=1e-3)  # same capture, held noise
+
+
+def test_process_inverts_unprocess_on_clean_data(sensor):
+    yy, xx = torch.meshgrid(torch.linspace(0, 1, 64), torch.linspace(0, 1, 64), indexing="ij")
+    x = torch.stack([0.2 + 0.6 * xx, 0.3 + 0.4 * yy, 0.7 - 0.5 * xx * yy])[None]
+    _, clean, meta = rawsim.unprocess(x, sensor, [0], iso=100, noise="none")
+    with torch.no_grad():
+        back = rawsim.process(clean, sensor, meta, tone="none")
+    inner = (slice(None), slice(None), slice(8, -8), slice(8, -8))
+    assert torch.mean((back[inner] - x[inner]) ** 2) < 1e-4
+
+
+def test_api_errors(sensor):
+    x = torch.rand(2, 3, 8, 8)
+    with pytest.raises(ParameterError, match="one seed per image"):
+        rawsim.unprocess(x, sensor, [1], iso=100)
+    with pytest.raises(ParameterError, match="one ISO per image"):
+        rawsim.unprocess(x, sensor, [1, 2], iso=[100])
+    with pytest.raises(ParameterError, match="code_max"):
+        rawsim.unprocess((x * 255).to(torch.int32), sensor, [1, 2], iso=100)
+
+
+def _batches(dataset, workers):
+    loader = DataLoader(dataset, batch_size=2, num_workers=workers)
+    return [b for b in loader]
+
+
+def test_dataset_is_deterministic_across_workers_and_epochs(sensor):
+    data = rawsim.UnprocessDataset(DATA / "srgb", sensor, crop=64, seed=3, noise="physics")
+    assert len(data) == 4
+    item = data[1]
+    assert item["noisy"].shape == item["clean"].shape == (4, 32, 32)
+    assert 0 <= float(item["clean"].min()) and float(item["clean"].max()) <= 1
+    lo, hi = sensor.profile.iso_range
+    assert lo <= float(item["iso"]) <= hi and float(item["gain"]) > 0
+    serial, parallel = _batches(data, 0), _batches(data, 2)
+    for a, b in zip(serial, parallel, strict=True):
+        assert torch.equal(a["noisy"], b["noisy"]) and torch.equal(a["iso"], b["iso"])
+    data.set_epoch(1)
+    assert not torch.equal(data[1]["noisy"], item["noisy"])
+    data.set_epoch(0)
+    assert torch.equal(data[1]["noisy"], item["noisy"])
+    mosaic = rawsim.UnprocessDataset(DATA / "srgb", sensor, crop=64, seed=3, layout="mosaic")
+    assert mosaic[0]["noisy"].shape == (1, 64, 64)
+    with pytest.raises(ParameterError, match="even"):
+        rawsim.UnprocessDataset(DATA / "srgb", sensor, crop=63)
+
+
+def test_example_training_script_runs():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("train", ROOT / "examples" / "train_denoiser.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    losses = module.main(["--data", str(DATA / "srgb"), "--steps", "4", "--crop", "64"])
+    assert len(losses) == 4 and all(np.isfinite(losses))
