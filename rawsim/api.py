@@ -109,7 +109,7 @@ def unprocess(
             c = sensor.linrgb2raw(
                 sensor.unprocess(images[i : i + 1], in_type, sim.params), sim.params
             )
-            noisy.append(c + (sim.noisy - c).detach())
+            noisy.append(sim.noisy + (c - c.detach()))  # the capture's values, c's graph
         else:
             noisy.append(sim.noisy)
         clean.append(c)

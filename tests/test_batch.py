@@ -94,7 +94,8 @@ def test_readme_python_example_runs():
     code = re.search(r"```python\n(.*?)```", text, re.S).group(1)
     namespace: dict = {}
     exec(compile(code, "README.md", "exec"), namespace)
-    assert namespace["noisy"].shape == (1, 1, 256, 256)
+    assert namespace["noisy"].shape == (8, 1, 256, 256)
     assert torch.equal(namespace["noisy"], namespace["noisy"].round())
-    assert isinstance(namespace["mosaic"], torch.Tensor)
+    assert namespace["rgb"].shape == (8, 3, 256, 256)
+    assert namespace["images"].grad.abs().sum() > 0
     assert Path(ROOT / "examples" / "photos").is_dir()
