@@ -77,11 +77,12 @@ def unprocess(
     isos = list(iso) if isinstance(iso, Sequence) else [iso] * b
     if len(isos) != b:
         raise ParameterError(f"need one ISO per image: {len(isos)} ISOs for a batch of {b}")
+    grad = torch.is_grad_enabled() and images.requires_grad
     options = UnprocessOptions(
         profile=sensor.profile,
         iso_range=iso_range,
         randomize=randomize,
-        clean=True,
+        clean=not grad,  # with gradients, clean comes from the differentiable stages
         noise=noise,
         tone=tone,
         transfer=transfer,
@@ -90,7 +91,6 @@ def unprocess(
         safe_white_balance=safe_white_balance,
         sensor="mono" if isinstance(sensor, MonoSensor) else "rgb",
     )
-    grad = torch.is_grad_enabled() and images.requires_grad
     if grad and images.dtype in INTEGER_DTYPES:
         raise ParameterError("gradients need float images")
     noisy, clean, metadata = [], [], []
@@ -103,16 +103,16 @@ def unprocess(
             display_referred=display_referred,
             code_max=code_max,
         )
-        c = sim.clean
         if grad:
             in_type = "rgb" if display_referred else "linear_rgb"
             c = sensor.linrgb2raw(
                 sensor.unprocess(images[i : i + 1], in_type, sim.params), sim.params
             )
             noisy.append(sim.noisy + (c - c.detach()))  # the capture's values, c's graph
+            clean.append(c)
         else:
             noisy.append(sim.noisy)
-        clean.append(c)
+            clean.append(sim.clean)
         metadata.append(_metadata(sensor, options, int(seeds[i]), sim))
     return torch.cat(noisy), torch.cat(clean), metadata
 

@@ -12,6 +12,8 @@ from rawsim.api import unprocess
 from rawsim.batch import discover
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.images import IMAGE_EXTENSIONS, read_image
+from rawsim.isp.levels import normalize_levels
+from rawsim.pipelines.unprocess import image_tensor
 from rawsim.seeds import derive_seed
 from rawsim.sensors import MonoSensor, ProfileSensor
 
@@ -94,10 +96,7 @@ class UnprocessDataset(Dataset):
         g = torch.Generator().manual_seed(derive_seed(seed, "crop"))
         top = 2 * int(torch.randint((h - s) // 2 + 1, (1,), generator=g))
         left = 2 * int(torch.randint((w - s) // 2 + 1, (1,), generator=g))
-        pixels = torch.from_numpy(decoded.pixels[top : top + s, left : left + s].copy())
-        image = pixels.permute(2, 0, 1)[None]
-        if image.dtype == torch.uint16:
-            image = image.to(torch.int32)
+        image = image_tensor(decoded.pixels[top : top + s, left : left + s].copy())
         noisy, clean, meta = unprocess(
             image,
             self.sensor,
@@ -123,8 +122,8 @@ class UnprocessDataset(Dataset):
 
     def _arrange(self, dn: torch.Tensor) -> torch.Tensor:
         """(1, 1, S, S) DN → the item's layout and scale."""
-        black, white = self.sensor.black_level, self.sensor.white_level
-        x = (dn - black) / (white - black) if self.normalize else dn
-        if self.layout == "packed" and not isinstance(self.sensor, MonoSensor):
-            return self.sensor.cfa.pack(x)[0]
+        sensor = self.sensor
+        x = normalize_levels(dn, sensor.black_level, sensor.white_level) if self.normalize else dn
+        if self.layout == "packed" and not isinstance(sensor, MonoSensor):
+            return sensor.cfa.pack(x)[0]
         return x[0]

@@ -188,6 +188,15 @@ class UnprocessOptions:
         return out
 
 
+def image_tensor(pixels: np.ndarray, device="cpu") -> torch.Tensor:
+    """A decoded image's (H, W, 3) pixels → (1, 3, H, W) for :func:`unprocess_tensor`.
+
+    uint16 codes become int32 (few kernels take uint16; the codes fit).
+    """
+    image = torch.from_numpy(pixels).to(device).permute(2, 0, 1).unsqueeze(0)
+    return image.to(torch.int32) if image.dtype == torch.uint16 else image
+
+
 @dataclass(frozen=True)
 class Simulation:
     """One simulated capture: mosaics (1, 1, H, W) DN, and the values drawn."""
@@ -252,10 +261,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     Each output is written atomically. Returns the sidecar's metadata.
     """
     decoded = read_image(task.source)
-    device = resolve_device(options.device)
-    image = torch.from_numpy(decoded.pixels).to(device).permute(2, 0, 1).unsqueeze(0)
-    if image.dtype == torch.uint16:  # few kernels take uint16; codes fit in int32
-        image = image.to(torch.int32)
+    image = image_tensor(decoded.pixels, resolve_device(options.device))
     sim = simulate(
         options.make_sensor(),
         image,
