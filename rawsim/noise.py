@@ -316,14 +316,21 @@ class NoiseLevels:
 
         Exact for ``poisson-gaussian`` and ``physics`` (b holds the read, row and
         quantisation variance) and for ``gaussian`` with β = 0; otherwise the
-        least-squares line over the range.
+        least-squares line over 1025 points of the range. Computed in float64 with
+        correctly rounded sums (``math.fsum``), so the figures (and the DNG
+        NoiseProfile made from them) are the same bits on every run and machine.
         """
-        s = torch.linspace(0, span, 1025, dtype=torch.float64)
-        v = self.variance(s)
-        a, b = torch.linalg.lstsq(torch.stack([s, torch.ones_like(s)], 1), v[:, None]).solution[
-            :, 0
-        ]
-        return float(a), float(b)
+        if self.model == "none":
+            return 0.0, 0.0
+        if self.model in ("poisson-gaussian", "physics"):
+            return float(self.gain), self.read_variance + QUANTIZATION_VARIANCE
+        n = 1025
+        s = [span * i / (n - 1) for i in range(n)]
+        v = [float(x) for x in self.variance(torch.tensor(s, dtype=torch.float64))]
+        s_mean, v_mean = math.fsum(s) / n, math.fsum(v) / n
+        sxx = math.fsum((x - s_mean) ** 2 for x in s)
+        a = math.fsum((x - s_mean) * (y - v_mean) for x, y in zip(s, v, strict=True)) / sxx
+        return a, v_mean - a * s_mean
 
     def noise_profile(self, black: float, white: float) -> tuple[float, float]:
         """DNG NoiseProfile (S, O): σ(x) = √(S x + O) for x normalised to [0, 1]."""

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Real test files shipped beside the project (see ../shared/data/SOURCES.md).
-DATA = ROOT.parent / "shared" / "data"
+#: Real test files vendored in the repository (see tests/data/SOURCES.md).
+DATA = ROOT / "tests" / "data"
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: Absolute tolerance of round trips per dtype.
 TOL = {torch.float32: 2e-5, torch.float64: 1e-10}
@@ -19,7 +19,7 @@ TOL = {torch.float32: 2e-5, torch.float64: 1e-10}
 
 def pytest_collection_modifyitems(config, items):
     if not DATA.is_dir():
-        raise pytest.UsageError(f"test data not found at {DATA} (../shared/data beside the repo)")
+        raise pytest.UsageError(f"test data not found at {DATA} (it is part of the repository)")
 
 
 @pytest.fixture(params=PATTERNS)

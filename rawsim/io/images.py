@@ -163,7 +163,8 @@ def write_image(
     PNG/TIFF/JPEG: values are display-referred, clipped to [0, 1] and quantised to
     ``bits`` (8 or 16; JPEG is 8-bit only); TIFF is uncompressed. EXR: scene-linear,
     written as half (``bits`` 16) or float (``bits`` 32), zip-compressed, unclipped.
-    ``srgb`` tags the colour space.
+    ``srgb`` tags the colour space. No DateTime is written unless ``attributes``
+    gives one: the same pixels make the same bytes.
     """
     import OpenImageIO as oiio
     import torch
@@ -198,6 +199,9 @@ def write_image(
         spec.attribute("Compression", "jpeg:95")
     elif fmt == "tiff":
         spec.attribute("compression", "none")  # as dcraw -T: deflate costs seconds per image
+    # OpenImageIO stamps TIFF and EXR with the time of writing unless DateTime is
+    # set; an empty one writes none, so a rerun reproduces the file byte for byte.
+    spec.attribute("DateTime", "")
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
     out = oiio.ImageOutput.create(str(path))
