@@ -108,11 +108,11 @@ def unprocess(
             c = sensor.linrgb2raw(
                 sensor.unprocess(images[i : i + 1], in_type, sim.params), sim.params
             )
-            noisy.append(sim.noisy + (c - c.detach()))  # the capture's values, c's graph
+            noisy.append(sim.noisy.float() + (c - c.detach()))  # the capture's values, c's graph
             clean.append(c)
         else:
-            noisy.append(sim.noisy)
-            clean.append(sim.clean)
+            noisy.append(sim.noisy.float())
+            clean.append(sim.clean.float())
         metadata.append(_metadata(sensor, options, int(seeds[i]), sim))
     return torch.cat(noisy), torch.cat(clean), metadata
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
+from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda
 from rawsim.errors import ParameterError, check_choice
 
 NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
@@ -358,78 +359,90 @@ class NoiseLevels:
         return out
 
 
-def add_noise(
-    dn: torch.Tensor,
-    black,
-    levels: NoiseLevels,
-    generator: torch.Generator | None = None,
-    cfa=None,
-) -> torch.Tensor:
-    """Add sensor noise to a clean mosaic.
+def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: int = 0):
+    """Add sensor noise to a clean mosaic (the torch reference of the engine's draws).
 
     Args:
-        dn: (B, 1, H, W) clean DN (float, not rounded; may lie below black).
-        black: black level, a number or a tensor broadcastable to ``dn``.
+        dn: (B, 1, h, w) clean DN (float, not rounded; may lie below black): rows
+            ``top`` … ``top + h`` of an image ``w`` wide.
+        black: black level (a number).
         levels: noise parameters at the ISO (:meth:`NoiseSpec.levels`).
-        generator: source of randomness (its device must match ``dn``).
+        key: the noise seed (a 64-bit int), or one per sample. Each draw is a
+            function of (key, pixel index ``y · w + x``), from
+            :mod:`rawsim.counter_rng`, so the result does not depend on how the
+            image is cut into strips or batches, nor on the device.
         cfa: the mosaic's :class:`~rawsim.cfa.CFA`, to place a non-zero
             ``channel_bias`` (physics model); None for a monochrome sensor, which
             gets the mean of the four biases.
+        top: the first row's index in the image.
 
     Returns:
-        Noisy DN, float, unrounded and unclipped. Differentiable with respect to
-        ``dn``: normal terms are reparameterised; the exact Poisson term and the
-        Tukey-lambda draws pass the gradient straight through.
+        Noisy DN in float64, unrounded and unclipped (float64 so that rounding it
+        gives the engine's bits). Differentiable with respect to ``dn``; the noise
+        itself is held constant.
     """
-    if levels.model == "none":
-        return dn
-    signal = dn - black
-    positive = signal.clamp_min(0)
-    if levels.model == "gaussian":
-        read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
-        shot = levels.shot_alpha * positive.sqrt() + levels.shot_beta
-        sigma = torch.sqrt(levels.iso_gain * shot**2 + levels.read_sigma**2)
-        return torch.addcmul(dn, sigma, read)
-    if levels.model not in ("poisson-gaussian", "physics"):
+    if levels.model not in NOISE_MODELS:
         raise ParameterError(
             f"unknown noise model {levels.model!r}; valid: {', '.join(NOISE_MODELS)}"
         )
-    physics = levels.model == "physics"
-    noisy = _add_shot(dn, positive, levels, 0.0 if physics else levels.read_sigma**2, generator)
-    if physics:
-        lam = levels.tukey_lambda
-        u = _uniform(dn.shape, generator, dn.device, dn.dtype)
-        scale = levels.read_sigma / _tukey_divisor(lam)
-        noisy = noisy.add_(_tukey_numerator(u, lam), alpha=scale)
-        b, c, h, _ = dn.shape
-        rows = torch.randn((b, c, h, 1), generator=generator, device=dn.device, dtype=dn.dtype)
-        noisy = noisy.add_(rows, alpha=levels.row_sigma)
-        if any(levels.channel_bias) and cfa is None:  # monochrome: one mean offset
-            noisy = noisy.add_(sum(levels.channel_bias) / len(levels.channel_bias))
-        elif any(levels.channel_bias):
-            bias = torch.tensor(levels.channel_bias, dtype=dn.dtype, device=dn.device)
-            tile = cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
-            noisy = noisy.add_(tile.repeat(dn.shape[-2] // 2, dn.shape[-1] // 2))
-    return noisy
+    if levels.model == "none":
+        return dn.double()
+    b, _, h, w = dn.shape
+    keys = [key] * b if isinstance(key, int) else [int(k) for k in key]
+    if len(keys) != b:
+        raise ParameterError(f"need one noise key per sample: {len(keys)} for a batch of {b}")
+    rows = torch.arange(top, top + h, device=dn.device, dtype=torch.int64)
+    sites = rows[:, None] * w + torch.arange(w, device=dn.device, dtype=torch.int64)
+    bias = site_bias(levels, cfa, top, h, w, dn.device)
+    with torch.no_grad():
+        noise = torch.stack(
+            [
+                noise_field(dn[i, 0].double() - black, levels, split_key(k), sites, rows, bias)
+                for i, k in enumerate(keys)
+            ]
+        )[:, None]
+    return dn.double() + noise
 
 
-def _add_shot(dn, positive, levels: NoiseLevels, extra_var: float, generator) -> torch.Tensor:
-    """``dn`` + shot noise K·Poisson(s/K) − s (+ a normal of ``extra_var``).
+def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
+    """(h, w) float64 channel bias of each site, or None when there is none."""
+    if levels.model != "physics" or not any(levels.channel_bias):
+        return None
+    if cfa is None:  # monochrome: one mean offset
+        return sum(levels.channel_bias) / len(levels.channel_bias)
+    bias = torch.tensor(levels.channel_bias, dtype=torch.float64, device=device)
+    tile = cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
+    return tile.roll(top % 2, 0).repeat(h // 2 + 1, w // 2)[:h]
 
-    Exact Poisson below :data:`EXACT_POISSON_BELOW` electrons; above, one normal of
-    the same variance stands in for shot (and the extra normal) noise.
+
+def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Tensor:
+    """The noise (float64, (h, w)) added to ``signal`` DN above black.
+
+    The engine's ``site_noise`` computes the same per site; every step here is
+    one rounded float64 operation in the same order, so the two agree bit for bit.
+    Shot noise is K·Poisson(s/K) − s below :data:`EXACT_POISSON_BELOW` electrons
+    and a normal of the same variance above (joined with the Gaussian read noise
+    for ``poisson-gaussian``).
     """
-    k = levels.gain
-    read = torch.randn(dn.shape, generator=generator, device=dn.device, dtype=dn.dtype)
-    small = positive.detach() < EXACT_POISSON_BELOW * k
-    if extra_var:
-        sigma = (k * positive).masked_fill(small, 0.0).add(extra_var).sqrt()
-    else:
-        sigma = positive.sqrt().mul_(math.sqrt(k)).masked_fill_(small, 0.0)
-    noisy = torch.addcmul(dn, sigma, read).reshape(-1)
-    idx = small.reshape(-1).nonzero().squeeze(1)
-    if idx.numel():
-        signal = positive.reshape(-1).index_select(0, idx)
-        shot = k * torch.poisson(signal.detach() / k, generator=generator) - signal
-        noisy = noisy.index_add_(0, idx, shot.detach())
-    return noisy.reshape(dn.shape)
+    positive = signal.clamp_min(0.0)
+    z = normal(sites, key)
+    if levels.model == "gaussian":
+        shot = levels.shot_alpha * ieee_sqrt(positive) + levels.shot_beta
+        return ieee_sqrt(levels.iso_gain * (shot * shot) + levels.read_sigma * levels.read_sigma) * z
+    k = float(levels.gain)
+    physics = levels.model == "physics"
+    read_var = 0.0 if physics else levels.read_sigma * levels.read_sigma
+    small = positive < EXACT_POISSON_BELOW * k
+    noise = ieee_sqrt(k * positive + read_var) * z
+    if bool(small.any()):
+        pos = positive[small]
+        shot = k * poisson(pos / k, sites[small], key) - pos
+        noise[small] = shot if physics else shot + levels.read_sigma * z[small]
+    if not physics:
+        return noise
+    lam = levels.tukey_lambda
+    noise = noise + levels.read_sigma * tukey_lambda(
+        sites, key, lam, abs(lam) < LOGISTIC_LAMBDA
+    )
+    noise = noise + levels.row_sigma * normal(rows, key, "row")[:, None]
+    return noise if bias is None else noise + bias

@@ -69,7 +69,7 @@ class Sensor(nn.Module):
     def linrgb2raw(self, x: torch.Tensor, params=None) -> torch.Tensor:
         return x
 
-    def simu_noise(self, x: torch.Tensor, iso: float, model: str = "none", generator=None):
+    def simu_noise(self, x: torch.Tensor, iso: float, model: str = "none", key=None, top=0):
         return x
 
     def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
@@ -145,16 +145,23 @@ class ProfileSensor(Sensor):
         dn: torch.Tensor,
         iso: float,
         model: str | NoiseLevels = "poisson-gaussian",
-        generator: torch.Generator | None = None,
+        key: int | list[int] | None = None,
+        top: int = 0,
     ) -> torch.Tensor:
         """Add noise at ``iso``, round to integers and saturate to [0, white] DN.
 
         ``model`` is a model name (its nominal levels at ``iso``) or already
-        resolved :class:`~rawsim.noise.NoiseLevels`, e.g. sampled ones.
+        resolved :class:`~rawsim.noise.NoiseLevels`, e.g. sampled ones. ``key`` is
+        the noise seed (one per sample, or one for all) and ``top`` the first
+        row's index in the image, when ``dn`` is a strip (see
+        :func:`~rawsim.noise.add_noise`). Returns ``dn``'s dtype.
         """
         levels = model if isinstance(model, NoiseLevels) else self.noise_levels(iso, model)
-        noisy = add_noise(dn, self.black_level, levels, generator, getattr(self, "cfa", None))
-        return saturate(quantize(noisy), self.white_level)
+        if key is None and levels.model != "none":
+            raise ParameterError("noise needs a key: the seed its draws derive from")
+        cfa = getattr(self, "cfa", None)
+        noisy = add_noise(dn, self.black_level, levels, key, cfa, top)
+        return saturate(quantize(noisy), self.white_level).to(dn.dtype)
 
 
 class RGBSensor(ProfileSensor):

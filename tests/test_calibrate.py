@@ -50,8 +50,7 @@ def _frame(iso: float, level: float, seed: int, h: int = 512, w: int = 768) -> n
     y = torch.linspace(0.0, 1.0, h)[:, None]
     signal = level * span * (0.05 + 0.95 * x) * (0.7 + 0.3 * y)
     dn = (p.black_level + signal.expand(h, w))[None, None]
-    g = torch.Generator().manual_seed(seed)
-    out = SENSOR.simu_noise(dn, iso, "physics", g)
+    out = SENSOR.simu_noise(dn, iso, "physics", seed)
     return out[0, 0].numpy().astype(np.uint16)
 
 
@@ -127,7 +126,7 @@ def test_smooth_patch_method_on_simulated_photos(camera_photos, iso):
             image,
             SENSOR.default_params(iso),
             noise=levels,
-            generator=torch.Generator().manual_seed(i),
+            key=i,
             code_max=code_max,
         )
         raws.append(_raw_image(noisy[0, 0].numpy().astype(np.uint16), iso))

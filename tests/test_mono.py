@@ -64,7 +64,7 @@ def test_mono_noise_statistics_match_the_model(model):
         grey,
         params,
         noise=model,
-        generator=torch.Generator().manual_seed(3),
+        key=3,
         display_referred=False,
         clean=True,
     )

@@ -43,7 +43,13 @@ def invert_white_balance(x: torch.Tensor, gains, cfa: CFA | None = None) -> torc
     return _scale(x, gains, cfa, torch.div)
 
 
-def safe_invert_white_balance(rgb: torch.Tensor, gains, threshold: float = 0.9) -> torch.Tensor:
+#: Grey level above which the safe inverse white balance blends towards 1.
+SAFE_WB_THRESHOLD = 0.9
+
+
+def safe_invert_white_balance(
+    rgb: torch.Tensor, gains, threshold: float = SAFE_WB_THRESHOLD
+) -> torch.Tensor:
     """Highlight-preserving inverse white balance (Brooks et al. 2019), RGB only.
 
     Dividing by gains > 1 would leave near-white pixels below the white level in

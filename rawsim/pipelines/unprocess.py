@@ -2,9 +2,11 @@
 
 :func:`unprocess_tensor` is the tensor core, used by the files job here and by
 the Python API. It runs the sensor's stages over strips of
-:data:`STRIP_ROWS` rows, so that temporaries stay small and cache-resident; the
-strip height is fixed, because it orders the random draws: the same generator
-state gives the same noise on every machine, job count and run split.
+:data:`STRIP_ROWS` rows, so that temporaries stay small and cache-resident. The
+noise is drawn per pixel from a counter-based generator (:mod:`rawsim.counter_rng`),
+so any strip height, device, job count or run split gives the same bits.
+Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
+and fused (:func:`simulate` chooses).
 """
 
 from __future__ import annotations
@@ -24,9 +26,11 @@ from rawsim.errors import ParameterError, check_choice, check_image, values_chec
 from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
-from rawsim.isp.lens_shading import radial_gain
+from rawsim.color import camera_from_srgb
+from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
-from rawsim.noise import NOISE_MODELS, NoiseLevels
+from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
+from rawsim.noise import NOISE_MODELS, NoiseLevels, site_bias
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
 from rawsim.seeds import derive_seed
@@ -37,6 +41,34 @@ INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
 SENSOR_KINDS = ("rgb", "mono")
 
 
+def _prepare(sensor, image, params, noise, display_referred, code_max):
+    """Checks shared by the reference and the engine: ``image`` is (B, 3, H, W) as a
+    tensor or (H, W, 3) as an array. Returns the noise levels and the lookup table
+    of integer codes (float32 linear values), or None for float images."""
+    if not isinstance(noise, NoiseLevels):
+        check_choice("noise model", noise, NOISE_MODELS)
+        noise = sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
+    h, w = image.shape[-2:] if isinstance(image, torch.Tensor) else image.shape[:2]
+    if h % 2 or w % 2:
+        raise ParameterError(f"image height and width must be even, got {h}×{w}")
+    array = isinstance(image, np.ndarray)
+    dtype = torch.from_numpy(image[:0]).dtype if array else image.dtype
+    if dtype in INTEGER_DTYPES:
+        if dtype == torch.int32 and code_max is None:
+            raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
+        top = code_max or int(torch.iinfo(dtype).max)
+        if int(image.min()) < 0 or int(image.max()) > top:
+            raise ParameterError(f"integer codes must lie in [0, {top}]")
+        device = "cpu" if array else image.device
+        codes = torch.arange(top + 1, dtype=torch.float32, device=device) / top
+        return noise, display_to_linear(codes, params.tone, params.transfer)
+    if dtype.is_floating_point:
+        tensor = torch.from_numpy(image).permute(2, 0, 1)[None] if array else image
+        check_image(tensor, "image", channels=3)
+        return noise, None
+    raise ParameterError(f"unsupported image dtype {dtype}")
+
+
 @torch.no_grad()
 def unprocess_tensor(
     sensor: ProfileSensor,
@@ -44,7 +76,7 @@ def unprocess_tensor(
     params: UnprocessParams,
     *,
     noise: str | NoiseLevels = "poisson-gaussian",
-    generator: torch.Generator | None = None,
+    key: int | None = None,
     display_referred: bool = True,
     code_max: int | None = None,
     clean: bool = False,
@@ -61,7 +93,9 @@ def unprocess_tensor(
         params: the image's :class:`UnprocessParams` (ISO, matrix, gains, …).
         noise: noise model name (one of ``NOISE_MODELS``, nominal levels at the
             ISO) or resolved :class:`~rawsim.noise.NoiseLevels` (e.g. sampled).
-        generator: randomness for the noise; must live on ``image``'s device.
+        key: the noise seed (64-bit int; one per sample as a list, or one for
+            the batch): see :func:`rawsim.noise.add_noise`. Needed unless the
+            model is ``none``.
         clean: also return the noise-free mosaic.
 
     Returns:
@@ -70,27 +104,10 @@ def unprocess_tensor(
         ``clean`` None unless asked for. Not differentiable (see
         :func:`rawsim.api.unprocess` for gradients).
     """
-    if not isinstance(noise, NoiseLevels):
-        check_choice("noise model", noise, NOISE_MODELS)
-        noise = sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
     if image.ndim != 4 or image.shape[1] != 3:
         raise ParameterError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
     b, _, h, w = image.shape
-    if h % 2 or w % 2:
-        raise ParameterError(f"image height and width must be even, got {h}×{w}")
-    lut = None
-    if image.dtype in INTEGER_DTYPES:
-        if image.dtype == torch.int32 and code_max is None:
-            raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
-        top = code_max or int(torch.iinfo(image.dtype).max)
-        if int(image.min()) < 0 or int(image.max()) > top:
-            raise ParameterError(f"integer codes must lie in [0, {top}]")
-        codes = torch.arange(top + 1, dtype=torch.float32, device=image.device) / top
-        lut = display_to_linear(codes, params.tone, params.transfer)
-    elif image.is_floating_point():
-        check_image(image, "image", channels=3)
-    else:
-        raise ParameterError(f"unsupported image dtype {image.dtype}")
+    noise, lut = _prepare(sensor, image, params, noise, display_referred, code_max)
     shading = None
     if params.vignetting > 0:
         shading = radial_gain(h, w, strength=params.vignetting, device=image.device)
@@ -102,7 +119,7 @@ def unprocess_tensor(
             image,
             params,
             noise,
-            generator,
+            key,
             display_referred,
             lut,
             shading,
@@ -113,7 +130,7 @@ def unprocess_tensor(
 
 
 def _run_strips(
-    sensor, image, params, noise, generator, display_referred, lut, shading, noisy, clean_out
+    sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out
 ) -> None:
     h = image.shape[-2]
     for top_row in range(0, h, STRIP_ROWS):
@@ -129,7 +146,58 @@ def _run_strips(
         dn = sensor.linrgb2raw(camera, params, None if shading is None else shading[..., rows, :])
         if clean_out is not None:
             clean_out[:, :, rows] = saturate(quantize(dn), sensor.white_level)
-        noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, generator)
+        noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, key, top_row)
+
+
+def engine_unprocess(
+    sensor: ProfileSensor,
+    pixels: np.ndarray,
+    params: UnprocessParams,
+    *,
+    noise: NoiseLevels,
+    key: int,
+    display_referred: bool = True,
+    code_max: int | None = None,
+    clean: bool = False,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`unprocess_tensor` for one (H, W, 3) image, by the compiled engine.
+
+    Returns uint16 (H, W) noisy and clean codes. The same checks and lookup table
+    as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`.
+    """
+    from rawsim.engine import unprocess as kernels
+    from rawsim.engine.counter_rng import np_key
+
+    noise, lut = _prepare(sensor, pixels, params, noise, display_referred, code_max)
+    if lut is None and display_referred:  # display-referred floats: decode first
+        pixels = display_to_linear(torch.from_numpy(pixels), params.tone, params.transfer).numpy()
+    mono = isinstance(sensor, MonoSensor)
+    h, w = pixels.shape[:2]
+    bias = site_bias(noise, None if mono else sensor.cfa, 0, 2, 2, "cpu")
+    bias_tile = np.zeros((2, 2)) + (0.0 if bias is None else np.asarray(bias, np.float64))
+    noisy = np.empty((h, w), np.uint16)
+    clean_out = np.empty((h, w) if clean else (0, 0), np.uint16)
+    kernels.unprocess_kernel(
+        np.ascontiguousarray(pixels),
+        np.zeros(0, np.float32) if lut is None else lut.numpy(),
+        2.0**params.exposure_ev / params.brightness,
+        np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0, 0.0, 0.0), float),
+        camera_from_srgb(params.xyz_to_camera).numpy(),
+        np.asarray(params.wb_gains, np.float64),
+        params.safe_white_balance,
+        SAFE_WB_THRESHOLD,
+        mono,
+        np.zeros((2, 2), np.int64) if mono else np.array(sensor.cfa.colors).reshape(2, 2),
+        np.array([params.vignetting, *DEFAULT_K], np.float64),
+        np.array([sensor.black_level, sensor.white_level], np.float64),
+        kernels.MODEL_CODES[noise.model],
+        kernels.noise_vector(noise, sensor.black_level),
+        *np_key(key),
+        bias_tile,
+        noisy,
+        clean_out,
+    )
+    return noisy, clean_out if clean else None
 
 
 @dataclass(frozen=True)
@@ -199,30 +267,53 @@ def image_tensor(pixels: np.ndarray, device="cpu") -> torch.Tensor:
 
 @dataclass(frozen=True)
 class Simulation:
-    """One simulated capture: mosaics (1, 1, H, W) DN, and the values drawn."""
+    """One simulated capture: mosaics (1, 1, H, W) of integer DN, and the values drawn.
+
+    The mosaics are uint16 from the engine, float32 from the torch reference
+    (same values); :meth:`codes` gives either as a uint16 (H, W) array.
+    """
 
     noisy: torch.Tensor
     clean: torch.Tensor | None
     params: UnprocessParams
     levels: NoiseLevels
 
+    @staticmethod
+    def codes(mosaic: torch.Tensor) -> np.ndarray:
+        m = mosaic[0, 0].cpu()
+        return m.numpy() if m.dtype == torch.uint16 else m.to(torch.int32).numpy().astype(np.uint16)
+
+
+def use_engine(image) -> bool:
+    """Whether :func:`simulate` runs ``image`` on the compiled engine: a CPU image that
+    needs no gradient, where numba is installed."""
+    from rawsim import engine
+
+    if isinstance(image, torch.Tensor) and (image.device.type != "cpu" or image.requires_grad):
+        return False
+    return engine.available()
+
 
 def simulate(
     sensor: ProfileSensor,
-    image: torch.Tensor,
+    image: torch.Tensor | np.ndarray,
     options: UnprocessOptions,
     seed: int,
     *,
     display_referred: bool = True,
     code_max: int | None = None,
+    engine: bool | None = None,
 ) -> Simulation:
-    """Simulate one image (1, 3, H, W) as the files job does, from its ``seed``.
+    """Simulate one image as the files job does, from its ``seed``.
 
+    ``image`` is (1, 3, H, W) on any device, or a decoded (H, W, 3) array.
     Parameters come from a generator seeded with ``derive_seed(seed, "params")``
     (then, under ``randomize``, the noise levels from the same generator), the
-    noise from one seeded with ``derive_seed(seed, "noise")`` on the image's
-    device. The files job passes ``derive_seed(run_seed, key)``: the same seed
-    gives the same capture through the files or the Python API.
+    noise from the counter-based generator keyed by ``derive_seed(seed, "noise")``.
+    The files job passes ``derive_seed(run_seed, key)``: the same seed gives the
+    same capture through the files or the Python API, on any device. ``engine``
+    picks the compiled engine (True) or the torch reference (False); None
+    chooses by :func:`use_engine`.
     """
     params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
     params = sample_params(
@@ -241,17 +332,21 @@ def simulate(
         levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
     else:
         levels = sensor.noise_levels(params.iso, options.noise)
-    noise_gen = torch.Generator(device=image.device).manual_seed(derive_seed(seed, "noise"))
-    noisy, clean = unprocess_tensor(
-        sensor,
-        image,
-        params,
+    run = dict(
         noise=levels,
-        generator=noise_gen,
+        key=derive_seed(seed, "noise"),
         display_referred=display_referred,
         code_max=code_max,
         clean=options.clean,
     )
+    if use_engine(image) if engine is None else engine:
+        pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
+        noisy, clean = engine_unprocess(sensor, pixels, params, **run)
+        as_tensor = lambda m: None if m is None else torch.from_numpy(m)[None, None]  # noqa: E731
+        return Simulation(as_tensor(noisy), as_tensor(clean), params, levels)
+    if isinstance(image, np.ndarray):
+        image = image_tensor(image)
+    noisy, clean = unprocess_tensor(sensor, image, params, **run)
     return Simulation(noisy, clean, params, levels)
 
 
@@ -261,7 +356,8 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     Each output is written atomically. Returns the sidecar's metadata.
     """
     decoded = read_image(task.source)
-    image = image_tensor(decoded.pixels, resolve_device(options.device))
+    device = resolve_device(options.device)
+    image = decoded.pixels if device.type == "cpu" else image_tensor(decoded.pixels, device)
     sim = simulate(
         options.make_sensor(),
         image,
@@ -270,12 +366,10 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         display_referred=not decoded.is_float,
         code_max=decoded.code_max,
     )
-    noisy, clean, params, levels = sim.noisy, sim.clean, sim.params, sim.levels
+    params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
-    noisy_np = noisy[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
-    clean_np = (
-        None if clean is None else clean[0, 0].to(torch.int32).cpu().numpy().astype(np.uint16)
-    )
+    noisy_np = Simulation.codes(sim.noisy)
+    clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
     info = _dng_info(options, params, levels, decoded.orientation)
     if "dng" in task.outputs:
         with atomic_output(task.outputs["dng"]) as tmp:

@@ -1,0 +1,44 @@
+"""The compiled CPU engine: fused numba kernels for the no-gradient path.
+
+Each kernel runs every stage of a pipeline in one pass over the image, a row at a
+time, parallel over rows (``prange``), with the stage maths of the torch
+reference (:mod:`rawsim.isp`, :mod:`rawsim.noise`) and the same counter-based
+noise (:mod:`rawsim.engine.counter_rng`). Compiled code is cached on disk
+(``cache=True``): beside the package when it is writable, else in numba's
+user-wide cache folder (``NUMBA_CACHE_DIR`` or ``~/.cache/numba``), so only the
+first run on a machine compiles.
+
+:func:`available` says whether numba can be imported; callers fall back to the
+torch reference when it cannot.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+
+
+def available() -> bool:
+    """Whether the engine can run here (numba is installed)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def configure() -> None:
+    """Choose a fork-safe threading layer before any kernel runs.
+
+    Batch jobs and DataLoaders fork workers; a child forked after GNU OpenMP has
+    started its threads is killed ("fork() called from a process already using
+    GNU OpenMP"). ``forksafe`` takes TBB where installed, else numba's own
+    workqueue. A user's ``NUMBA_THREADING_LAYER`` wins.
+    """
+    import numba
+
+    if "NUMBA_THREADING_LAYER" not in os.environ:
+        numba.config.THREADING_LAYER = "forksafe"
+
+
+def set_threads(threads: int) -> None:
+    """Use ``threads`` threads in the engine's parallel loops (e.g. cores // jobs)."""
+    import numba
+
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
