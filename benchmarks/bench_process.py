@@ -2,7 +2,7 @@
 
     python benchmarks/bench_process.py [--quick]
 
-Makes a 24 MP, 14-bit DNG with ``rawsim unprocess`` (a shared photo resized to
+Makes a 24 MP, 14-bit DNG with ``rawsim unprocess`` (a test photo resized to
 6000×4000, Sony A7S II profile, ISO 800), then times, each in a fresh process so
 that peak memory (max RSS) is its own:
   * LibRaw AHD through ``rawpy.postprocess`` (camera WB, sRGB, 16-bit);
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import OpenImageIO as oiio
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "srgb"
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "srgb"
 
 LIBRAW = """
 import sys, time, rawpy

@@ -28,7 +28,7 @@ device_opt = click.option(
     type=click.Choice(["auto", "cpu", "cuda"]),
     default="cpu",
     show_default=True,
-    help="Where tensors live. Noise drawn on CUDA differs from CPU noise for the same seed.",
+    help="Where tensors live (the noise is the same bits on every device).",
 )
 seed_opt = click.option(
     "--seed",

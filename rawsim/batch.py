@@ -171,9 +171,15 @@ def _worker_context():
 
 
 def _init_worker(threads: int) -> None:
+    """Give each worker its share of the cores, in torch and in the engine, so that
+    jobs × threads ≤ cores."""
     import torch
 
+    from rawsim import engine
+
     torch.set_num_threads(threads)
+    if engine.available():
+        engine.set_threads(threads)
 
 
 def run(

@@ -428,7 +428,9 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Te
     z = normal(sites, key)
     if levels.model == "gaussian":
         shot = levels.shot_alpha * ieee_sqrt(positive) + levels.shot_beta
-        return ieee_sqrt(levels.iso_gain * (shot * shot) + levels.read_sigma * levels.read_sigma) * z
+        return (
+            ieee_sqrt(levels.iso_gain * (shot * shot) + levels.read_sigma * levels.read_sigma) * z
+        )
     k = float(levels.gain)
     physics = levels.model == "physics"
     read_var = 0.0 if physics else levels.read_sigma * levels.read_sigma
@@ -441,8 +443,6 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Te
     if not physics:
         return noise
     lam = levels.tukey_lambda
-    noise = noise + levels.read_sigma * tukey_lambda(
-        sites, key, lam, abs(lam) < LOGISTIC_LAMBDA
-    )
+    noise = noise + levels.read_sigma * tukey_lambda(sites, key, lam, abs(lam) < LOGISTIC_LAMBDA)
     noise = noise + levels.row_sigma * normal(rows, key, "row")[:, None]
     return noise if bias is None else noise + bias

@@ -76,7 +76,8 @@ def philox4x32(c0, c1, c2, c3, k0, k1):
 @njit(inline="always")
 def _uniform(a, b):
     n = (a << _S20) | (b >> _S12)
-    return (np.float64(n) + 0.5) * UNIFORM_STEP
+    # n < 2⁵²: through int64, whose conversion to float64 is one instruction.
+    return (np.float64(np.int64(n)) + 0.5) * UNIFORM_STEP
 
 
 @njit(inline="always")

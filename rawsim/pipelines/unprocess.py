@@ -21,12 +21,12 @@ import torch
 from rawsim._version import __version__
 from rawsim.batch import Task
 from rawsim.cfa import PACKED_PLANES
+from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
-from rawsim.color import camera_from_srgb
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
 from rawsim.isp.white_balance import SAFE_WB_THRESHOLD

@@ -1,0 +1,226 @@
+"""The compiled engine against the torch reference: the counter-based generator bit for
+bit, the noise bit for bit, the fused unprocess kernel within one code value, for every
+noise model, option, CFA pattern, input kind, strip split and thread count."""
+
+from dataclasses import replace
+
+import numba
+import numpy as np
+import pytest
+import torch
+from numba import njit
+from scipy import stats
+
+from rawsim import counter_rng as ref
+from rawsim.cfa import CFA
+from rawsim.engine import counter_rng as eng
+from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_vector
+from rawsim.io.images import read_image
+from rawsim.noise import NOISE_MODELS, site_bias
+from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
+from rawsim.profiles import load_profile, profile_from_dict
+from rawsim.sensors import MonoSensor, RGBSensor
+from tests.conftest import DATA
+
+KEY = ref.split_key(0x1234_5678_9ABC_DEF0)
+
+# Random123's known-answer vectors for Philox4x32-10: (counter, key, output).
+PHILOX_KAT = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    (
+        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
+        (0xA4093822, 0x299F31D0),
+        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
+    ),
+]
+
+
+@pytest.mark.parametrize("counter,key,expected", PHILOX_KAT)
+def test_philox_known_answers_in_both_backends(counter, key, expected):
+    torch_words = ref.philox4x32(tuple(torch.tensor([c]) for c in counter), key)
+    assert tuple(int(w) for w in torch_words) == expected
+    numba_words = eng.philox4x32(*(np.uint64(c) for c in (*counter, *key)))
+    assert tuple(int(w) for w in numba_words) == expected
+
+
+@njit
+def _engine_draws(lam, k0, k1, tukey):
+    n = lam.shape[0]
+    out = np.empty((5, n))
+    for i in range(n):
+        site = np.uint64(i) * np.uint64(7919) + np.uint64(2**40)  # beyond 32 bits too
+        out[0, i] = eng.normal(site, eng.NORMAL, k0, k1)
+        out[1, i] = eng.normal(site, eng.ROW, k0, k1)
+        out[2, i] = eng.tukey_lambda(site, k0, k1, tukey, False)
+        out[3, i] = eng.tukey_lambda(site, k0, k1, tukey, True)
+        out[4, i] = eng.poisson(lam[i], site, k0, k1)
+    return out
+
+
+def test_draws_are_bit_equal_in_both_backends():
+    n = 60_000
+    lam = np.concatenate([np.geomspace(1e-3, 300, n - 4), [0.0, 9.999, 10.0, 99.9]])
+    sites = torch.arange(n, dtype=torch.int64) * 7919 + 2**40
+    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), 0.14)
+    expected = [
+        ref.normal(sites, KEY),
+        ref.normal(sites, KEY, "row"),
+        ref.tukey_lambda(sites, KEY, 0.14, False),
+        ref.tukey_lambda(sites, KEY, 0.14, True),
+        ref.poisson(torch.from_numpy(lam), sites, KEY),
+    ]
+    for row, want in zip(got, expected, strict=True):
+        assert np.array_equal(row, want.numpy())
+
+
+def test_exact_math_is_accurate():
+    x = np.geomspace(1e-300, 1e300, 5001)
+    assert np.allclose(ref.exact_log(torch.from_numpy(x)).numpy(), np.log(x), rtol=1e-15, atol=0)
+    e = np.linspace(-700, 700, 5001)
+    assert np.allclose(ref.exact_exp(torch.from_numpy(e)).numpy(), np.exp(e), rtol=1e-15, atol=0)
+    u = np.linspace(0, 1, 4001)[:-1]
+    assert np.allclose(
+        ref.exact_cos_2pi(torch.from_numpy(u)).numpy(), np.cos(2 * np.pi * u), atol=1e-15
+    )
+
+
+@njit
+def _poisson_sample(lam, n, k0, k1):
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = eng.poisson(lam, np.uint64(i), k0, k1)
+    return out
+
+
+@pytest.mark.parametrize("lam", [0.3, 2.0, 9.9, 10.0, 37.5, 99.0])
+def test_poisson_is_exact_in_distribution(lam):
+    n = 400_000
+    x = _poisson_sample(lam, n, *eng.np_key(lam * 1000))
+    assert np.all(x == np.floor(x)) and x.min() >= 0
+    assert abs(x.mean() - lam) < 5 * np.sqrt(lam / n)
+    assert abs(x.var() / lam - 1) < 5 * np.sqrt(2 / n) + 0.005
+    # Every count with expected frequency ≥ 20, and the upper tail, by chi-square.
+    edges = np.arange(0, int(lam + 12 * np.sqrt(lam) + 10))
+    expected = n * stats.poisson.pmf(edges, lam)
+    keep = expected >= 20
+    counts = np.bincount(x.astype(int), minlength=edges.size)[: edges.size]
+    observed = np.append(counts[keep], n - counts[keep].sum())
+    want = np.append(expected[keep], n - expected[keep].sum())
+    assert stats.chisquare(observed, want).pvalue > 1e-4
+    for q in (1e-2, 1e-3):  # upper tails: counts within 4.5 σ of their expectation
+        tail = stats.poisson.isf(q, lam)
+        expected_count = n * stats.poisson.sf(tail, lam)
+        assert abs(np.sum(x > tail) - expected_count) < 4.5 * np.sqrt(expected_count)
+
+
+def _physics_profile(pattern: str):
+    profile = load_profile("canon_eos_70d")
+    noise = replace(profile.noise, channel_bias=(3.0, 1.0, -1.0, -2.0))
+    return replace(profile, noise=noise, cfa=CFA(pattern))
+
+
+@pytest.mark.parametrize("model", NOISE_MODELS)
+def test_noise_is_bit_equal_for_any_strip_split(pattern, model):
+    profile = _physics_profile(pattern)
+    sensor = RGBSensor(profile)
+    levels = sensor.noise_levels(1600 if model != "gaussian" else 800, model)
+    rng = np.random.default_rng(1)
+    dn = rng.uniform(profile.black_level - 20, profile.white_level * 0.3, (24, 30)).astype(
+        np.float32
+    )
+    dn[:4] = profile.black_level + rng.uniform(0, 60, (4, 30))  # exact-Poisson counts
+    whole = sensor.simu_noise(torch.from_numpy(dn)[None, None], 1600, levels, 99)[0, 0].numpy()
+    for rows in (2, 6, 24):  # the reference in strips
+        parts = [
+            sensor.simu_noise(torch.from_numpy(dn[t : t + rows])[None, None], 1600, levels, 99, t)
+            for t in range(0, 24, rows)
+        ]
+        assert np.array_equal(torch.cat(parts, 2)[0, 0].numpy(), whole)
+    bias = site_bias(levels, profile.cfa, 0, 2, 2, "cpu")
+    bias = np.zeros((2, 2)) + (0.0 if bias is None else bias.numpy())
+    out = np.empty(dn.shape, np.uint16)
+    p = noise_vector(levels, profile.black_level)
+    for top in (0, 10):  # the engine's rows from 0, and from 10 on
+        add_noise_rows(
+            dn[top:],
+            top,
+            30,
+            MODEL_CODES[model],
+            p,
+            *eng.np_key(99),
+            bias,
+            float(profile.white_level),
+            out[top:],
+        )
+        assert np.array_equal(out, whole.astype(np.uint16))
+
+
+PHOTO = read_image(DATA / "srgb" / "coffee.png").pixels[100:164, 200:296]
+PHOTO16 = read_image(DATA / "srgb16" / "hdr_room_16bit.png").pixels[200:248, 300:372]
+EXR = read_image(DATA / "exr" / "img2601_float_zip.exr").pixels[100:140, 100:160]
+
+OPTIONS = [
+    {},
+    {"randomize": True},
+    {"safe_white_balance": False, "exposure_ev": 1.5},
+    {"vignetting": 0.8, "tone": "reinhard", "transfer": "gamma:2.2"},
+    {"iso_range": (100, 12800), "iso": None},
+]
+
+
+def _compare(sensor, pixels, options, display_referred=True, code_max=None):
+    kw = {"display_referred": display_referred, "code_max": code_max}
+    a = simulate(sensor, pixels, options, 5, engine=True, **kw)
+    b = simulate(sensor, pixels, options, 5, engine=False, **kw)
+    assert a.params == b.params and a.levels == b.levels
+    clean_a, clean_b = (Simulation.codes(s.clean).astype(int) for s in (a, b))
+    assert np.abs(clean_a - clean_b).max() <= 1  # float64 vs float32 stages
+    assert np.mean(clean_a != clean_b) < 0.002
+    # The noise is bit-equal for equal clean signals (test above); where the float32
+    # and float64 signals round apart, or fall either side of the exact-Poisson
+    # threshold, a site's draw differs. That stays as rare as the rounding.
+    noisy_a, noisy_b = (Simulation.codes(s.noisy).astype(int) for s in (a, b))
+    assert np.mean(noisy_a != noisy_b) < 0.002
+    return a
+
+
+@pytest.mark.parametrize("model", NOISE_MODELS)
+@pytest.mark.parametrize("extra", OPTIONS, ids=lambda o: ",".join(o) or "default")
+def test_engine_matches_reference(pattern, model, extra):
+    profile = _physics_profile(pattern)
+    options = UnprocessOptions(
+        **({"profile": profile, "iso": 3200} | extra), noise=model, clean=True
+    )
+    _compare(RGBSensor(profile), PHOTO, options)
+
+
+@pytest.mark.parametrize("model", ["poisson-gaussian", "physics"])
+def test_engine_matches_reference_on_16_bit_float_mono_and_seed_matrix(model):
+    profile = _physics_profile("GBRG")
+    options = UnprocessOptions(profile=profile, iso=800, noise=model, clean=True)
+    _compare(RGBSensor(profile), PHOTO16, options, code_max=65535)
+    _compare(RGBSensor(profile), EXR, options, display_referred=False)
+    _compare(MonoSensor(profile), PHOTO, replace(options, sensor="mono"))
+    seed = {"bit": 12, "black_level": 64, "bayer_pattern": "bggr", "white_balance_d50": [2, 1, 1.8]}
+    seed["color_matrix_d50"] = [
+        [1.6, -0.4, -0.2],
+        [-0.3, 1.5, -0.2],
+        [0.0, -0.5, 1.5],
+        [0.01, 0, 0.02],
+    ]
+    seed |= {"read_noise_std": 0.5, "shot_noise_std_alpha": 0.4}
+    seeded = profile_from_dict(seed, "<seed>")
+    _compare(RGBSensor(seeded), PHOTO, UnprocessOptions(profile=seeded, iso=400, clean=True))
+
+
+def test_engine_output_does_not_depend_on_threads():
+    profile = _physics_profile("RGGB")
+    options = UnprocessOptions(profile=profile, iso=6400, noise="physics", clean=True)
+    sensor = RGBSensor(profile)
+    outputs = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert np.array_equal(*outputs)
