@@ -4,7 +4,7 @@ The noise generator must give the same bits in the torch reference (any device)
 and in the compiled engine. IEEE 754 makes +, −, ×, ÷ and √ correctly rounded,
 but ``log``, ``exp`` and ``cos`` come from different libraries (libm, SLEEF,
 CUDA's) that disagree in the last bit. So the noise transforms use these
-polynomials instead: each is written once, with operators only, and is called
+polynomials instead (:func:`horner`): each is written once, with operators only, and is called
 on Python/numba floats by the engine and on float64 tensors by the reference,
 which evaluates exactly the same sequence of rounded operations. Neither
 backend contracts them into fused multiply-adds (eager torch runs each
@@ -29,26 +29,34 @@ HALF_PI = 1.57079632679489661923
 UNIFORM_STEP = 2.0**-52
 
 
+#: Horner coefficients, highest order first. Each is one correctly rounded
+#: division, as a literal ``1.0 / n`` would be; the signs of the sine and cosine
+#: series are folded into their coefficients (a negation is exact).
+_ATANH = tuple(1.0 / (2 * i + 1) for i in range(11, -1, -1))
+_EXP = tuple(1.0 / math.factorial(n) for n in range(14, -1, -1))
+_COS = tuple((-1.0) ** n / math.factorial(2 * n) for n in range(11, -1, -1))
+_SIN = tuple((-1.0) ** n / math.factorial(2 * n + 1) for n in range(11, -1, -1))
+
+
+def horner(x, coefficients):
+    """Σ cᵢ xⁱ by Horner's rule, highest order first: one multiply and one add a step.
+
+    Starts from 0, whose first step gives the leading coefficient exactly. The
+    engine compiles this same function (:mod:`rawsim.engine.counter_rng`).
+    """
+    p = 0.0
+    for c in coefficients:
+        p = p * x + c
+    return p
+
+
 def log_mantissa(m):
     """ln m for m in [√½, √2): ``2 atanh(s)``, s = (m − 1)/(m + 1), |s| ≤ 0.172.
 
     The series ``2 Σ s^(2i+1)/(2i+1)`` to i = 11 leaves < 1e-18 relative error.
     """
     s = (m - 1.0) / (m + 1.0)
-    z = s * s
-    p = 1.0 / 23.0
-    p = p * z + 1.0 / 21.0
-    p = p * z + 1.0 / 19.0
-    p = p * z + 1.0 / 17.0
-    p = p * z + 1.0 / 15.0
-    p = p * z + 1.0 / 13.0
-    p = p * z + 1.0 / 11.0
-    p = p * z + 1.0 / 9.0
-    p = p * z + 1.0 / 7.0
-    p = p * z + 1.0 / 5.0
-    p = p * z + 1.0 / 3.0
-    p = p * z + 1.0
-    return 2.0 * s * p
+    return 2.0 * s * horner(s * s, _ATANH)
 
 
 def log_combine(log_m, e):
@@ -58,21 +66,7 @@ def log_combine(log_m, e):
 
 def exp_reduced(r):
     """eʳ for |r| ≤ ln2/2 (Taylor to r¹⁴/14!, < 1e-18 relative error)."""
-    p = 1.0 / 87178291200.0
-    p = p * r + 1.0 / 6227020800.0
-    p = p * r + 1.0 / 479001600.0
-    p = p * r + 1.0 / 39916800.0
-    p = p * r + 1.0 / 3628800.0
-    p = p * r + 1.0 / 362880.0
-    p = p * r + 1.0 / 40320.0
-    p = p * r + 1.0 / 5040.0
-    p = p * r + 1.0 / 720.0
-    p = p * r + 1.0 / 120.0
-    p = p * r + 1.0 / 24.0
-    p = p * r + 1.0 / 6.0
-    p = p * r + 0.5
-    p = p * r + 1.0
-    return p * r + 1.0
+    return horner(r, _EXP)
 
 
 def exp_reduce(x, k):
@@ -82,36 +76,12 @@ def exp_reduce(x, k):
 
 def cos_reduced(a):
     """cos a for a in [0, π/2] (Taylor in a² to a²²/22!, < 1e-17 absolute error)."""
-    z = a * a
-    p = 1.0 / 1124000727777607680000.0
-    p = -p * z + 1.0 / 2432902008176640000.0
-    p = -p * z + 1.0 / 6402373705728000.0
-    p = -p * z + 1.0 / 20922789888000.0
-    p = -p * z + 1.0 / 87178291200.0
-    p = -p * z + 1.0 / 479001600.0
-    p = -p * z + 1.0 / 3628800.0
-    p = -p * z + 1.0 / 40320.0
-    p = -p * z + 1.0 / 720.0
-    p = -p * z + 1.0 / 24.0
-    p = -p * z + 0.5
-    return -p * z + 1.0
+    return horner(a * a, _COS)
 
 
 def sin_reduced(a):
     """sin a for a in [0, π/2] (Taylor to a²³/23!, < 1e-17 absolute error)."""
-    z = a * a
-    p = 1.0 / 25852016738884976640000.0
-    p = -p * z + 1.0 / 51090942171709440000.0
-    p = -p * z + 1.0 / 121645100408832000.0
-    p = -p * z + 1.0 / 355687428096000.0
-    p = -p * z + 1.0 / 1307674368000.0
-    p = -p * z + 1.0 / 6227020800.0
-    p = -p * z + 1.0 / 39916800.0
-    p = -p * z + 1.0 / 362880.0
-    p = -p * z + 1.0 / 5040.0
-    p = -p * z + 1.0 / 120.0
-    p = -p * z + 1.0 / 6.0
-    return (-p * z + 1.0) * a
+    return horner(a * a, _SIN) * a
 
 
 #: ln k! for k = 0 … 255 (float64, from the C library's lgamma once, at import);

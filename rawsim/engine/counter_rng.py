@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from rawsim.counter_rng import (
     INVERSION_BELOW,
@@ -32,6 +33,7 @@ from rawsim.exact_math import (
     cos_reduced,
     exp_reduce,
     exp_reduced,
+    horner,
     log_combine,
     log_mantissa,
     sin_reduced,
@@ -44,6 +46,13 @@ _W0, _W1 = np.uint64(PHILOX_W0), np.uint64(PHILOX_W1)
 _S32, _S20, _S12 = np.uint64(32), np.uint64(20), np.uint64(12)
 NORMAL, TUKEY, POISSON, ROW = (np.uint64(STREAMS[k]) for k in ("normal", "tukey", "poisson", "row"))
 _LOG_FACTORIAL = np.array(LOG_FACTORIAL, dtype=np.float64)
+
+
+@overload(horner)
+def _horner(x, coefficients):
+    """Compiled calls of :func:`rawsim.exact_math.horner` run that same function."""
+    return horner
+
 
 _log_mantissa = njit(log_mantissa)
 _log_combine = njit(log_combine)

@@ -77,24 +77,28 @@ def site_noise(dn, site, model, p, k0, k1, row_noise, bias):
 
 
 @njit(cache=True)
-def add_noise_rows(dn, top, width, model, p, k0, k1, bias_tile, white, out):
-    """Noise, rounding and saturation of clean rows ``dn`` (h, w) float32 → ``out``.
-
-    The compiled twin of :meth:`rawsim.sensors.ProfileSensor.simu_noise`, for the
-    equality tests and the engine's other kernels.
-    """
-    h, w = dn.shape
-    for y in range(h):
-        row = np.uint64(top + y)
-        row_noise = p[N_ROW] * normal(row, ROW, k0, k1) if model == 3 else 0.0
-        for x in range(w):
+def noise_row(dn, y, width, model, p, k0, k1, bias_tile, white, out):
+    """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
+    into codes ``out`` (w,): the compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`.
+    Model 0 (``none``) gives the clean codes."""
+    row = np.uint64(y)
+    row_noise = p[N_ROW] * normal(row, ROW, k0, k1) if model == 3 else 0.0
+    for x in range(dn.shape[0]):
+        v = dn[x]
+        if model != 0:
             site = row * np.uint64(width) + np.uint64(x)
-            v = np.float64(dn[y, x])
-            if model != 0:
-                v = v + site_noise(
-                    v, site, model, p, k0, k1, row_noise, bias_tile[(top + y) % 2, x % 2]
-                )
-            out[y, x] = min(max(np.rint(v), 0.0), white)
+            v = v + site_noise(v, site, model, p, k0, k1, row_noise, bias_tile[y % 2, x % 2])
+        out[x] = min(max(np.rint(v), 0.0), white)
+
+
+@njit(cache=True)
+def add_noise_rows(dn, top, width, model, p, k0, k1, bias_tile, white, out):
+    """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
+    image ``width`` wide, into ``out`` (h, w); for the equality tests."""
+    for y in range(dn.shape[0]):
+        noise_row(
+            dn[y].astype(np.float64), top + y, width, model, p, k0, k1, bias_tile, white, out[y]
+        )
 
 
 @njit(parallel=True, cache=True)
@@ -147,10 +151,9 @@ def unprocess_kernel(
     for c in range(3):
         inv[c] = 1.0 / wb[c]
     for y in prange(h):
-        row = np.uint64(y)
-        row_noise = p[N_ROW] * normal(row, ROW, k0, k1) if model == 3 else 0.0
         rgb = np.empty(3)
         cam = np.empty(3)
+        dn = np.empty(w)
         for x in range(w):
             for c in range(3):
                 # One body for codes and floats: the table branch types for both.
@@ -173,10 +176,7 @@ def unprocess_kernel(
                 r2 = ((y - cy) ** 2 + (x - cx) ** 2) / norm
                 gain = 1.0 + vignetting[1] * r2 + vignetting[2] * r2**2 + vignetting[3] * r2**3
                 v = v / (1.0 + strength * (gain - 1.0))
-            dn = black + v * span
-            if want_clean:
-                clean[y, x] = min(max(np.rint(dn), 0.0), white)
-            if model != 0:
-                site = row * np.uint64(w) + np.uint64(x)
-                dn = dn + site_noise(dn, site, model, p, k0, k1, row_noise, bias_tile[y % 2, x % 2])
-            noisy[y, x] = min(max(np.rint(dn), 0.0), white)
+            dn[x] = black + v * span
+        if want_clean:
+            noise_row(dn, y, w, 0, p, k0, k1, bias_tile, white, clean[y])
+        noise_row(dn, y, w, model, p, k0, k1, bias_tile, white, noisy[y])
