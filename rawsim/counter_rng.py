@@ -33,6 +33,7 @@ from rawsim.exact_math import (
     HALF_PI,
     INV_LN2,
     LOG_FACTORIAL,
+    LOGISTIC_LAMBDA,
     SQRT_HALF,
     UNIFORM_STEP,
     cos_reduced,
@@ -151,12 +152,13 @@ def normal(index: torch.Tensor, key, stream: str = "normal") -> torch.Tensor:
     return ieee_sqrt(-2.0 * exact_log(u1)) * exact_cos_2pi(u2)
 
 
-def tukey_lambda(index: torch.Tensor, key, lam: float, logistic: bool) -> torch.Tensor:
-    """Standard Tukey-lambda draws ``(u^λ − (1 − u)^λ) / λ`` (``ln u − ln(1 − u)`` if
-    ``logistic``), by inverse transform of one uniform per site."""
+def tukey_lambda(index: torch.Tensor, key, lam: float) -> torch.Tensor:
+    """Standard Tukey-lambda draws ``(u^λ − (1 − u)^λ) / λ`` (the logistic
+    ``ln u − ln(1 − u)`` for |λ| below ``LOGISTIC_LAMBDA``), by inverse transform of
+    one uniform per site."""
     u, _ = uniforms(index, "tukey", key)
     lo, hi = exact_log(u), exact_log(1.0 - u)
-    if logistic:
+    if abs(lam) < LOGISTIC_LAMBDA:
         return lo - hi
     return (exact_exp(lo * lam) - exact_exp(hi * lam)) / lam
 

@@ -24,6 +24,8 @@ LN2_LO = 1.90821492927058770002e-10
 INV_LN2 = 1.44269504088896338700e00
 SQRT_HALF = 0.70710678118654752440
 HALF_PI = 1.57079632679489661923
+#: |λ| below this is the Tukey-lambda law's λ → 0 limit, the logistic law.
+LOGISTIC_LAMBDA = 1e-6
 #: 2⁻⁵²: uniforms are (n + ½) · 2⁻⁵² for a 52-bit integer n, exact in float64, in (0, 1),
 #: and so is 1 − u.
 UNIFORM_STEP = 2.0**-52

@@ -30,14 +30,13 @@ import torch
 
 from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda
 from rawsim.errors import ParameterError, check_choice
+from rawsim.exact_math import LOGISTIC_LAMBDA
 
 NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
 #: Default spread (σ of ln σ) of sampled noise levels when a profile gives none.
 DEFAULT_SPREAD = 0.1
 EXACT_POISSON_BELOW = 100.0
 QUANTIZATION_VARIANCE = 1.0 / 12.0
-#: |λ| below this is the Tukey-lambda law's λ → 0 limit, the logistic law.
-LOGISTIC_LAMBDA = 1e-6
 
 
 def _interp(t: float, xs: list[float], ys: list[float]) -> float:
@@ -442,7 +441,6 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Te
         noise[small] = shot if physics else shot + levels.read_sigma * z[small]
     if not physics:
         return noise
-    lam = levels.tukey_lambda
-    noise = noise + levels.read_sigma * tukey_lambda(sites, key, lam, abs(lam) < LOGISTIC_LAMBDA)
+    noise = noise + levels.read_sigma * tukey_lambda(sites, key, levels.tukey_lambda)
     noise = noise + levels.row_sigma * normal(rows, key, "row")[:, None]
     return noise if bias is None else noise + bias

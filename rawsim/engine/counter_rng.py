@@ -28,6 +28,7 @@ from rawsim.exact_math import (
     HALF_PI,
     INV_LN2,
     LOG_FACTORIAL,
+    LOGISTIC_LAMBDA,
     SQRT_HALF,
     UNIFORM_STEP,
     cos_reduced,
@@ -132,12 +133,12 @@ def normal(index, stream, k0, k1):
 
 
 @njit
-def tukey_lambda(index, k0, k1, lam, logistic):
-    """A standard Tukey-lambda draw by inverse transform."""
+def tukey_lambda(index, k0, k1, lam):
+    """A standard Tukey-lambda draw by inverse transform (logistic for |λ| ≈ 0)."""
     u, _ = uniforms(index, TUKEY, k0, k1, np.uint64(0))
     lo = exact_log(u)
     hi = exact_log(1.0 - u)
-    if logistic:
+    if abs(lam) < LOGISTIC_LAMBDA:
         return lo - hi
     return (exact_exp(lo * lam) - exact_exp(hi * lam)) / lam
 

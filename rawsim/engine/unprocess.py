@@ -20,14 +20,14 @@ from numba import njit, prange
 
 from rawsim.engine import configure
 from rawsim.engine.counter_rng import NORMAL, ROW, normal, poisson, tukey_lambda
-from rawsim.noise import EXACT_POISSON_BELOW, LOGISTIC_LAMBDA
+from rawsim.noise import EXACT_POISSON_BELOW
 
 configure()
 
 #: Noise model codes of the kernels.
 MODEL_CODES = {"none": 0, "gaussian": 1, "poisson-gaussian": 2, "physics": 3}
 #: Layout of the float64 noise-parameter vector (see :func:`noise_vector`).
-N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_LAMBDA, N_LOGISTIC, N_ROW = range(9)
+N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_LAMBDA, N_ROW = range(8)
 
 
 def noise_vector(levels, black: float) -> np.ndarray:
@@ -41,7 +41,6 @@ def noise_vector(levels, black: float) -> np.ndarray:
             levels.shot_beta,
             levels.iso_gain,
             levels.tukey_lambda,
-            1.0 if abs(levels.tukey_lambda) < LOGISTIC_LAMBDA else 0.0,
             levels.row_sigma,
         ],
         dtype=np.float64,
@@ -70,7 +69,7 @@ def site_noise(dn, site, model, p, k0, k1, row_noise, bias):
         noise = math.sqrt(k * positive + read_var) * z
     if not physics:
         return noise
-    t = tukey_lambda(site, k0, k1, p[N_LAMBDA], p[N_LOGISTIC] != 0.0)
+    t = tukey_lambda(site, k0, k1, p[N_LAMBDA])
     noise = noise + p[N_READ] * t
     noise = noise + row_noise
     return noise + bias
