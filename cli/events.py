@@ -111,7 +111,7 @@ def command(
     from rawsim.errors import ParameterError
     from rawsim.events import EventParams, EventSensor
     from rawsim.io.atomic import atomic_output
-    from rawsim.io.images import IMAGE_EXTENSIONS, read_image, write_image
+    from rawsim.io.images import IMAGE_EXTENSIONS, read_image, to_samples, write_image
     from rawsim.sensors import display_to_linear
 
     out = Path(out_dir)
@@ -166,7 +166,7 @@ def command(
         for t, step in enumerate(torch.from_numpy(events).float() / peak):
             rgb = torch.stack([step[0], torch.zeros_like(step[0]), step[1]])
             with atomic_output(folder / f"step_{t + 1:04d}.png") as tmp:
-                write_image(tmp, rgb, "png", 8, True)
+                write_image(tmp, to_samples(rgb, "png", 8), "png")
     total = events.sum(axis=(0, 2, 3))
     click.echo(
         f"rawsim: {len(paths)} frames → {target}: {int(total[0])} positive, "

@@ -21,7 +21,7 @@ def command():
 @usage_errors
 def show_cmd():
     """Print the default ISP config as TOML (edit it and pass it to 'rawsim process -c')."""
-    from rawsim.isp.pipeline import config_to_toml, default_config
+    from rawsim.isp.config import config_to_toml, default_config
 
     click.echo(config_to_toml(default_config()), nl=False)
 
@@ -31,7 +31,7 @@ def show_cmd():
 @usage_errors
 def check_cmd(config):
     """Validate a config file; print the effective stage order."""
-    from rawsim.isp.pipeline import load_config
+    from rawsim.isp.config import load_config
 
     stages = load_config(config)
     click.echo(" → ".join(s["name"] for s in stages if s["enabled"]))

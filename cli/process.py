@@ -94,7 +94,7 @@ def command(
     """
     from rawsim.device import resolve_device
     from rawsim.io.images import RAW_EXTENSIONS
-    from rawsim.isp.pipeline import default_config, load_config, override
+    from rawsim.isp.config import default_config, load_config, override
     from rawsim.pipelines.process import ProcessOptions, process_file
 
     config = load_config(config_path) if config_path else default_config()

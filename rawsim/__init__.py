@@ -15,19 +15,41 @@ Public API (shapes are (B, C, H, W); see each docstring for units and domains):
 * events: :class:`EventSensor`
 * whole images: :func:`unprocess_tensor`
 * stages: :mod:`rawsim.isp`
+
+Names are imported on first use, so a command that needs no torch (``rawsim
+process`` on the compiled engine) does not load it.
 """
 
+from __future__ import annotations
+
+import importlib
+
 from rawsim._version import __version__
-from rawsim.api import file_seed, process, unprocess
-from rawsim.cfa import CFA
-from rawsim.dataset import UnprocessDataset
-from rawsim.errors import ParameterError, ProfileError, RawsimError, UnsupportedInputError
-from rawsim.events import EventSensor
-from rawsim.noise import NoiseLevels, add_noise
-from rawsim.params import UnprocessParams, sample_params
-from rawsim.pipelines.unprocess import unprocess_tensor
-from rawsim.profiles import SensorProfile, list_profiles, load_profile
-from rawsim.sensors import MonoSensor, RGBSensor, Sensor
+
+#: Public name → the module that defines it (imported on first use).
+_EXPORTS = {
+    "file_seed": "rawsim.api",
+    "process": "rawsim.api",
+    "unprocess": "rawsim.api",
+    "CFA": "rawsim.cfa",
+    "UnprocessDataset": "rawsim.dataset",
+    "ParameterError": "rawsim.errors",
+    "ProfileError": "rawsim.errors",
+    "RawsimError": "rawsim.errors",
+    "UnsupportedInputError": "rawsim.errors",
+    "EventSensor": "rawsim.events",
+    "NoiseLevels": "rawsim.noise",
+    "add_noise": "rawsim.noise",
+    "UnprocessParams": "rawsim.params",
+    "sample_params": "rawsim.params",
+    "unprocess_tensor": "rawsim.pipelines.unprocess",
+    "SensorProfile": "rawsim.profiles",
+    "list_profiles": "rawsim.profiles",
+    "load_profile": "rawsim.profiles",
+    "MonoSensor": "rawsim.sensors",
+    "RGBSensor": "rawsim.sensors",
+    "Sensor": "rawsim.sensors",
+}
 
 __all__ = [
     "CFA",
@@ -40,8 +62,8 @@ __all__ = [
     "RawsimError",
     "Sensor",
     "SensorProfile",
-    "UnprocessParams",
     "UnprocessDataset",
+    "UnprocessParams",
     "UnsupportedInputError",
     "__version__",
     "add_noise",
@@ -53,3 +75,15 @@ __all__ = [
     "unprocess",
     "unprocess_tensor",
 ]
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

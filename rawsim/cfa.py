@@ -12,10 +12,12 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from functools import cached_property
-
-import torch
+from typing import TYPE_CHECKING
 
 from rawsim.errors import ParameterError, check_image
+
+if TYPE_CHECKING:  # torch is imported where it is used: reading raws needs none
+    import torch
 
 #: Colour index of each CFA letter; DNG's CFAPattern uses the same codes (R=0, G=1, B=2).
 COLOR_INDEX = {"R": 0, "G": 1, "B": 2}
@@ -74,11 +76,16 @@ class CFA:
 
     def tile(self, values: torch.Tensor) -> torch.Tensor:
         """Lay per-colour ``values`` (..., 3) out on the 2×2 tile: returns (..., 1, 2, 2)."""
+        import torch
+
         idx = torch.tensor(self.colors, device=values.device)
         return values[..., idx].reshape(*values.shape[:-1], 1, 2, 2)
 
-    def masks(self, height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    def masks(self, height: int, width: int, device=None, dtype=None):
         """One-hot colour masks (3, H, W): mask[c, y, x] is 1 where site (y, x) is colour c."""
+        import torch
+
+        dtype = dtype or torch.float32
         _check_even(height, width)
         tile = torch.zeros(3, 2, 2, device=device, dtype=dtype)
         for i, color in enumerate(self.colors):
@@ -86,11 +93,14 @@ class CFA:
         return tile.repeat(1, height // 2, width // 2)
 
     @functools.lru_cache(maxsize=8)  # noqa: B019 - CFA values are few and immutable
-    def site_masks(self, height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    def site_masks(self, height: int, width: int, device=None, dtype=None):
         """Masks (4, H, W) of the R, Gr, Gb and B sites (the order of :meth:`pack`).
 
         Cached per size (strips repeat it); treat the result as read-only.
         """
+        import torch
+
+        dtype = dtype or torch.float32
         _check_even(height, width)
         tile = torch.zeros(4, 2, 2, device=device, dtype=dtype)
         for plane, (r, c) in enumerate(self._packed_sites):
@@ -99,6 +109,8 @@ class CFA:
 
     def color_map(self, height: int, width: int, device=None) -> torch.Tensor:
         """Colour index of every site, (1, 1, H, W) int64."""
+        import torch
+
         _check_even(height, width)
         tile = torch.tensor(self.colors, device=device).reshape(1, 1, 2, 2)
         return tile.repeat(1, 1, height // 2, width // 2)
@@ -129,6 +141,8 @@ class CFA:
         The plane order is the same for every pattern: Gr is the green on the red
         rows, Gb the green on the blue rows.
         """
+        import torch
+
         check_image(mosaic, "mosaic", channels=1)
         _check_even(*mosaic.shape[-2:])
         return torch.cat([mosaic[:, :, r::2, c::2] for r, c in self._packed_sites], dim=1)

@@ -6,36 +6,36 @@ use :func:`rawsim.isp.color_matrix.apply_color_matrix`.
 
 from __future__ import annotations
 
-import torch
+import numpy as np
 
 from rawsim.errors import ParameterError
 
 #: Linear sRGB → CIE XYZ, D65 white (IEC 61966-2-1).
-SRGB_TO_XYZ = torch.tensor(
+SRGB_TO_XYZ = np.array(
     [
         [0.4124564, 0.3575761, 0.1804375],
         [0.2126729, 0.7151522, 0.0721750],
         [0.0193339, 0.1191920, 0.9503041],
     ],
-    dtype=torch.float64,
+    dtype=np.float64,
 )
 #: CIE XYZ of the D65 white point (Y = 1), the row sums of :data:`SRGB_TO_XYZ`.
-XYZ_D65 = SRGB_TO_XYZ.sum(dim=1)
+XYZ_D65 = SRGB_TO_XYZ.sum(axis=1)
 #: DNG CalibrationIlluminant code of D65 (EXIF LightSource 21).
 ILLUMINANT_D65 = 21
 
 
-def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> torch.Tensor:
-    """Convert nested lists or a tensor to a float64 matrix of ``shape``, checking it."""
-    m = torch.as_tensor(values, dtype=torch.float64)
+def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> np.ndarray:
+    """Convert nested lists or an array to a float64 matrix of ``shape``, checking it."""
+    m = np.array(values, dtype=np.float64)
     if tuple(m.shape) != shape:
         raise ParameterError(f"{name} must be {shape[0]}×{shape[1]}, got {tuple(m.shape)}")
-    if not bool(torch.isfinite(m).all()):
+    if not np.isfinite(m).all():
         raise ParameterError(f"{name} contains NaN or infinite values")
     return m
 
 
-def camera_from_srgb(xyz_to_camera) -> torch.Tensor:
+def camera_from_srgb(xyz_to_camera) -> np.ndarray:
     """Linear sRGB → white-balanced camera RGB, the way dcraw/LibRaw build it.
 
     ``rgb2cam = xyz2cam @ srgb2xyz`` with each row scaled to sum to 1, so that
@@ -49,31 +49,31 @@ def camera_from_srgb(xyz_to_camera) -> torch.Tensor:
         (3, 3) float64 matrix.
     """
     m = as_matrix(xyz_to_camera, "xyz_to_camera") @ SRGB_TO_XYZ
-    sums = m.sum(dim=1, keepdim=True)
-    if bool((sums.abs() < 1e-8).any()):
+    sums = m.sum(axis=1, keepdims=True)
+    if (np.abs(sums) < 1e-8).any():
         raise ParameterError("xyz_to_camera maps white to zero in some channel")
     return m / sums
 
 
-def srgb_from_camera(xyz_to_camera) -> torch.Tensor:
+def srgb_from_camera(xyz_to_camera) -> np.ndarray:
     """White-balanced camera RGB → linear sRGB: the inverse of :func:`camera_from_srgb`."""
-    return torch.linalg.inv(camera_from_srgb(xyz_to_camera))
+    return np.linalg.inv(camera_from_srgb(xyz_to_camera))
 
 
-def xyz_to_camera_from_ccm(camera_to_srgb) -> torch.Tensor:
+def xyz_to_camera_from_ccm(camera_to_srgb) -> np.ndarray:
     """XYZ → camera matrix equivalent to a camera → linear sRGB CCM (rows normalised)."""
-    rgb2cam = torch.linalg.inv(as_matrix(camera_to_srgb, "color matrix"))
-    m = rgb2cam @ torch.linalg.inv(SRGB_TO_XYZ)
-    return m / m.sum(dim=1, keepdim=True).mean()
+    rgb2cam = np.linalg.inv(as_matrix(camera_to_srgb, "color matrix"))
+    m = rgb2cam @ np.linalg.inv(SRGB_TO_XYZ)
+    return m / m.sum(axis=1, keepdims=True).mean()
 
 
-def daylight_gains(xyz_to_camera) -> torch.Tensor:
+def daylight_gains(xyz_to_camera) -> np.ndarray:
     """White-balance gains (R, G, B), G = 1, that neutralise a D65 white for this camera.
 
     The camera's raw response to D65 white is ``xyz2cam @ XYZ_D65``; the gains are
-    its reciprocal normalised to green. Returns a (3,) float64 tensor.
+    its reciprocal normalised to green. Returns a (3,) float64 array.
     """
     response = as_matrix(xyz_to_camera, "xyz_to_camera") @ XYZ_D65
-    if bool((response <= 0).any()):
+    if (response <= 0).any():
         raise ParameterError("xyz_to_camera gives a non-positive response to D65 white")
     return response[1] / response

@@ -11,8 +11,6 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 
-import torch
-
 _CHECK_VALUES: ContextVar[bool] = ContextVar("rawsim_check_values", default=True)
 
 
@@ -54,8 +52,10 @@ def values_checked(enabled: bool) -> Iterator[None]:
         _CHECK_VALUES.reset(token)
 
 
-def check_image(x: torch.Tensor, name: str = "input", channels: int | None = None) -> None:
+def check_image(x, name: str = "input", channels: int | None = None) -> None:
     """Check that ``x`` is a finite floating (B, C, H, W) tensor with ``channels`` channels."""
+    import torch  # here, so that the torch-free paths can import this module
+
     if not isinstance(x, torch.Tensor):
         raise ParameterError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
     if x.ndim != 4:

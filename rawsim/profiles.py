@@ -15,6 +15,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rawsim.cfa import CFA
 from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
@@ -349,7 +351,7 @@ def _gains(r: _Reader, key: str, xyz_to_camera) -> tuple[float, float, float]:
 
 def _check_invertible(r: _Reader, key: str, m) -> None:
     try:
-        if abs(float(as_matrix(m, key).det())) < 1e-9:
+        if abs(float(np.linalg.det(as_matrix(m, key)))) < 1e-9:
             r.fail(key, "matrix is singular")
     except ParameterError as err:
         r.fail(key, str(err))

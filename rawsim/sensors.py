@@ -196,7 +196,7 @@ class RGBSensor(ProfileSensor):
         x = self._linear_light(image, in_type, p)
         if p.ccm_bias is not None:
             x = x - torch.tensor(p.ccm_bias, dtype=x.dtype, device=x.device).reshape(1, 3, 1, 1)
-        x = apply_color_matrix(x, camera_from_srgb(p.xyz_to_camera).to(x.dtype))
+        x = apply_color_matrix(x, camera_from_srgb(p.xyz_to_camera))
         if p.safe_white_balance:
             return safe_invert_white_balance(x, p.wb_gains)
         return invert_white_balance(x, p.wb_gains)

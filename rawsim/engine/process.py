@@ -244,6 +244,13 @@ def _inv_sq(x):
     return np.float32(1.0) / (y * y)
 
 
+@njit(cache=True, inline="always")
+def _diagonal_weight(m, grn, i, j, dy, dx):
+    """1 / (local gradient towards the diagonal neighbour (dy, dx))², as the reference."""
+    grad = abs(m[i + dy, j + dx] - m[i - dy, j - dx]) + abs(grn[i + dy, j + dx] - grn[i, j])
+    return _inv_sq(grad + abs(m[i + 2 * dy, j + 2 * dx] - m[i, j]))
+
+
 @njit(cache=True)
 def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
     """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`)."""
@@ -253,8 +260,9 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
     # Colour differences G − C along rows and columns (reach 9).
     ia, ib, ja, jb = _span(9, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
+        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
         for j in range(ja, jb):
-            sign = np.float32(1.0) if colors[(i & 1) * 2 + (j & 1)] == 1 else np.float32(-1.0)
+            sign = np.float32(1.0) if (even if j & 1 == 0 else odd) == 1 else np.float32(-1.0)
             a, c = _ha_h(m, i, j)
             dh[i, j] = sign * (m[i, j] - a - c)
             a, c = _ha_v(m, i, j)
@@ -286,8 +294,9 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
     # Green: the four one-sided estimates, weighted by 1 / (gradient sum)².
     ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
+        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
         for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
+            c = even if j & 1 == 0 else odd
             e_e = (dh[i, j] * _THIRD + _THIRD * dh[i, j + 1]) + _THIRD * dh[i, j + 2]
             e_w = (dh[i, j - 2] * _THIRD + _THIRD * dh[i, j - 1]) + _THIRD * dh[i, j]
             e_s = (dv[i, j] * _THIRD + _THIRD * dv[i + 1, j]) + _THIRD * dv[i + 2, j]
@@ -307,22 +316,20 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
     # Red at blue sites and blue at red sites: diagonal colour differences.
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
+        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
         for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            total = np.float32(0.0)
-            mr = np.float32(0.0)
-            mb = np.float32(0.0)
-            for k in range(4):
-                dy = -1 if k < 2 else 1
-                dx = -1 if k % 2 == 0 else 1
-                grad = abs(m[i + dy, j + dx] - m[i - dy, j - dx]) + abs(
-                    grn[i + dy, j + dx] - grn[i, j]
-                )
-                grad = grad + abs(m[i + 2 * dy, j + 2 * dx] - m[i, j])
-                wk = _inv_sq(grad)
-                total = wk if k == 0 else total + wk
-                mr = wk * xr[i + dy, j + dx] if k == 0 else mr + wk * xr[i + dy, j + dx]
-                mb = wk * xb[i + dy, j + dx] if k == 0 else mb + wk * xb[i + dy, j + dx]
+            c = even if j & 1 == 0 else odd
+            w0 = _diagonal_weight(m, grn, i, j, -1, -1)
+            w1 = _diagonal_weight(m, grn, i, j, -1, 1)
+            w2 = _diagonal_weight(m, grn, i, j, 1, -1)
+            w3 = _diagonal_weight(m, grn, i, j, 1, 1)
+            total = ((w0 + w1) + w2) + w3
+            mr = (
+                (w0 * xr[i - 1, j - 1] + w1 * xr[i - 1, j + 1]) + w2 * xr[i + 1, j - 1]
+            ) + w3 * xr[i + 1, j + 1]
+            mb = (
+                (w0 * xb[i - 1, j - 1] + w1 * xb[i - 1, j + 1]) + w2 * xb[i + 1, j - 1]
+            ) + w3 * xb[i + 1, j + 1]
             g = grn[i, j]
             r = m[i, j] if c == 0 else (g - mr / total if c == 2 else np.float32(0.0))
             bl = m[i, j] if c == 2 else (g - mb / total if c == 0 else np.float32(0.0))
@@ -339,8 +346,12 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             rgb[1, i, j] = g
             if colors[(i & 1) * 2 + (j & 1)] == 1:
                 w_e, w_w, w_s, w_n, total = we[i, j], ww[i, j], ws[i, j], wn[i, j], tot[i, j]
-                cr = (((w_e * yr[i, j + 1] + w_w * yr[i, j - 1]) + w_s * yr[i + 1, j]) + w_n * yr[i - 1, j])
-                cb = (((w_e * yb[i, j + 1] + w_w * yb[i, j - 1]) + w_s * yb[i + 1, j]) + w_n * yb[i - 1, j])
+                cr = ((w_e * yr[i, j + 1] + w_w * yr[i, j - 1]) + w_s * yr[i + 1, j]) + w_n * yr[
+                    i - 1, j
+                ]
+                cb = ((w_e * yb[i, j + 1] + w_w * yb[i, j - 1]) + w_s * yb[i + 1, j]) + w_n * yb[
+                    i - 1, j
+                ]
                 rgb[0, i, j] = g - cr / total
                 rgb[2, i, j] = g - cb / total
             else:
@@ -612,8 +623,21 @@ def _blend(p, r, g, b):
 # ------------------------------------------------------------------ kernel
 @njit(parallel=True, cache=True)
 def process_kernel(
-    raw, colors, method, table, pre_ops, pre_f, post_ops, post_f, out_mode, lut, gamma, scale,
-    orient, out, threads,
+    raw,
+    colors,
+    method,
+    table,
+    pre_ops,
+    pre_f,
+    post_ops,
+    post_f,
+    out_mode,
+    lut,
+    gamma,
+    scale,
+    orient,
+    out,
+    threads,
 ):
     """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
 
@@ -645,8 +669,21 @@ def process_kernel(
             else:
                 _wcd(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
             outside = _finish(
-                rgb, post_ops, post_f, out_mode, lut, gamma, scale, orient, out,
-                r0, r1, c0, c1, h, w,
+                rgb,
+                post_ops,
+                post_f,
+                out_mode,
+                lut,
+                gamma,
+                scale,
+                orient,
+                out,
+                r0,
+                r1,
+                c0,
+                c1,
+                h,
+                w,
             )
             flags[t] = flags[t] or outside
     return flags.any()

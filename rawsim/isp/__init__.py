@@ -1,35 +1,41 @@
-"""ISP stages: each a pure function pair plus a thin ``nn.Module`` with forward/reverse."""
+"""ISP stages: each a pure function pair plus a thin ``nn.Module`` with forward/reverse.
 
-from rawsim.isp.color_matrix import ColorMatrix, apply_color_matrix, invert_color_matrix
-from rawsim.isp.lens_shading import (
-    LensShading,
-    apply_lens_shading,
-    invert_lens_shading,
-    radial_gain,
-)
-from rawsim.isp.levels import (
-    Levels,
-    Saturation,
-    denormalize_levels,
-    normalize_levels,
-    quantize,
-    saturate,
-)
-from rawsim.isp.tone import ToneCurve, apply_tone_curve, invert_tone_curve
-from rawsim.isp.transfer import (
-    Transfer,
-    TransferSpec,
-    gamma_decode,
-    gamma_encode,
-    srgb_decode,
-    srgb_encode,
-)
-from rawsim.isp.white_balance import (
-    WhiteBalance,
-    apply_white_balance,
-    invert_white_balance,
-    safe_invert_white_balance,
-)
+Names are imported on first use (the config module needs no torch).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+#: Public name → the module that defines it (imported on first use).
+_EXPORTS = {
+    "ColorMatrix": "rawsim.isp.color_matrix",
+    "apply_color_matrix": "rawsim.isp.color_matrix",
+    "invert_color_matrix": "rawsim.isp.color_matrix",
+    "LensShading": "rawsim.isp.lens_shading",
+    "apply_lens_shading": "rawsim.isp.lens_shading",
+    "invert_lens_shading": "rawsim.isp.lens_shading",
+    "radial_gain": "rawsim.isp.lens_shading",
+    "Levels": "rawsim.isp.levels",
+    "Saturation": "rawsim.isp.levels",
+    "denormalize_levels": "rawsim.isp.levels",
+    "normalize_levels": "rawsim.isp.levels",
+    "quantize": "rawsim.isp.levels",
+    "saturate": "rawsim.isp.levels",
+    "ToneCurve": "rawsim.isp.tone",
+    "apply_tone_curve": "rawsim.isp.tone",
+    "invert_tone_curve": "rawsim.isp.tone",
+    "Transfer": "rawsim.isp.transfer",
+    "TransferSpec": "rawsim.isp.config",
+    "gamma_decode": "rawsim.isp.transfer",
+    "gamma_encode": "rawsim.isp.transfer",
+    "srgb_decode": "rawsim.isp.transfer",
+    "srgb_encode": "rawsim.isp.transfer",
+    "WhiteBalance": "rawsim.isp.white_balance",
+    "apply_white_balance": "rawsim.isp.white_balance",
+    "invert_white_balance": "rawsim.isp.white_balance",
+    "safe_invert_white_balance": "rawsim.isp.white_balance",
+}
 
 __all__ = [
     "ColorMatrix",
@@ -59,3 +65,15 @@ __all__ = [
     "srgb_decode",
     "srgb_encode",
 ]
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(_EXPORTS[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -30,9 +30,8 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.errors import check_choice, check_image
+from rawsim.isp.config import DEMOSAIC_METHODS
 from rawsim.isp.planes import correlate
-
-DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
 
 
 def _box(x: torch.Tensor, size: int) -> torch.Tensor:

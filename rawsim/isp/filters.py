@@ -11,10 +11,9 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_choice, check_image
+from rawsim.isp.config import ANTI_ALIAS_METHODS, DENOISE_METHODS
 from rawsim.isp.planes import correlate, gaussian_kernel, neighbourhood, per_plane
 
-ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
-DENOISE_METHODS = ("none", "gaussian", "bilateral")
 _WEIGHTED_AVERAGE = torch.tensor([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]]) / 16
 
 

@@ -14,12 +14,10 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError, check_choice, check_image
+from rawsim.isp.config import HIGHLIGHT_MODES, HIGHLIGHT_TRANSFORM
 
-HIGHLIGHT_MODES = ("clip", "blend")
 # An orthonormal-ish transform separating lightness from two chroma axes (dcraw).
-_TRANS = torch.tensor(
-    [[1.0, 1.0, 1.0], [1.7320508, -1.7320508, 0.0], [-1.0, -1.0, 2.0]], dtype=torch.float64
-)
+_TRANS = torch.tensor(HIGHLIGHT_TRANSFORM, dtype=torch.float64)
 
 
 def handle_highlights(x: torch.Tensor, mode: str = "clip") -> torch.Tensor:

@@ -6,18 +6,9 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError
+from rawsim.isp.config import ORIENTATION_OPS
 
-# orientation → (transpose first, flip rows, flip columns) applied to (…, H, W).
-_OPS = {
-    1: (False, False, False),
-    2: (False, False, True),
-    3: (False, True, True),
-    4: (False, True, False),
-    5: (True, False, False),
-    6: (True, False, True),
-    7: (True, True, True),
-    8: (True, True, False),
-}
+_OPS = ORIENTATION_OPS
 
 
 def _check(orientation: int) -> tuple[bool, bool, bool]:

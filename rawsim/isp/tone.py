@@ -24,15 +24,26 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError, check_choice
-
-TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
-
-_REINHARD_WHITE = 4.0
-# ACES filmic fit (Narkowicz 2015): g(x) = x(a x + b) / (x(c x + d) + e).
-_A, _B, _C, _D, _E = 2.51, 0.03, 2.43, 0.59, 0.14
-# Hable / Uncharted 2 constants A..F and linear white.
-_HA, _HB, _HC, _HD, _HE, _HF = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
-_HABLE_WHITE = 11.2
+from rawsim.isp.config import TONE_CURVES
+from rawsim.isp.curves import (
+    _A,
+    _ACES_WHITE,
+    _B,
+    _C,
+    _D,
+    _E,
+    _HA,
+    _HABLE_WHITE,
+    _HB,
+    _HC,
+    _HD,
+    _HE,
+    _HF,
+    _REINHARD_WHITE,
+    _aces,
+    _hable,
+    _reinhard,
+)
 
 
 def _root(qa, qb, qc):
@@ -40,33 +51,19 @@ def _root(qa, qb, qc):
     return 2 * qc / (-qb + torch.sqrt((qb * qb - 4 * qa * qc).clamp_min(0)))
 
 
-def _reinhard(x):
-    return x * (1 + x / _REINHARD_WHITE**2) / (1 + x)
-
-
 def _reinhard_inv(y):
     # Negated coefficients select the positive root (here a > 0 and c < 0).
     return _root(-1 / _REINHARD_WHITE**2, y - 1, y)
-
-
-def _aces(x):
-    return x * (_A * x + _B) / (x * (_C * x + _D) + _E)
 
 
 def _aces_inv(y):
     return _root(y * _C - _A, y * _D - _B, y * _E)
 
 
-def _hable(x):
-    return (x * (_HA * x + _HC * _HB) + _HD * _HE) / (x * (_HA * x + _HB) + _HD * _HF) - _HE / _HF
-
-
 def _hable_inv(y):
     u = y + _HE / _HF
     return _root(_HA * (u - 1), _HB * (u - _HC), _HD * (_HF * u - _HE))
 
-
-_ACES_WHITE = float(_aces_inv(torch.tensor(1.0, dtype=torch.float64)))
 
 # name → (g, g⁻¹, white W, g'(0), asymptote of g or inf)
 _CURVES = {

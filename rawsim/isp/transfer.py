@@ -8,19 +8,18 @@ law is extended as an odd function. Every value keeps an exact inverse.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import nn
 
 from rawsim.errors import ParameterError
-
-# IEC 61966-2-1 constants.
-_SRGB_DECODE_KNEE = 0.04045
-_SRGB_ENCODE_KNEE = 0.0031308
-_SRGB_SLOPE = 12.92
-_SRGB_A = 0.055
-_SRGB_GAMMA = 2.4
+from rawsim.isp.config import TransferSpec  # noqa: F401 - its historical home
+from rawsim.isp.curves import (
+    _SRGB_A,
+    _SRGB_DECODE_KNEE,
+    _SRGB_ENCODE_KNEE,
+    _SRGB_GAMMA,
+    _SRGB_SLOPE,
+)
 
 
 def _signed_pow(x: torch.Tensor, exponent: float) -> torch.Tensor:
@@ -55,47 +54,6 @@ def gamma_encode(x: torch.Tensor, gamma: float = 2.2) -> torch.Tensor:
 def _check_gamma(gamma: float) -> None:
     if not gamma > 0:
         raise ParameterError(f"gamma must be > 0, got {gamma}")
-
-
-@dataclass(frozen=True)
-class TransferSpec:
-    """A parsed transfer name: ``srgb``, ``linear`` or ``gamma:G``."""
-
-    kind: str
-    gamma: float = 1.0
-
-    @classmethod
-    def parse(cls, text: str) -> TransferSpec:
-        """Parse ``"srgb"``, ``"linear"`` or ``"gamma:2.2"``."""
-        text = str(text).strip().lower()
-        if text in ("srgb", "linear"):
-            return cls(text)
-        if text.startswith("gamma:"):
-            try:
-                gamma = float(text.split(":", 1)[1])
-            except ValueError:
-                gamma = float("nan")
-            if not gamma > 0:
-                raise ParameterError(f"bad transfer {text!r}: gamma must be a number > 0")
-            return cls("gamma", gamma)
-        raise ParameterError(f"unknown transfer {text!r}; valid: srgb, linear, gamma:G")
-
-    def __str__(self) -> str:
-        return f"gamma:{self.gamma:g}" if self.kind == "gamma" else self.kind
-
-    def encode(self, x: torch.Tensor) -> torch.Tensor:
-        if self.kind == "srgb":
-            return srgb_encode(x)
-        if self.kind == "gamma":
-            return gamma_encode(x, self.gamma)
-        return x
-
-    def decode(self, v: torch.Tensor) -> torch.Tensor:
-        if self.kind == "srgb":
-            return srgb_decode(v)
-        if self.kind == "gamma":
-            return gamma_decode(v, self.gamma)
-        return v
 
 
 class Transfer(nn.Module):

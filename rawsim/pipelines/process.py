@@ -1,13 +1,22 @@
-"""Processing: a camera raw file → an RGB image file, through the configurable ISP."""
+"""Processing: a camera raw file → an RGB image file, through the configurable ISP.
+
+Two forms of one ISP: the compiled engine (:mod:`rawsim.engine.process`) renders
+on the CPU whenever it covers the config (every stage but dead-pixel
+correction, anti-aliasing, denoising and YCbCr, for Bayer raws); otherwise, and
+on CUDA, the torch reference (:mod:`rawsim.isp.pipeline`) does. The engine path
+imports no torch. Both resolve white balance and matrix with the same functions
+(:mod:`rawsim.isp.config`), so their sidecars are identical and their pixels
+agree to rounding (``tests/test_engine_process.py``).
+"""
 
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from rawsim._version import __version__
 from rawsim.batch import Task
@@ -16,7 +25,28 @@ from rawsim.errors import ParameterError
 from rawsim.io.atomic import atomic_output
 from rawsim.io.images import OUTPUT_FORMATS, write_image
 from rawsim.io.raw import RawImage, read_raw
-from rawsim.isp.pipeline import build_isp, config_to_toml, default_config, validate_config
+from rawsim.isp.config import (
+    HIGHLIGHT_TRANSFORM,
+    ORIENTATION_OPS,
+    TransferSpec,
+    camera_to_output,
+    config_to_toml,
+    default_config,
+    resolve_white_balance,
+    validate_config,
+)
+from rawsim.isp.curves import (
+    _ACES_WHITE,
+    _HABLE_WHITE,
+    _REINHARD_WHITE,
+    _SRGB_A,
+    _SRGB_ENCODE_KNEE,
+    _SRGB_GAMMA,
+    _SRGB_SLOPE,
+    _aces,
+    _hable,
+    _reinhard,
+)
 
 
 @dataclass(frozen=True)
@@ -24,7 +54,7 @@ class ProcessOptions:
     """Options of the files job.
 
     Attributes:
-        config: validated ISP config (see :mod:`rawsim.isp.pipeline`).
+        config: validated ISP config (see :mod:`rawsim.isp.config`).
         fmt: output format, one of ``OUTPUT_FORMATS``.
         bits: 8 or 16 (PNG/TIFF/JPEG), 16 (half) or 32 (float) for EXR.
         device: ``cpu``, ``cuda`` or ``auto``.
@@ -48,18 +78,228 @@ class ProcessOptions:
         ]
 
 
-def raw_tensor(raw: RawImage, device) -> torch.Tensor:
+def raw_tensor(raw: RawImage, device):
     """The raw's data as float32 DN, (1, 1, H, W) for a mosaic or (1, 3, H, W)."""
+    import torch
+
     data = torch.from_numpy(raw.data.astype(np.float32)).to(device)
     return data[None, None] if raw.cfa is not None else data.permute(2, 0, 1)[None]
 
 
-def render(raw: RawImage, config: list[dict], device="cpu") -> tuple[torch.Tensor, dict]:
-    """Run the ISP of ``config`` on ``raw``: returns (1, 3, H, W) and the resolved values."""
+def render(raw: RawImage, config: list[dict], device="cpu"):
+    """The torch reference ISP of ``config`` on ``raw``: (1, 3, H, W) and the resolved values."""
+    import torch
+
+    from rawsim.isp.pipeline import build_isp
+
     isp = build_isp(validate_config(config), raw).to(device)
     with torch.no_grad():
         out = isp(raw_tensor(raw, device))
     return out, isp.info
+
+
+# ------------------------------------------------------------------ engine
+_MOSAIC_STAGES = {"black_level", "lens_shading", "white_balance", "highlights"}
+_RGB_STAGES = {"white_balance", "highlights", "lens_shading", "color_matrix", "exposure"}
+_TAIL_STAGES = ("tone", "transfer")
+#: The engine's smallest image: every tile's halo must mirror inside the image.
+ENGINE_MIN_SIZE = 16
+
+
+@dataclass
+class EnginePlan:
+    """A config resolved for one raw into the compiled kernel's arguments."""
+
+    method: int
+    pre_ops: np.ndarray
+    pre_f: np.ndarray
+    post_ops: np.ndarray
+    post_f: np.ndarray
+    out_mode: int
+    lut: np.ndarray
+    gamma: float
+    smoothstep: bool
+    orientation: int
+    info: dict
+
+
+def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | None:
+    """The engine's arguments for ``config`` on ``raw``, or None where only the reference can.
+
+    Resolves white balance and matrix exactly as :func:`rawsim.isp.pipeline.build_isp`
+    does (same functions, same ``info``).
+    """
+    from rawsim.engine import process as ep
+
+    if raw.cfa is None or min(raw.data.shape[:2]) < ENGINE_MIN_SIZE:
+        return None
+    warnings: list[str] = list(raw.warnings)
+    info: dict = {"warnings": warnings, "monochrome": False}
+    stages = [s for s in config if s["enabled"]]
+    names = [s["name"] for s in stages]
+    split = names.index("demosaic")
+    pre, post = [], []
+    tail: list[dict] = []
+    orientation = 1
+    method = 0
+    for at, s in enumerate(stages):
+        name = s["name"]
+        ops = pre if at < split else post
+        if name == "demosaic":
+            method = ep.DEMOSAIC_CODES[s["method"]]
+        elif name == "orientation":
+            orientation = raw.orientation
+        elif name in _TAIL_STAGES:
+            tail.append(s)
+        elif tail or name not in (_MOSAIC_STAGES if at < split else _RGB_STAGES):
+            return None  # a stage the engine lacks, or an RGB stage after tone/transfer
+        elif name == "black_level":
+            black = np.asarray(raw.black_level, dtype=np.float64).reshape(4)
+            if np.allclose(black, black[0]):  # the reference's scalar black level
+                divisor = np.full(4, np.float32(raw.white_level - black[0]))
+            else:  # its per-site tile, in float32
+                divisor = np.float32(raw.white_level) - black.astype(np.float32)
+            ops.append((ep.OP_LEVELS, [*black, *divisor]))
+        elif name == "white_balance":
+            gains = resolve_white_balance(s["mode"], raw, warnings)
+            info["white_balance"] = list(gains)
+            ops.append((ep.OP_WB, gains))
+        elif name == "highlights":
+            if s["mode"] == "clip":
+                ops.append((ep.OP_CLIP, []))
+            else:
+                trans = np.array(HIGHLIGHT_TRANSFORM)
+                ops.append((ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel()]))
+        elif name == "lens_shading":
+            ops.append((ep.OP_SHADING, [*s["k"], s["strength"]]))
+        elif name == "color_matrix":
+            matrix = camera_to_output(raw, s["output_space"])
+            info["color_matrix"] = matrix.tolist()
+            ops.append((ep.OP_MATRIX, matrix.ravel()))
+        elif name == "exposure":
+            ops.append((ep.OP_EXPOSURE, [2.0 ** s["ev"]]))
+    out_mode, lut, gamma, smoothstep = _output_table(tail, fmt)
+    if out_mode is None:
+        return None
+    return EnginePlan(
+        method,
+        *_op_arrays(pre),
+        *_op_arrays(post),
+        out_mode,
+        lut,
+        gamma,
+        smoothstep,
+        orientation,
+        info,
+    )
+
+
+def _op_arrays(ops) -> tuple[np.ndarray, np.ndarray]:
+    codes = np.array([op for op, _ in ops], dtype=np.int64)
+    numbers = np.zeros((max(len(ops), 1), 18), dtype=np.float64)
+    for k, (_, values) in enumerate(ops):
+        numbers[k, : len(values)] = values
+    return codes, numbers
+
+
+_TONE = {"reinhard": (_reinhard, _REINHARD_WHITE), "aces": (_aces, _ACES_WHITE)}
+_TONE["hable"] = (_hable, _HABLE_WHITE)
+
+
+def _output_table(tail: list[dict], fmt: str):
+    """(mode, table, gamma, smoothstep) for the tone/transfer stages, or Nones.
+
+    The table is tone ∘ transfer on [0, 1] in float64, in the config's order; a
+    power-law transfer (infinite slope at 0) must come last and is left to the
+    kernel. EXR output has no tone or transfer (see ``effective_config``).
+    """
+    from rawsim.engine import process as ep
+
+    x = np.linspace(0.0, 1.0, ep.LUT_SIZE)
+    if fmt == "exr":
+        return (ep.OUT_FLOAT, x.astype(np.float32), 1.0, False) if not tail else (None,) * 4
+    gamma, smoothstep = 1.0, False
+    for at, s in enumerate(tail):
+        if s["name"] == "tone":
+            curve = s["curve"]
+            smoothstep = smoothstep or curve == "smoothstep"
+            if curve == "smoothstep":
+                x = x * x * (3 - 2 * x)
+            elif curve != "none":
+                g, white = _TONE[curve]
+                x = g(x * white) / g(white)
+            continue
+        spec = TransferSpec.parse(s["function"])
+        if spec.kind == "srgb":
+            power = (1 + _SRGB_A) * np.maximum(x, _SRGB_ENCODE_KNEE) ** (1 / _SRGB_GAMMA) - _SRGB_A
+            x = np.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
+        elif spec.kind == "gamma":
+            if at != len(tail) - 1:
+                return (None,) * 4
+            gamma = 1.0 / spec.gamma
+    mode = ep.OUT_GAMMA if gamma != 1.0 else ep.OUT_TABLE
+    return mode, x.astype(np.float32), gamma, smoothstep
+
+
+def engine_render(raw: RawImage, plan: EnginePlan, fmt: str, bits: int) -> np.ndarray:
+    """Render ``raw`` with the compiled kernel: (H, W, 3) samples for :func:`write_image`."""
+    import numba
+
+    from rawsim.engine import process as ep
+
+    transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
+    h, w = raw.data.shape
+    shape = (w, h, 3) if transpose else (h, w, 3)
+    if plan.out_mode == ep.OUT_FLOAT:
+        dtype, scale = np.float32, 1.0
+    else:
+        dtype, scale = (np.uint8, 255.0) if bits == 8 else (np.uint16, 65535.0)
+    out = np.empty(shape, dtype=dtype)
+    colors = np.array(raw.cfa.colors, dtype=np.int64)
+    if (plan.pre_ops == ep.OP_SHADING).any():
+        table = np.empty((0, 0), dtype=np.float32)
+    else:
+        table = ep.mosaic_table(colors, plan.pre_ops, plan.pre_f)
+    outside = ep.process_kernel(
+        np.ascontiguousarray(raw.data),
+        colors,
+        plan.method,
+        table,
+        plan.pre_ops,
+        plan.pre_f,
+        plan.post_ops,
+        plan.post_f,
+        plan.out_mode,
+        plan.lut,
+        plan.gamma,
+        scale,
+        np.array([transpose, flip_rows, flip_cols]),
+        out,
+        numba.get_num_threads(),
+    )
+    if plan.smoothstep and outside:
+        raise ParameterError("smoothstep tone curve is defined on [0, 1]; input has values outside")
+    if fmt == "exr" and bits == 16:
+        return out.astype(np.float16)
+    return out
+
+
+def use_engine(device: str) -> bool:
+    """Whether to render with the compiled engine (CPU, numba, not disabled by RAWSIM_ENGINE=0)."""
+    from rawsim import engine
+
+    return device == "cpu" and engine.available() and os.environ.get("RAWSIM_ENGINE", "1") != "0"
+
+
+def render_samples(raw: RawImage, config: list[dict], fmt: str, bits: int, device="cpu"):
+    """``raw`` rendered to (H, W, 3) samples for ``fmt``/``bits``, and the resolved values."""
+    from rawsim.io.images import to_samples
+
+    plan = engine_plan(raw, config, fmt) if use_engine(str(device)) else None
+    if plan is not None:
+        return engine_render(raw, plan, fmt, bits), plan.info
+    rgb, info = render(raw, config, device)
+    return to_samples(rgb[0], fmt, bits), info
 
 
 def process_file(task: Task, options: ProcessOptions) -> dict:
@@ -67,10 +307,10 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     if options.fmt not in OUTPUT_FORMATS:
         raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
     raw = read_raw(task.source)
-    config = options.effective_config()
+    config = validate_config(options.effective_config())
     device = resolve_device(options.device)
-    rgb, info = render(raw, config, device)
-    height, width = rgb.shape[-2:]
+    samples, info = render_samples(raw, config, options.fmt, options.bits, device)
+    height, width = samples.shape[:2]
     enabled = {s["name"]: s for s in config if s["enabled"]}
     space = enabled["color_matrix"]["output_space"] if "color_matrix" in enabled else "camera"
     encoded = "transfer" in enabled and enabled["transfer"]["function"] == "srgb"
@@ -93,9 +333,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         **info,
     }
     with atomic_output(task.outputs["image"]) as tmp:
-        write_image(
-            tmp, rgb[0], options.fmt, options.bits, srgb, {"Software": f"rawsim {__version__}"}
-        )
+        write_image(tmp, samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
     with atomic_output(task.outputs["json"]) as tmp:
         Path(tmp).write_text(json.dumps(meta, indent=2) + "\n")
     return meta

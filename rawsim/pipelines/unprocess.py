@@ -182,7 +182,7 @@ def engine_unprocess(
         np.zeros(0, np.float32) if lut is None else lut.numpy(),
         2.0**params.exposure_ev / params.brightness,
         np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0, 0.0, 0.0), float),
-        camera_from_srgb(params.xyz_to_camera).numpy(),
+        camera_from_srgb(params.xyz_to_camera),
         np.asarray(params.wb_gains, np.float64),
         params.safe_white_balance,
         SAFE_WB_THRESHOLD,
@@ -357,7 +357,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     """
     decoded = read_image(task.source)
     device = resolve_device(options.device)
-    image = decoded.pixels if device.type == "cpu" else image_tensor(decoded.pixels, device)
+    image = decoded.pixels if str(device) == "cpu" else image_tensor(decoded.pixels, device)
     sim = simulate(
         options.make_sensor(),
         image,
