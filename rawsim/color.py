@@ -27,6 +27,8 @@ ILLUMINANT_D65 = 21
 
 def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> np.ndarray:
     """Convert nested lists or an array to a float64 matrix of ``shape``, checking it."""
+    if not isinstance(values, np.ndarray) and hasattr(values, "tolist"):  # a torch tensor
+        values = values.tolist()
     m = np.array(values, dtype=np.float64)
     if tuple(m.shape) != shape:
         raise ParameterError(f"{name} must be {shape[0]}×{shape[1]}, got {tuple(m.shape)}")

@@ -42,7 +42,7 @@ RENDER = dict(
 def _half_size_reference(linear: np.ndarray, profile, gains) -> np.ndarray:
     """Linear sRGB (H, W, 3) → what an ideal half-size render of its raw gives (linear)."""
     a = camera_from_srgb(profile.xyz_to_camera)
-    cam = torch.einsum("ij,hwj->hwi", a, torch.from_numpy(linear).double()).numpy()
+    cam = np.einsum("ij,hwj->hwi", a, linear)
     raw = np.clip(cam / gains, 0, 1)  # the sensor saturates at its white level
     acc = np.zeros((cam.shape[0] // 2, cam.shape[1] // 2, 3))
     count = np.zeros(3)
@@ -50,7 +50,7 @@ def _half_size_reference(linear: np.ndarray, profile, gains) -> np.ndarray:
         acc[..., color] += raw[i // 2 :: 2, i % 2 :: 2, color]
         count[color] += 1
     balanced = np.clip(acc / count * gains, 0, 1)  # LibRaw clips after white balance
-    return np.clip(balanced @ np.linalg.inv(a.numpy()).T, 0, 1)
+    return np.clip(balanced @ np.linalg.inv(a).T, 0, 1)
 
 
 def _source(src, linear: bool) -> np.ndarray:

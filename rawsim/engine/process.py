@@ -638,27 +638,31 @@ def process_kernel(
     orient,
     out,
     threads,
+    tile_rows,
+    tile_cols,
 ):
     """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
 
     ``colors``: the CFA's colour index at the 4 tile sites (row-major);
     ``method``: a :data:`DEMOSAIC_CODES` value. Returns whether any value reaching
     the tone curve was outside [0, 1]. ``threads``: numba's thread count (each
-    thread gets its own tile buffers).
+    thread gets its own tile buffers); tiles are ``tile_rows`` × ``tile_cols``
+    (even numbers: tiles keep the CFA phase; default :data:`TILE_ROWS`,
+    :data:`TILE_COLS`).
     """
     h, w = raw.shape
-    rows, cols = (h + TILE_ROWS - 1) // TILE_ROWS, (w + TILE_COLS - 1) // TILE_COLS
+    rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
     tiles = rows * cols
     threads = max(1, min(tiles, threads))
     flags = np.zeros(threads, dtype=np.bool_)
-    shape = (TILE_ROWS + 2 * HALO, TILE_COLS + 2 * HALO)
+    shape = (tile_rows + 2 * HALO, tile_cols + 2 * HALO)
     for t in prange(threads):
         m = np.empty(shape, np.float32)
         rgb = np.empty((3,) + shape, np.float32)
         bufs = np.empty((20,) + shape, np.float32)
         for tile in range(t, tiles, threads):
-            r0, c0 = (tile // cols) * TILE_ROWS, (tile % cols) * TILE_COLS
-            r1, c1 = min(h, r0 + TILE_ROWS), min(w, c0 + TILE_COLS)
+            r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
+            r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _load_mosaic(raw, m, table, colors, pre_ops, pre_f, r0, r1, c0, c1, h, w)
             if method == 0:
                 _bilinear(m, rgb, colors, r0, r1, c0, c1, h, w)

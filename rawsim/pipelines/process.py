@@ -241,8 +241,13 @@ def _output_table(tail: list[dict], fmt: str):
     return mode, x.astype(np.float32), gamma, smoothstep
 
 
-def engine_render(raw: RawImage, plan: EnginePlan, fmt: str, bits: int) -> np.ndarray:
-    """Render ``raw`` with the compiled kernel: (H, W, 3) samples for :func:`write_image`."""
+def engine_render(
+    raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile: tuple[int, int] | None = None
+) -> np.ndarray:
+    """Render ``raw`` with the compiled kernel: (H, W, 3) samples for :func:`write_image`.
+
+    ``tile``: (rows, columns) of the kernel's tiles, even (default: the engine's).
+    """
     import numba
 
     from rawsim.engine import process as ep
@@ -276,6 +281,7 @@ def engine_render(raw: RawImage, plan: EnginePlan, fmt: str, bits: int) -> np.nd
         np.array([transpose, flip_rows, flip_cols]),
         out,
         numba.get_num_threads(),
+        *(tile or (ep.TILE_ROWS, ep.TILE_COLS)),
     )
     if plan.smoothstep and outside:
         raise ParameterError("smoothstep tone curve is defined on [0, 1]; input has values outside")
