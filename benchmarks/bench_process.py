@@ -1,26 +1,33 @@
-"""Processing speed and memory: rawsim's ISP beside LibRaw (rawpy) in the same run.
+"""Processing speed and memory: rawsim's ISP beside LibRaw (rawpy) and dcraw in the same run.
 
     python benchmarks/bench_process.py [--quick]
 
 Makes a 24 MP, 14-bit DNG with ``rawsim unprocess`` (a test photo resized to
 6000×4000, Sony A7S II profile, ISO 800), then times, each in a fresh process so
 that peak memory (max RSS) is its own:
-  * LibRaw AHD through ``rawpy.postprocess`` (camera WB, sRGB, 16-bit);
+  * LibRaw AHD through ``rawpy.postprocess`` (camera WB, sRGB, 16-bit), alone and
+    with a 16-bit TIFF write (tifffile) in a fresh interpreter;
+  * ``dcraw -T -6 -w`` (AHD, 16-bit TIFF) where installed;
   * ``rawsim process`` with each demosaic method (default: wcd), per image in a
-    batch of copies of the file (start-up excluded), uncompressed 16-bit TIFF out
-    (LibRaw's figure excludes writing; a 24 MP 16-bit PNG alone takes ~11 s to deflate).
-Goal (issue 3): rawsim ≥ 1.5× faster than LibRaw AHD, peak memory ≤ 1.5 GB.
+    batch of copies of the file (start-up excluded), 16-bit TIFF out, on the
+    compiled engine and, for wcd, on the torch reference (RAWSIM_ENGINE=0);
+  * the default output (8-bit PNG) per image, and the write alone;
+  * single cold invocations of ``rawsim process x.dng --format tiff --bits 16``:
+    the first after clearing numba's cache (compiling) and later ones.
+Targets (issue 13): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
+default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
-import resource
 import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import OpenImageIO as oiio
@@ -28,21 +35,46 @@ import OpenImageIO as oiio
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "srgb"
 
 LIBRAW = """
-import sys, time, rawpy
+import sys, time, rawpy, tifffile
 t = time.perf_counter()
 with rawpy.imread(sys.argv[1]) as raw:
-    raw.postprocess(demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD, use_camera_wb=True,
-                    output_color=rawpy.ColorSpace.sRGB, output_bps=16, no_auto_bright=True)
+    rgb = raw.postprocess(demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD, use_camera_wb=True,
+                          output_color=rawpy.ColorSpace.sRGB, output_bps=16, no_auto_bright=True)
+t1 = time.perf_counter()
+if len(sys.argv) > 2:
+    tifffile.imwrite(sys.argv[2], rgb, photometric="rgb")
+print(t1 - t)
+"""
+
+WRITE = """
+import sys, time, numpy as np, OpenImageIO as oiio
+from rawsim.io.images import write_image
+rgb = oiio.ImageBuf(sys.argv[1]).get_pixels(oiio.UINT16)
+rgb = (rgb >> 8).astype(np.uint8) if sys.argv[3] == "8" else rgb
+t = time.perf_counter()
+write_image(sys.argv[2], rgb, sys.argv[2].rsplit(".", 1)[1].replace("tif", "tiff"))
 print(time.perf_counter() - t)
 """
 
 
-def child(cmd: list[str]) -> tuple[str, str, float]:
-    """Run ``cmd``; return stdout, stderr and its peak RSS in GB."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    done = subprocess.run(cmd, check=True, capture_output=True, text=True)
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return done.stdout, done.stderr, max(peak, before) / 1024**2
+def timed(cmd: list[str], env=None) -> tuple[float, float]:
+    """Wall seconds and peak RSS (GB) of one fresh process."""
+    t = time.perf_counter()
+    _, _, peak = child(cmd, env)
+    return time.perf_counter() - t, peak
+
+
+def child(cmd: list[str], env=None) -> tuple[str, str, float]:
+    """Run ``cmd``; return stdout, stderr and its own peak RSS in GB (from ``wait4``)."""
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0), err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if proc.returncode:
+        raise subprocess.CalledProcessError(proc.returncode, cmd, stdout, stderr)
+    return stdout, stderr, usage.ru_maxrss / 1024**2
 
 
 def make_dng(tmp: Path) -> Path:
@@ -69,6 +101,14 @@ def make_dng(tmp: Path) -> Path:
     return tmp / "dng" / "photo24.dng"
 
 
+def rawsim_batch(batch: Path, out_dir: Path, args: list[str], env=None) -> tuple[float, float]:
+    """Seconds per image (start-up excluded: the job's own timer) and peak RSS (GB)."""
+    copies = len(list(batch.iterdir()))
+    _, err, peak = child(["rawsim", "-q", "process", str(batch), "-o", str(out_dir), *args], env)
+    shutil.rmtree(out_dir)
+    return float(re.search(r"in ([0-9.]+) s", err).group(1)) / copies, peak
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one copy, fewer methods")
@@ -78,47 +118,101 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         dng = make_dng(tmp)
-        print(f"24 MP 14-bit DNG ({dng.stat().st_size / 1e6:.0f} MB), 2-core machine")
-        times = []
-        peak_libraw = 0.0
+        print(f"24 MP 14-bit DNG ({dng.stat().st_size / 1e6:.0f} MB), {os.cpu_count()} cores")
+        libraw, libraw_tiff, peak_libraw = [], [], 0.0
         for _ in range(copies):
             out, _, peak = child([sys.executable, "-c", LIBRAW, str(dng)])
-            times.append(float(out))
+            libraw.append(float(out))
             peak_libraw = max(peak_libraw, peak)
-        libraw = min(times)
+            libraw_tiff.append(
+                timed([sys.executable, "-c", LIBRAW, str(dng), str(tmp / "libraw.tif")])[0]
+            )
+        libraw, libraw_tiff = min(libraw), min(libraw_tiff)
+        row = "  {:<44} {:6.2f} s  peak {:4.2f} GB  {}"
+        print(row.format("LibRaw AHD (rawpy.postprocess), compute", libraw, peak_libraw, ""))
         print(
-            f"  {'LibRaw AHD (rawpy.postprocess)':<36} {libraw:6.2f} s/image  "
-            f"peak {peak_libraw:4.2f} GB"
+            row.format("rawpy AHD + TIFF write, fresh interpreter", libraw_tiff, 0, "").replace(
+                "peak 0.00 GB", "            "
+            )
         )
+        if shutil.which("dcraw"):
+            seconds = min(
+                timed(["dcraw", "-T", "-6", "-w", "-q", "3", str(dng)])[0]
+                for _ in range(copies)
+            )
+            print(
+                row.format("dcraw -T -6 -w -q 3 (AHD)", seconds, 0, "").replace(
+                    "peak 0.00 GB", "            "
+                )
+            )
         batch = tmp / "batch"
         batch.mkdir()
         for i in range(copies):
             shutil.copy(dng, batch / f"copy{i}.dng")
+        tiff16 = ["--format", "tiff", "--bits", "16"]
         for method in methods:
-            out_dir = tmp / f"out_{method}"
-            _, err, peak = child(
-                [
-                    "rawsim",
-                    "-q",
-                    "process",
-                    str(batch),
-                    "-o",
-                    str(out_dir),
-                    "--demosaic",
-                    method,
-                    "--format",
-                    "tiff",
-                    "--bits",
-                    "16",
-                ]
-            )
-            seconds = float(re.search(r"in ([0-9.]+) s", err).group(1)) / copies
+            seconds, peak = rawsim_batch(batch, tmp / "o", ["--demosaic", method, *tiff16])
             print(
-                f"  {f'rawsim process --demosaic {method}':<36} {seconds:6.2f} s/image  "
-                f"peak {peak:4.2f} GB   LibRaw/rawsim = {libraw / seconds:4.2f}×"
+                row.format(
+                    f"rawsim process --demosaic {method} (TIFF 16)",
+                    seconds,
+                    peak,
+                    f"rawsim/LibRaw = {seconds / libraw:4.2f}×",
+                )
             )
-            shutil.rmtree(out_dir)
-        print("  goal: LibRaw/rawsim ≥ 1.5× with peak ≤ 1.5 GB")
+        reference = dict(os.environ, RAWSIM_ENGINE="0")
+        seconds, peak = rawsim_batch(batch, tmp / "o", tiff16, reference)
+        print(
+            row.format(
+                "  torch reference, wcd (RAWSIM_ENGINE=0)",
+                seconds,
+                peak,
+                f"rawsim/LibRaw = {seconds / libraw:4.2f}×",
+            )
+        )
+        seconds, peak = rawsim_batch(batch, tmp / "o", [])
+        print(
+            row.format(
+                "rawsim process, default output (PNG 8)",
+                seconds,
+                peak,
+                f"vs LibRaw + TIFF write = {seconds / libraw_tiff:4.2f}×",
+            )
+        )
+        render = tmp / "render.tif"
+        subprocess.run(["rawsim", "-q", "process", str(dng), "-o", str(tmp), *tiff16], check=True)
+        (tmp / "photo24.tif").rename(render)
+        for name, bits in (("w.png", "8"), ("w.png", "16"), ("w.tif", "16")):
+            out, _, _ = child([sys.executable, "-c", WRITE, str(render), str(tmp / name), bits])
+            print(f"    write only: {name[2:].upper()} {bits}-bit {float(out):6.2f} s")
+        cache = Path(rawsim_engine_dir()) / "__pycache__"
+        shutil.rmtree(cache, ignore_errors=True)
+        cold = []
+        for _ in range(1 + copies):
+            shutil.rmtree(tmp / "cold", ignore_errors=True)
+            cold.append(
+                timed(["rawsim", "-q", "process", str(dng), "-o", str(tmp / "cold"), *tiff16])
+            )
+        print(row.format("cold rawsim process x.dng, first run (compiles)", *cold[0], ""))
+        seconds, peak = min(cold[1:])
+        print(
+            row.format(
+                "cold rawsim process x.dng, later runs",
+                seconds,
+                peak,
+                f"vs rawpy AHD + TIFF = {seconds / libraw_tiff:4.2f}×",
+            )
+        )
+        print(
+            "  targets: wcd ≤ 0.5× LibRaw with peak ≤ 1.0 GB; PNG default ≤ 0.75× LibRaw + TIFF;"
+            " cold ≤ 1.0× rawpy + TIFF"
+        )
+
+
+def rawsim_engine_dir() -> str:
+    import rawsim.engine
+
+    return os.path.dirname(rawsim.engine.__file__)
 
 
 if __name__ == "__main__":
