@@ -267,30 +267,30 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             dh[i, j] = sign * (m[i, j] - a - c)
             a, c = _ha_v(m, i, j)
             dv[i, j] = sign * (m[i, j] - a - c)
-    _mirror(dh, 9, r0, r1, c0, c1, h, w)
-    _mirror(dv, 9, r0, r1, c0, c1, h, w)
+    for x in (dh, dv):
+        _mirror(x, 9, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(8, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for j in range(ja, jb):
             gh[i, j] = abs(dh[i, j - 1] - dh[i, j + 1])
             gv[i, j] = abs(dv[i - 1, j] - dv[i + 1, j])
-    _mirror(gh, 8, r0, r1, c0, c1, h, w)
-    _mirror(gv, 8, r0, r1, c0, c1, h, w)
+    for x in (gh, gv):
+        _mirror(x, 8, r0, r1, c0, c1, h, w)
     # 5 × 5 box sums: along rows, then along columns.
     ia, ib, ja, jb = _span(6, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for j in range(ja, jb):
             bh[i, j] = (((gh[i, j - 2] + gh[i, j - 1]) + gh[i, j]) + gh[i, j + 1]) + gh[i, j + 2]
             bv[i, j] = (((gv[i, j - 2] + gv[i, j - 1]) + gv[i, j]) + gv[i, j + 1]) + gv[i, j + 2]
-    _mirror(bh, 6, r0, r1, c0, c1, h, w)
-    _mirror(bv, 6, r0, r1, c0, c1, h, w)
+    for x in (bh, bv):
+        _mirror(x, 6, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for j in range(ja, jb):
             sh[i, j] = (((bh[i - 2, j] + bh[i - 1, j]) + bh[i, j]) + bh[i + 1, j]) + bh[i + 2, j]
             sv[i, j] = (((bv[i - 2, j] + bv[i - 1, j]) + bv[i, j]) + bv[i + 1, j]) + bv[i + 2, j]
-    _mirror(sh, 4, r0, r1, c0, c1, h, w)
-    _mirror(sv, 4, r0, r1, c0, c1, h, w)
+    for x in (sh, sv):
+        _mirror(x, 4, r0, r1, c0, c1, h, w)
     # Green: the four one-sided estimates, weighted by 1 / (gradient sum)².
     ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -310,9 +310,8 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             grn[i, j] = g
             xr[i, j] = g - m[i, j] if c == 0 else np.float32(0.0)
             xb[i, j] = g - m[i, j] if c == 2 else np.float32(0.0)
-    _mirror(grn, 2, r0, r1, c0, c1, h, w)
-    _mirror(xr, 2, r0, r1, c0, c1, h, w)
-    _mirror(xb, 2, r0, r1, c0, c1, h, w)
+    for x in (grn, xr, xb):
+        _mirror(x, 2, r0, r1, c0, c1, h, w)
     # Red at blue sites and blue at red sites: diagonal colour differences.
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -336,8 +335,8 @@ def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             red1[i, j], blue1[i, j] = r, bl
             yr[i, j] = g - r if c != 1 else np.float32(0.0)
             yb[i, j] = g - bl if c != 1 else np.float32(0.0)
-    _mirror(yr, 1, r0, r1, c0, c1, h, w)
-    _mirror(yb, 1, r0, r1, c0, c1, h, w)
+    for x in (yr, yb):
+        _mirror(x, 1, r0, r1, c0, c1, h, w)
     # Red and blue at green sites: the four neighbours' differences, weighted as green.
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -407,8 +406,8 @@ def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
         for j in range(ja, jb):
             d_h[i, j] = abs(c_h[i, j] - c_h[i, j + 2])
             d_v[i, j] = abs(c_v[i, j] - c_v[i + 2, j])
-    _mirror(d_h, 7, r0, r1, c0, c1, h, w)
-    _mirror(d_v, 7, r0, r1, c0, c1, h, w)
+    for x in (d_h, d_v):
+        _mirror(x, 7, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for j in range(ja, jb):
@@ -431,8 +430,8 @@ def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             horizontal = sv >= sh
             hz[i, j] = np.float32(1.0) if horizontal else np.float32(0.0)
             grn[i, j] = g_h[i, j] if horizontal else g_v[i, j]
-    _mirror(hz, 5, r0, r1, c0, c1, h, w)
-    _mirror(grn, 5, r0, r1, c0, c1, h, w)
+    for x in (hz, grn):
+        _mirror(x, 5, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for j in range(ja, jb):
@@ -460,8 +459,8 @@ def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
             else:
                 red1[i, j] = m[i, j] if c == 0 else np.float32(0.0)
                 blue1[i, j] = m[i, j] if c == 2 else np.float32(0.0)
-    _mirror(red1, 4, r0, r1, c0, c1, h, w)
-    _mirror(blue1, 4, r0, r1, c0, c1, h, w)
+    for x in (red1, blue1):
+        _mirror(x, 4, r0, r1, c0, c1, h, w)
     # 4. Red at blue sites and blue at red sites, along the decided direction.
     ia, ib, ja, jb = _span(3, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):

@@ -5,7 +5,7 @@ Names are imported on first use (the config module needs no torch).
 
 from __future__ import annotations
 
-import importlib
+from rawsim._lazy import lazy_exports
 
 #: Public name → the module that defines it (imported on first use).
 _EXPORTS = {
@@ -67,13 +67,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(_EXPORTS[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(globals(), _EXPORTS)

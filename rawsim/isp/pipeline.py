@@ -1,16 +1,8 @@
 """The configurable forward ISP (torch reference): a config → an :class:`Isp` module.
 
-A config is a list of tables, one per stage, in processing order::
-
-    [[stage]]
-    name = "white_balance"
-    mode = "camera"
-
-Every stage takes ``enabled`` (bool) besides its own keys; :func:`default_config`
-lists them all with their defaults, and ``rawsim isp show`` prints it as TOML.
-:func:`validate_config` rejects unknown stages and keys, bad values and orders
-that cannot work (listing what is valid); :func:`build_isp` turns a config and a
-:class:`~rawsim.io.raw.RawImage` into an :class:`Isp` module.
+The config itself (stages, parameters, validation, TOML) is
+:mod:`rawsim.isp.config`, re-exported here; :func:`build_isp` turns a config and
+a :class:`~rawsim.io.raw.RawImage` into an :class:`Isp` module.
 
 Data flow: DN mosaic (B, 1, H, W) — or (B, 3, H, W) for raws without a CFA —
 through black level (→ white = 1), optional mosaic filters, white balance,
