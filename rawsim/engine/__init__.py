@@ -35,6 +35,27 @@ def configure() -> None:
 
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = "forksafe"
+    _allow_runtime_overlap_checks()
+
+
+#: LLVM vectoriser limits, raised: a loop whose arrays LLVM cannot prove disjoint is
+#: vectorised behind run-time overlap checks, one per pair of streams, and by
+#: default LLVM gives up beyond 8 (or 128) of them. The engine's row loops read up
+#: to 20 rows and write up to 8, so they need more; the checks run once per row.
+_LLVM_OPTIONS = ("-runtime-memory-check-threshold=256", "-vectorize-memory-check-threshold=4096")
+_llvm_configured = False
+
+
+def _allow_runtime_overlap_checks() -> None:
+    """Set :data:`_LLVM_OPTIONS`, once per process (LLVM's options are global)."""
+    global _llvm_configured
+    if _llvm_configured:
+        return
+    import llvmlite.binding as llvm
+
+    for option in _LLVM_OPTIONS:
+        llvm.set_option("rawsim", option)
+    _llvm_configured = True
 
 
 def set_threads(threads: int) -> None:

@@ -34,6 +34,11 @@ from rawsim.engine import configure
 
 configure()
 
+#: Compile options of every function here: cached on disk; float division by zero
+#: gives inf/nan as in torch (numba's default "python" model checks every
+#: division and raises, which also keeps loops from vectorising).
+_JIT = {"cache": True, "error_model": "numpy"}
+
 TILE_ROWS = 64
 TILE_COLS = 512
 #: Context around a tile: the largest reach of any demosaic's chain (Menon's is 11).
@@ -54,7 +59,7 @@ _THIRD = np.float32(1 / 3)
 
 
 # --------------------------------------------------------------------- tiles
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _span(q, r0, r1, c0, c1, h, w):
     """Buffer index ranges (rows, cols) of the in-image part of reach ``q``."""
     return (
@@ -65,7 +70,7 @@ def _span(q, r0, r1, c0, c1, h, w):
     )
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _mirror(b, q, r0, r1, c0, c1, h, w):
     """Fill the out-of-image positions within reach ``q`` by reflection (no edge repeat)."""
     ia, ib, ja, jb = _span(q, r0, r1, c0, c1, h, w)
@@ -82,7 +87,7 @@ def _mirror(b, q, r0, r1, c0, c1, h, w):
 
 
 # ------------------------------------------------------------ mosaic stages
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
     """The mosaic stages at one site: DN ``v`` (float32) → linear value, white = 1.
 
@@ -103,7 +108,7 @@ def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
     return v
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def mosaic_table(colors, ops, opf):
     """(4, 65536) float32: the mosaic stages for every code at each tile site.
 
@@ -118,7 +123,7 @@ def mosaic_table(colors, ops, opf):
     return table
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _load_mosaic(raw, m, table, colors, ops, opf, r0, r1, c0, c1, h, w):
     """Mosaic stages on the tile's reach: raw DN (uint16) → ``m`` (float32, white = 1).
 
@@ -143,7 +148,7 @@ def _load_mosaic(raw, m, table, colors, ops, opf, r0, r1, c0, c1, h, w):
     _mirror(m, HALO, r0, r1, c0, c1, h, w)
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _shading_gain(y, x, cy, cx, p):
     """``rawsim.isp.lens_shading.radial_gain`` at (y, x), float64 → float32."""
     r2 = ((y - cy) ** 2 + (x - cx) ** 2) / (cy * cy + cx * cx)
@@ -157,7 +162,7 @@ def _shading_gain(y, x, cy, cx, p):
 # (:func:`rawsim.isp.planes.correlate`: row-major over the kernel's non-zeros).
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _bilinear(m, rgb, colors, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -176,16 +181,16 @@ def _bilinear(m, rgb, colors, r0, r1, c0, c1, h, w):
             along_col = m[i - 1, j] * _HALF + _HALF * m[i + 1, j]
             if c == 1:
                 red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                rgb[1, i, j] = v
-                rgb[0, i, j] = along_row if red_row else along_col
-                rgb[2, i, j] = along_col if red_row else along_row
+                rgb[1][i, j] = v
+                rgb[0][i, j] = along_row if red_row else along_col
+                rgb[2][i, j] = along_col if red_row else along_row
             else:
-                rgb[1, i, j] = cross
-                rgb[c, i, j] = v
-                rgb[2 - c, i, j] = diag
+                rgb[1][i, j] = cross
+                rgb[c][i, j] = v
+                rgb[2 - c][i, j] = diag
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _malvar(m, rgb, colors, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     e = np.float32(0.125)
@@ -211,165 +216,253 @@ def _malvar(m, rgb, colors, r0, r1, c0, c1, h, w):
                     + five * v
                 ) * e
                 red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                rgb[1, i, j] = v
-                rgb[0, i, j] = row if red_row else col
-                rgb[2, i, j] = col if red_row else row
+                rgb[1][i, j] = v
+                rgb[0][i, j] = row if red_row else col
+                rgb[2][i, j] = col if red_row else row
             else:
                 far = (m[i - 2, j] + m[i + 2, j]) + (m[i, j - 2] + m[i, j + 2])
                 near = (m[i - 1, j] + m[i + 1, j]) + (m[i, j - 1] + m[i, j + 1])
-                rgb[1, i, j] = (two * near - far + four * v) * e
-                rgb[c, i, j] = v
-                rgb[2 - c, i, j] = (two * diagonals - np.float32(1.5) * far + six * v) * e
+                rgb[1][i, j] = (two * near - far + four * v) * e
+                rgb[c][i, j] = v
+                rgb[2 - c][i, j] = (two * diagonals - np.float32(1.5) * far + six * v) * e
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
+def _ha(w1, e1, w2, c, e2):
+    """Hamilton–Adams green estimate from a line of five (−2 … +2): _h(m, _H0), _h(m, _H1)."""
+    a = w1 * _HALF + _HALF * e1
+    b = (w2 * _QUARTER + _HALF * c) + _QUARTER * e2
+    return a, b
+
+
+@njit(inline="always", **_JIT)
 def _ha_h(m, i, j):
-    """_h(m, _H0) + _h(m, _H1): Hamilton–Adams green estimate along the row."""
-    a = m[i, j - 1] * _HALF + _HALF * m[i, j + 1]
-    b = (m[i, j - 2] * _QUARTER + _HALF * m[i, j]) + _QUARTER * m[i, j + 2]
-    return a, b
+    """:func:`_ha` along the row through (i, j)."""
+    return _ha(m[i, j - 1], m[i, j + 1], m[i, j - 2], m[i, j], m[i, j + 2])
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _ha_v(m, i, j):
-    a = m[i - 1, j] * _HALF + _HALF * m[i + 1, j]
-    b = (m[i - 2, j] * _QUARTER + _HALF * m[i, j]) + _QUARTER * m[i + 2, j]
-    return a, b
+    return _ha(m[i - 1, j], m[i + 1, j], m[i - 2, j], m[i, j], m[i + 2, j])
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _inv_sq(x):
     """(x + ε)⁻², the reference's ``(x + _EPS) ** -2``."""
     y = x + _EPS
     return np.float32(1.0) / (y * y)
 
 
-@njit(cache=True, inline="always")
-def _diagonal_weight(m, grn, i, j, dy, dx):
-    """1 / (local gradient towards the diagonal neighbour (dy, dx))², as the reference."""
-    grad = abs(m[i + dy, j + dx] - m[i - dy, j - dx]) + abs(grn[i + dy, j + dx] - grn[i, j])
-    return _inv_sq(grad + abs(m[i + 2 * dy, j + 2 * dx] - m[i, j]))
+@njit(inline="always", **_JIT)
+def _diagonal_weight(near, far, g_near, g, m_far, v):
+    """1 / (local gradient towards a diagonal neighbour)², as the reference.
+
+    ``near``/``far``: the mosaic at the neighbour and opposite it; ``g_near``/``g``:
+    green at the neighbour and the centre; ``m_far``/``v``: the mosaic two steps
+    out and at the centre.
+    """
+    grad = abs(near - far) + abs(g_near - g)
+    return _inv_sq(grad + abs(m_far - v))
 
 
-@njit(cache=True)
-def _wcd(m, b, rgb, colors, r0, r1, c0, c1, h, w):
+@njit(inline="always", **_JIT)
+def _at(b, i, ja, jb, dj):
+    """Row ``i`` of ``b`` over columns [ja + dj, jb + dj): a unit-stride view.
+
+    The row loops index these views from 0, so that LLVM sees plain streams and
+    vectorises them (indexing ``b[i, j - 1]`` with a signed ``j`` does not).
+    """
+    return b[i, ja + dj : jb + dj]
+
+
+@njit(inline="always", **_JIT)
+def _line_h(b, i, ja, jb):
+    """Views of row ``i`` shifted by −2, −1, 0, 1, 2 columns."""
+    return (
+        _at(b, i, ja, jb, -2),
+        _at(b, i, ja, jb, -1),
+        _at(b, i, ja, jb, 0),
+        _at(b, i, ja, jb, 1),
+        _at(b, i, ja, jb, 2),
+    )
+
+
+@njit(inline="always", **_JIT)
+def _line_v(b, i, ja, jb):
+    """Views of rows i − 2 … i + 2."""
+    return (
+        _at(b, i - 2, ja, jb, 0),
+        _at(b, i - 1, ja, jb, 0),
+        _at(b, i, ja, jb, 0),
+        _at(b, i + 1, ja, jb, 0),
+        _at(b, i + 2, ja, jb, 0),
+    )
+
+
+@njit(inline="always", **_JIT)
+def _cross(b, i, ja, jb):
+    """Views of the east, west, south and north neighbours of row ``i``."""
+    return (
+        _at(b, i, ja, jb, 1),
+        _at(b, i, ja, jb, -1),
+        _at(b, i + 1, ja, jb, 0),
+        _at(b, i - 1, ja, jb, 0),
+    )
+
+
+@njit(inline="always", **_JIT)
+def _diagonals(b, i, ja, jb, s):
+    """Views ``s`` steps towards the north-west, north-east, south-west, south-east."""
+    return (
+        _at(b, i - s, ja, jb, -s),
+        _at(b, i - s, ja, jb, s),
+        _at(b, i + s, ja, jb, -s),
+        _at(b, i + s, ja, jb, s),
+    )
+
+
+@njit(**_JIT)
+def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`)."""
     dh, dv, gh, gv, bh, bv, sh, sv = b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
     we, ww, ws, wn, tot, grn, xr, xb = b[8], b[9], b[10], b[11], b[12], b[13], b[14], b[15]
     red1, blue1, yr, yb = b[16], b[17], b[18], b[19]
+    one, zero = np.float32(1.0), np.float32(0.0)
     # Colour differences G − C along rows and columns (reach 9).
     ia, ib, ja, jb = _span(9, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
-        for j in range(ja, jb):
-            sign = np.float32(1.0) if (even if j & 1 == 0 else odd) == 1 else np.float32(-1.0)
-            a, c = _ha_h(m, i, j)
-            dh[i, j] = sign * (m[i, j] - a - c)
-            a, c = _ha_v(m, i, j)
-            dv[i, j] = sign * (m[i, j] - a - c)
-    for x in (dh, dv):
-        _mirror(x, 9, r0, r1, c0, c1, h, w)
+        cm = cmap[i & 1, ja:jb]
+        w2, w1, x, e1, e2 = _line_h(m, i, ja, jb)
+        n2, n1, _, s1, s2 = _line_v(m, i, ja, jb)
+        oh, ov = _at(dh, i, ja, jb, 0), _at(dv, i, ja, jb, 0)
+        for k in range(jb - ja):
+            sign = one if cm[k] == 1 else -one
+            a, c = _ha(w1[k], e1[k], w2[k], x[k], e2[k])
+            oh[k] = sign * (x[k] - a - c)
+            a, c = _ha(n1[k], s1[k], n2[k], x[k], s2[k])
+            ov[k] = sign * (x[k] - a - c)
+    for q in (dh, dv):
+        _mirror(q, 9, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(8, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            gh[i, j] = abs(dh[i, j - 1] - dh[i, j + 1])
-            gv[i, j] = abs(dv[i - 1, j] - dv[i + 1, j])
-    for x in (gh, gv):
-        _mirror(x, 8, r0, r1, c0, c1, h, w)
+        he, hw, _, _ = _cross(dh, i, ja, jb)
+        _, _, vs, vn = _cross(dv, i, ja, jb)
+        oh, ov = _at(gh, i, ja, jb, 0), _at(gv, i, ja, jb, 0)
+        for k in range(jb - ja):
+            oh[k] = abs(hw[k] - he[k])
+            ov[k] = abs(vn[k] - vs[k])
+    for q in (gh, gv):
+        _mirror(q, 8, r0, r1, c0, c1, h, w)
     # 5 × 5 box sums: along rows, then along columns.
     ia, ib, ja, jb = _span(6, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            bh[i, j] = (((gh[i, j - 2] + gh[i, j - 1]) + gh[i, j]) + gh[i, j + 1]) + gh[i, j + 2]
-            bv[i, j] = (((gv[i, j - 2] + gv[i, j - 1]) + gv[i, j]) + gv[i, j + 1]) + gv[i, j + 2]
-    for x in (bh, bv):
-        _mirror(x, 6, r0, r1, c0, c1, h, w)
+        for src, dst in ((gh, bh), (gv, bv)):
+            a0, a1, a2, a3, a4 = _line_h(src, i, ja, jb)
+            out = _at(dst, i, ja, jb, 0)
+            for k in range(jb - ja):
+                out[k] = (((a0[k] + a1[k]) + a2[k]) + a3[k]) + a4[k]
+    for q in (bh, bv):
+        _mirror(q, 6, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            sh[i, j] = (((bh[i - 2, j] + bh[i - 1, j]) + bh[i, j]) + bh[i + 1, j]) + bh[i + 2, j]
-            sv[i, j] = (((bv[i - 2, j] + bv[i - 1, j]) + bv[i, j]) + bv[i + 1, j]) + bv[i + 2, j]
-    for x in (sh, sv):
-        _mirror(x, 4, r0, r1, c0, c1, h, w)
+        for src, dst in ((bh, sh), (bv, sv)):
+            a0, a1, a2, a3, a4 = _line_v(src, i, ja, jb)
+            out = _at(dst, i, ja, jb, 0)
+            for k in range(jb - ja):
+                out[k] = (((a0[k] + a1[k]) + a2[k]) + a3[k]) + a4[k]
+    for q in (sh, sv):
+        _mirror(q, 4, r0, r1, c0, c1, h, w)
     # Green: the four one-sided estimates, weighted by 1 / (gradient sum)².
     ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
-        for j in range(ja, jb):
-            c = even if j & 1 == 0 else odd
-            e_e = (dh[i, j] * _THIRD + _THIRD * dh[i, j + 1]) + _THIRD * dh[i, j + 2]
-            e_w = (dh[i, j - 2] * _THIRD + _THIRD * dh[i, j - 1]) + _THIRD * dh[i, j]
-            e_s = (dv[i, j] * _THIRD + _THIRD * dv[i + 1, j]) + _THIRD * dv[i + 2, j]
-            e_n = (dv[i - 2, j] * _THIRD + _THIRD * dv[i - 1, j]) + _THIRD * dv[i, j]
-            w_e, w_w = _inv_sq(sh[i, j + 2]), _inv_sq(sh[i, j - 2])
-            w_s, w_n = _inv_sq(sv[i + 2, j]), _inv_sq(sv[i - 2, j])
+        cm, x = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0)
+        hw2, hw1, h0, he1, he2 = _line_h(dh, i, ja, jb)
+        vn2, vn1, v0, vs1, vs2 = _line_v(dv, i, ja, jb)
+        s_w, _, _, _, s_e = _line_h(sh, i, ja, jb)
+        s_n, _, _, _, s_s = _line_v(sv, i, ja, jb)
+        o_e, o_w, o_s = _at(we, i, ja, jb, 0), _at(ww, i, ja, jb, 0), _at(ws, i, ja, jb, 0)
+        o_n, o_t = _at(wn, i, ja, jb, 0), _at(tot, i, ja, jb, 0)
+        o_g, o_r, o_b = _at(grn, i, ja, jb, 0), _at(xr, i, ja, jb, 0), _at(xb, i, ja, jb, 0)
+        for k in range(jb - ja):
+            e_e = (h0[k] * _THIRD + _THIRD * he1[k]) + _THIRD * he2[k]
+            e_w = (hw2[k] * _THIRD + _THIRD * hw1[k]) + _THIRD * h0[k]
+            e_s = (v0[k] * _THIRD + _THIRD * vs1[k]) + _THIRD * vs2[k]
+            e_n = (vn2[k] * _THIRD + _THIRD * vn1[k]) + _THIRD * v0[k]
+            w_e, w_w = _inv_sq(s_e[k]), _inv_sq(s_w[k])
+            w_s, w_n = _inv_sq(s_s[k]), _inv_sq(s_n[k])
             total = ((w_e + w_w) + w_s) + w_n
-            we[i, j], ww[i, j], ws[i, j], wn[i, j], tot[i, j] = w_e, w_w, w_s, w_n, total
+            o_e[k], o_w[k], o_s[k], o_n[k], o_t[k] = w_e, w_w, w_s, w_n, total
             delta = (((w_e * e_e + w_w * e_w) + w_s * e_s) + w_n * e_n) / total
-            g = m[i, j] if c == 1 else m[i, j] + delta
-            grn[i, j] = g
-            xr[i, j] = g - m[i, j] if c == 0 else np.float32(0.0)
-            xb[i, j] = g - m[i, j] if c == 2 else np.float32(0.0)
-    for x in (grn, xr, xb):
-        _mirror(x, 2, r0, r1, c0, c1, h, w)
+            c, v = cm[k], x[k]
+            g = v if c == 1 else v + delta
+            o_g[k] = g
+            o_r[k] = g - v if c == 0 else zero
+            o_b[k] = g - v if c == 2 else zero
+    for q in (grn, xr, xb):
+        _mirror(q, 2, r0, r1, c0, c1, h, w)
     # Red at blue sites and blue at red sites: diagonal colour differences.
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        even, odd = colors[(i & 1) * 2], colors[(i & 1) * 2 + 1]
-        for j in range(ja, jb):
-            c = even if j & 1 == 0 else odd
-            w0 = _diagonal_weight(m, grn, i, j, -1, -1)
-            w1 = _diagonal_weight(m, grn, i, j, -1, 1)
-            w2 = _diagonal_weight(m, grn, i, j, 1, -1)
-            w3 = _diagonal_weight(m, grn, i, j, 1, 1)
+        cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
+        mnw, mne, msw, mse = _diagonals(m, i, ja, jb, 1)
+        fnw, fne, fsw, fse = _diagonals(m, i, ja, jb, 2)
+        gnw, gne, gsw, gse = _diagonals(grn, i, ja, jb, 1)
+        rnw, rne, rsw, rse = _diagonals(xr, i, ja, jb, 1)
+        bnw, bne, bsw, bse = _diagonals(xb, i, ja, jb, 1)
+        o_r, o_b = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
+        o_yr, o_yb = _at(yr, i, ja, jb, 0), _at(yb, i, ja, jb, 0)
+        for k in range(jb - ja):
+            c, v, g = cm[k], x[k], g0[k]
+            w0 = _diagonal_weight(mnw[k], mse[k], gnw[k], g, fnw[k], v)
+            w1 = _diagonal_weight(mne[k], msw[k], gne[k], g, fne[k], v)
+            w2 = _diagonal_weight(msw[k], mne[k], gsw[k], g, fsw[k], v)
+            w3 = _diagonal_weight(mse[k], mnw[k], gse[k], g, fse[k], v)
             total = ((w0 + w1) + w2) + w3
-            mr = (
-                (w0 * xr[i - 1, j - 1] + w1 * xr[i - 1, j + 1]) + w2 * xr[i + 1, j - 1]
-            ) + w3 * xr[i + 1, j + 1]
-            mb = (
-                (w0 * xb[i - 1, j - 1] + w1 * xb[i - 1, j + 1]) + w2 * xb[i + 1, j - 1]
-            ) + w3 * xb[i + 1, j + 1]
-            g = grn[i, j]
-            r = m[i, j] if c == 0 else (g - mr / total if c == 2 else np.float32(0.0))
-            bl = m[i, j] if c == 2 else (g - mb / total if c == 0 else np.float32(0.0))
-            red1[i, j], blue1[i, j] = r, bl
-            yr[i, j] = g - r if c != 1 else np.float32(0.0)
-            yb[i, j] = g - bl if c != 1 else np.float32(0.0)
-    for x in (yr, yb):
-        _mirror(x, 1, r0, r1, c0, c1, h, w)
+            mr = ((w0 * rnw[k] + w1 * rne[k]) + w2 * rsw[k]) + w3 * rse[k]
+            mb = ((w0 * bnw[k] + w1 * bne[k]) + w2 * bsw[k]) + w3 * bse[k]
+            r = v if c == 0 else (g - mr / total if c == 2 else zero)
+            bl = v if c == 2 else (g - mb / total if c == 0 else zero)
+            o_r[k], o_b[k] = r, bl
+            o_yr[k] = g - r if c != 1 else zero
+            o_yb[k] = g - bl if c != 1 else zero
+    for q in (yr, yb):
+        _mirror(q, 1, r0, r1, c0, c1, h, w)
     # Red and blue at green sites: the four neighbours' differences, weighted as green.
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            g = grn[i, j]
-            rgb[1, i, j] = g
-            if colors[(i & 1) * 2 + (j & 1)] == 1:
-                w_e, w_w, w_s, w_n, total = we[i, j], ww[i, j], ws[i, j], wn[i, j], tot[i, j]
-                cr = ((w_e * yr[i, j + 1] + w_w * yr[i, j - 1]) + w_s * yr[i + 1, j]) + w_n * yr[
-                    i - 1, j
-                ]
-                cb = ((w_e * yb[i, j + 1] + w_w * yb[i, j - 1]) + w_s * yb[i + 1, j]) + w_n * yb[
-                    i - 1, j
-                ]
-                rgb[0, i, j] = g - cr / total
-                rgb[2, i, j] = g - cb / total
-            else:
-                rgb[0, i, j] = red1[i, j]
-                rgb[2, i, j] = blue1[i, j]
+        cm, g0 = cmap[i & 1, ja:jb], _at(grn, i, ja, jb, 0)
+        w_e, w_w, w_s = _at(we, i, ja, jb, 0), _at(ww, i, ja, jb, 0), _at(ws, i, ja, jb, 0)
+        w_n, t = _at(wn, i, ja, jb, 0), _at(tot, i, ja, jb, 0)
+        re, rw, rs, rn = _cross(yr, i, ja, jb)
+        be, bw, bs, bn = _cross(yb, i, ja, jb)
+        r1_, b1_ = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
+        o_r, o_g, o_b = (
+            _at(rgb[0], i, ja, jb, 0),
+            _at(rgb[1], i, ja, jb, 0),
+            _at(rgb[2], i, ja, jb, 0),
+        )
+        for k in range(jb - ja):
+            g = g0[k]
+            cr = ((w_e[k] * re[k] + w_w[k] * rw[k]) + w_s[k] * rs[k]) + w_n[k] * rn[k]
+            cb = ((w_e[k] * be[k] + w_w[k] * bw[k]) + w_s[k] * bs[k]) + w_n[k] * bn[k]
+            green = cm[k] == 1
+            o_g[k] = g
+            o_r[k] = g - cr / t[k] if green else r1_[k]
+            o_b[k] = g - cb / t[k] if green else b1_[k]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _pair_h(x, i, j):
     """_h(x, _PAIR): the mean of the left and right neighbours."""
     return x[i, j - 1] * _HALF + _HALF * x[i, j + 1]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _pair_v(x, i, j):
     return x[i - 1, j] * _HALF + _HALF * x[i + 1, j]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _mean3(x, i, j, horizontal):
     """smoothed(x, _MEAN3): the mean of three along the decided direction."""
     if horizontal:
@@ -377,7 +470,7 @@ def _mean3(x, i, j, horizontal):
     return (x[i - 1, j] * _THIRD + _THIRD * x[i, j]) + _THIRD * x[i + 1, j]
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
     """Menon et al. 2007 with refining (:func:`rawsim.isp.demosaic.demosaic_menon`)."""
     g_h, g_v, c_h, c_v, d_h, d_v, hz, grn = b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
@@ -529,69 +622,118 @@ def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
                 r = bl + red_blue
             elif c == 0:
                 bl = r - red_blue
-            rgb[0, i, j], rgb[1, i, j], rgb[2, i, j] = r, grn2[i, j], bl
+            rgb[0][i, j], rgb[1][i, j], rgb[2][i, j] = r, grn2[i, j], bl
 
 
 # --------------------------------------------------------------- RGB stages
-@njit(cache=True)
+@njit(**_JIT)
 def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0, c1, h, w):
     """RGB stages, tone/transfer and quantisation of the tile, written to ``out``.
 
     ``out`` is (H', W', 3): uint8/uint16 codes (``scale`` = 2^bits − 1) or float32
     (``out_mode`` OUT_FLOAT), already in display orientation: ``orient`` = (transpose,
-    flip rows, flip columns). Returns whether any tone input left [0, 1].
+    flip rows, flip columns). Row by row, each stage over the whole row. Returns
+    whether any tone input left [0, 1]. Overwrites ``rgb``.
     """
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
-    cy, cx = (h - 1) / 2, (w - 1) / 2
-    transpose, flip_rows, flip_cols = orient[0], orient[1], orient[2]
-    out_h, out_w = out.shape[0], out.shape[1]
-    outside = False
-    one = np.float32(1.0)
+    outside = 0
     for i in range(ia, ib):
-        y = r0 - HALO + i
-        for j in range(ja, jb):
-            x = c0 - HALO + j
-            r, g, b = rgb[0, i, j], rgb[1, i, j], rgb[2, i, j]
-            for k in range(ops.size):
-                op, p = ops[k], opf[k]
-                if op == OP_WB:
-                    r, g, b = r * np.float32(p[0]), g * np.float32(p[1]), b * np.float32(p[2])
-                elif op == OP_CLIP:
-                    r, g, b = min(r, one), min(g, one), min(b, one)
-                elif op == OP_MATRIX:
-                    r, g, b = _matrix(p, 0, r, g, b)
-                elif op == OP_EXPOSURE:
-                    s = np.float32(p[0])
-                    r, g, b = r * s, g * s, b * s
-                elif op == OP_SHADING:
-                    s = _shading_gain(y, x, cy, cx, p)
-                    r, g, b = r * s, g * s, b * s
-                elif op == OP_BLEND:
-                    r, g, b = _blend(p, r, g, b)
-            oy, ox = (x, y) if transpose else (y, x)
-            if flip_rows:
-                oy = out_h - 1 - oy
-            if flip_cols:
-                ox = out_w - 1 - ox
-            if out_mode == OUT_FLOAT:
-                out[oy, ox, 0], out[oy, ox, 1], out[oy, ox, 2] = r, g, b
-                continue
-            for c in range(3):
-                v = r if c == 0 else (g if c == 1 else b)
-                if v < 0 or v > 1:
-                    outside = True
-                v = min(max(v, np.float32(0.0)), one)
-                t = v * np.float32(LUT_SIZE - 1)
-                n = min(int(t), LUT_SIZE - 2)
-                v = lut[n] + (t - np.float32(n)) * (lut[n + 1] - lut[n])
-                if out_mode == OUT_GAMMA:
-                    v = np.float32(max(v, np.float32(1e-12)) ** gamma) if v > 0 else v
-                v = min(max(v, np.float32(0.0)), one)
-                out[oy, ox, c] = np.rint(v * np.float32(scale))
+        y, x0 = r0 - HALO + i, c0 - HALO + ja
+        r, g, b = _at(rgb[0], i, ja, jb, 0), _at(rgb[1], i, ja, jb, 0), _at(rgb[2], i, ja, jb, 0)
+        for k in range(ops.size):
+            _rgb_stage(ops[k], opf[k], r, g, b, y, x0, h, w)
+        if out_mode != OUT_FLOAT:
+            for v in (r, g, b):
+                outside |= _encode(v, out_mode, lut, gamma, scale)
+        _store(r, g, b, out, y, x0, orient)
+    return outside != 0
+
+
+@njit(**_JIT)
+def _rgb_stage(op, p, r, g, b, y, x0, h, w):
+    """One RGB stage on a row: ``r``, ``g``, ``b`` (views) in place; its first pixel is (y, x0)."""
+    one = np.float32(1.0)
+    if op == OP_WB:
+        sr, sg, sb = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
+        for q in range(r.size):
+            r[q], g[q], b[q] = r[q] * sr, g[q] * sg, b[q] * sb
+    elif op == OP_CLIP:
+        for q in range(r.size):
+            r[q], g[q], b[q] = min(r[q], one), min(g[q], one), min(b[q], one)
+    elif op == OP_MATRIX:
+        m = (
+            np.float32(p[0]),
+            np.float32(p[1]),
+            np.float32(p[2]),
+            np.float32(p[3]),
+            np.float32(p[4]),
+            np.float32(p[5]),
+            np.float32(p[6]),
+            np.float32(p[7]),
+            np.float32(p[8]),
+        )
+        for q in range(r.size):
+            r[q], g[q], b[q] = _matrix(m, 0, r[q], g[q], b[q])
+    elif op == OP_EXPOSURE:
+        s = np.float32(p[0])
+        for q in range(r.size):
+            r[q], g[q], b[q] = r[q] * s, g[q] * s, b[q] * s
+    elif op == OP_SHADING:
+        cy, cx = (h - 1) / 2, (w - 1) / 2
+        for q in range(r.size):
+            s = _shading_gain(y, x0 + q, cy, cx, p)
+            r[q], g[q], b[q] = r[q] * s, g[q] * s, b[q] * s
+    elif op == OP_BLEND:
+        for q in range(r.size):
+            r[q], g[q], b[q] = _blend(p, r[q], g[q], b[q])
+
+
+@njit(**_JIT)
+def _encode(v, out_mode, lut, gamma, scale):
+    """Tone ∘ transfer and quantisation of a row of one channel, in place (codes as floats).
+
+    Returns 1 if any input was outside [0, 1], else 0.
+    """
+    one, zero = np.float32(1.0), np.float32(0.0)
+    outside = 0
+    for q in range(v.size):
+        x = v[q]
+        outside |= (x < zero) | (x > one)
+        x = min(max(x, zero), one)
+        t = x * np.float32(LUT_SIZE - 1)
+        n = min(int(t), LUT_SIZE - 2)
+        x = lut[n] + (t - np.float32(n)) * (lut[n + 1] - lut[n])
+        if out_mode == OUT_GAMMA:
+            x = np.float32(max(x, np.float32(1e-12)) ** gamma) if x > 0 else x
+        x = min(max(x, zero), one)
+        v[q] = np.rint(x * np.float32(scale))
     return outside
 
 
-@njit(cache=True, inline="always")
+@njit(**_JIT)
+def _store(r, g, b, out, y, x0, orient):
+    """Write a row (first pixel at (y, x0)) into the oriented ``out``."""
+    transpose, flip_rows, flip_cols = orient[0], orient[1], orient[2]
+    out_h, out_w = out.shape[0], out.shape[1]
+    if not transpose:
+        row = out[out_h - 1 - y if flip_rows else y]
+        if not flip_cols:
+            dst = row[x0 : x0 + r.size]
+            for q in range(r.size):
+                dst[q, 0], dst[q, 1], dst[q, 2] = r[q], g[q], b[q]
+            return
+        for q in range(r.size):
+            ox = out_w - 1 - (x0 + q)
+            row[ox, 0], row[ox, 1], row[ox, 2] = r[q], g[q], b[q]
+        return
+    ox = out_w - 1 - y if flip_cols else y
+    for q in range(r.size):
+        oy = x0 + q
+        oy = out_h - 1 - oy if flip_rows else oy
+        out[oy, ox, 0], out[oy, ox, 1], out[oy, ox, 2] = r[q], g[q], b[q]
+
+
+@njit(inline="always", **_JIT)
 def _matrix(p, at, r, g, b):
     """(r, g, b) → M (r, g, b) with M row-major in p[at : at + 9], float32."""
     return (
@@ -601,7 +743,7 @@ def _matrix(p, at, r, g, b):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always", **_JIT)
 def _blend(p, r, g, b):
     """dcraw's highlight blend (:func:`rawsim.isp.highlights.handle_highlights`).
 
@@ -620,7 +762,29 @@ def _blend(p, r, g, b):
 
 
 # ------------------------------------------------------------------ kernel
-@njit(parallel=True, cache=True)
+@njit(**_JIT)
+def _rgb_buffers(shape):
+    """Three float32 tile buffers of ``shape``, each its own allocation.
+
+    Not slices of one block: separate allocations let LLVM check the row loops'
+    streams for overlap at run time and vectorise them.
+    """
+    return (
+        np.empty(shape, np.float32),
+        np.empty(shape, np.float32),
+        np.empty(shape, np.float32),
+    )
+
+
+@njit(**_JIT)
+def _scratch_buffers(shape):
+    """The demosaics' 20 intermediate tile buffers (see :func:`_rgb_buffers`)."""
+    a, b, c, d = _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape)
+    e, f, g = _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape)
+    return a + b + c + d + e + f + g[:2]
+
+
+@njit(parallel=True, **_JIT)
 def process_kernel(
     raw,
     colors,
@@ -655,10 +819,13 @@ def process_kernel(
     threads = max(1, min(tiles, threads))
     flags = np.zeros(threads, dtype=np.bool_)
     shape = (tile_rows + 2 * HALO, tile_cols + 2 * HALO)
+    cmap = np.empty((2, shape[1]), np.int8)  # colour index at (row parity, buffer column)
+    for j in range(shape[1]):
+        cmap[0, j], cmap[1, j] = colors[j & 1], colors[2 + (j & 1)]
     for t in prange(threads):
         m = np.empty(shape, np.float32)
-        rgb = np.empty((3,) + shape, np.float32)
-        bufs = np.empty((20,) + shape, np.float32)
+        rgb = _rgb_buffers(shape)
+        bufs = _scratch_buffers(shape)
         for tile in range(t, tiles, threads):
             r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
@@ -670,7 +837,7 @@ def process_kernel(
             elif method == 2:
                 _menon(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
             else:
-                _wcd(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
+                _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
             outside = _finish(
                 rgb,
                 post_ops,
