@@ -9,7 +9,8 @@ that peak memory (max RSS) is its own:
     with a 16-bit TIFF write (tifffile) in a fresh interpreter;
   * ``dcraw -T -6 -w`` (AHD, 16-bit TIFF) where installed;
   * ``rawsim process`` with each demosaic method (default: wcd), per image in a
-    batch of copies of the file (start-up excluded), 16-bit TIFF out, on the
+    batch of copies of the file (median of each file's time, start-up and the
+    first file, which loads the engine, excluded), 16-bit TIFF out, on the
     compiled engine and, for wcd, on the torch reference (RAWSIM_ENGINE=0);
   * the default output (8-bit PNG) per image, and the write alone;
   * single cold invocations of ``rawsim process x.dng --format tiff --bits 16``:
@@ -24,6 +25,7 @@ import argparse
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -102,11 +104,15 @@ def make_dng(tmp: Path) -> Path:
 
 
 def rawsim_batch(batch: Path, out_dir: Path, args: list[str], env=None) -> tuple[float, float]:
-    """Seconds per image (start-up excluded: the job's own timer) and peak RSS (GB)."""
-    copies = len(list(batch.iterdir()))
-    _, err, peak = child(["rawsim", "-q", "process", str(batch), "-o", str(out_dir), *args], env)
+    """Steady-state seconds per image and peak RSS (GB) of one batch run.
+
+    Per image: the median of each file's own time (read, render, write: ``-v``
+    reports it), the first file excluded (it also loads the compiled engine).
+    """
+    _, err, peak = child(["rawsim", "-v", "process", str(batch), "-o", str(out_dir), *args], env)
     shutil.rmtree(out_dir)
-    return float(re.search(r"in ([0-9.]+) s", err).group(1)) / copies, peak
+    seconds = sorted(float(s) for s in re.findall(r"^done: .* \(([0-9.]+) s\)$", err, re.M))
+    return statistics.median(seconds[1:]), peak
 
 
 def main() -> None:
@@ -147,7 +153,7 @@ def main() -> None:
             )
         batch = tmp / "batch"
         batch.mkdir()
-        for i in range(copies):
+        for i in range(copies + 1):  # the first file loads the engine: not counted
             shutil.copy(dng, batch / f"copy{i}.dng")
         tiff16 = ["--format", "tiff", "--bits", "16"]
         for method in methods:

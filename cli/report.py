@@ -44,8 +44,12 @@ def run_files(
 
 
 def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
-    """Consume batch results with a progress bar; print failures, summary; exit."""
-    from rawsim.batch import Summary
+    """Consume batch results with a progress bar; print failures, summary; exit.
+
+    SIGINT or SIGTERM stops the job (no new file starts, workers are terminated,
+    temporary files removed): the summary counts what was done, exit 130 or 143.
+    """
+    from rawsim.batch import Interrupted, Summary, stop_on_signals
 
     obj = ctx.obj or {}
     quiet, verbose, debug = obj.get("quiet"), obj.get("verbose", 0), obj.get("debug")
@@ -77,15 +81,25 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
             click.echo(json.dumps(record))
 
     show_bar = not quiet and sys.stderr.isatty()
-    with click.progressbar(
-        length=total, label="rawsim", file=sys.stderr, hidden=not show_bar
-    ) as bar:
-        for result in pre_failed:
-            report(result)
-            bar.update(1)
-        for result in results_iter:
-            report(result)
-            bar.update(1)
+    interrupted = None
+    with stop_on_signals():
+        try:
+            with click.progressbar(
+                length=total, label="rawsim", file=sys.stderr, hidden=not show_bar
+            ) as bar:
+                for result in pre_failed:
+                    report(result)
+                    bar.update(1)
+                for result in results_iter:
+                    report(result)
+                    bar.update(1)
+        except Interrupted as stop:
+            interrupted = stop
+            results_iter.close()  # a generator: stops its workers, if not yet done
     summary.seconds = time.perf_counter() - start
+    if interrupted is not None:
+        left = total - summary.done - summary.skipped - summary.failed
+        click.echo(f"rawsim: interrupted by {interrupted}: {summary}, {left} not finished", err=True)
+        ctx.exit(interrupted.exit_code)
     click.echo(f"rawsim: {summary}", err=True)
     ctx.exit(summary.exit_code)

@@ -8,7 +8,10 @@ gets its outcome in a :class:`Result`; one failure never stops the others.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
+import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -22,6 +25,51 @@ from rawsim.seeds import derive_seed
 
 #: Exit statuses of the batch commands.
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+#: Seconds a terminated worker gets to remove its temporary files before it is killed.
+WORKER_GRACE = 1.5
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM stopped the job; exit status 128 + ``signum`` (130, 143).
+
+    A BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it,
+    and on its way out every atomic write removes its temporary file.
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+def _stop_on_signal(signum, frame) -> None:
+    """The first SIGINT/SIGTERM stops the job; later ones wait for its cleanup (≤ 2 s)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+class stop_on_signals:
+    """Context: SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.
+
+    Restores the previous handlers on exit. Does nothing outside the main thread
+    (Python delivers signals only there).
+    """
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+            for sig in self._old:
+                signal.signal(sig, _stop_on_signal)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in (self._old or {}).items():
+            signal.signal(sig, handler)
 
 
 @dataclass(frozen=True)
@@ -136,8 +184,14 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
     if not overwrite and all(p.exists() for p in task.outputs.values()):
         return Result(task, "skipped", f"{task.source}: outputs exist (use --overwrite)")
     start = time.perf_counter()
+    global _in_job
+    _in_job = True
     try:
         record = job(task, **kwargs)
+    except Interrupted:
+        if _worker:  # terminated by the parent: the temporary files are gone, leave now
+            os._exit(128 + signal.SIGTERM)
+        raise
     except RawsimError as err:
         detail = traceback.format_exc() if debug else ""
         return Result(task, "failed", _one_line(err, task), detail=detail)
@@ -145,6 +199,8 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
         detail = traceback.format_exc() if debug else ""
         msg = f"{task.source}: {type(err).__name__}: {_one_line(err, None)}"
         return Result(task, "failed", msg, detail=detail)
+    finally:
+        _in_job = False
     return Result(task, "done", record=record, seconds=time.perf_counter() - start)
 
 
@@ -170,9 +226,28 @@ def _worker_context():
     return get_context("spawn")
 
 
+#: Whether this process is a pool worker, and whether it is running a job now.
+_worker = False
+_in_job = False
+
+
+def _worker_terminated(signum, frame) -> None:
+    """SIGTERM in a worker: unwind the running job (its atomic writes remove their
+    temporary files), then exit; an idle worker exits at once."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if _in_job:
+        raise Interrupted(signum)
+    os._exit(128 + signum)
+
+
 def _init_worker(threads: int) -> None:
     """Give each worker its share of the cores, in torch and in the engine, so that
-    jobs × threads ≤ cores."""
+    jobs × threads ≤ cores; leave SIGINT (Ctrl-C reaches the whole process group)
+    to the parent, which terminates the workers with SIGTERM."""
+    global _worker
+    _worker = True
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_terminated)
     import torch
 
     from rawsim import engine
@@ -203,12 +278,13 @@ def run(
             yield _run_one(job, t, overwrite, debug, kwargs)
         return
     threads = max(1, (os.cpu_count() or 1) // jobs)
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         max_workers=jobs,
         mp_context=_worker_context(),
         initializer=_init_worker,
         initargs=(threads,),
-    ) as pool:
+    )
+    try:
         futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
         for fut in as_completed(futures):
             try:
@@ -216,6 +292,25 @@ def run(
             except Exception as err:  # the worker died (killed, out of memory)
                 task = futures[fut]
                 yield Result(task, "failed", f"{task.source}: worker failed: {err}")
+    except BaseException:  # interrupted (or the consumer stopped): no file starts any more
+        _terminate(pool)
+        raise
+    pool.shutdown()
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Cancel the queued tasks and stop the workers: SIGTERM (they remove their
+    temporary files and exit), SIGKILL for any still alive after :data:`WORKER_GRACE`."""
+    workers = multiprocessing.active_children()
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in workers:
+        proc.terminate()
+    deadline = time.monotonic() + WORKER_GRACE
+    for proc in workers:
+        proc.join(max(0.0, deadline - time.monotonic()))
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
 
 
 @dataclass
