@@ -99,7 +99,8 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
     summary.seconds = time.perf_counter() - start
     if interrupted is not None:
         left = total - summary.done - summary.skipped - summary.failed
-        click.echo(f"rawsim: interrupted by {interrupted}: {summary}, {left} not finished", err=True)
+        message = f"rawsim: interrupted by {interrupted}: {summary}, {left} not finished"
+        click.echo(message, err=True)
         ctx.exit(interrupted.exit_code)
     click.echo(f"rawsim: {summary}", err=True)
     ctx.exit(summary.exit_code)

@@ -251,8 +251,10 @@ def _init_worker(threads: int) -> None:
     import torch
 
     from rawsim import engine
+    from rawsim.io import png
 
     torch.set_num_threads(threads)
+    png.set_threads(threads)
     if engine.available():
         engine.set_threads(threads)
 
