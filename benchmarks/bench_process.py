@@ -143,8 +143,7 @@ def main() -> None:
         )
         if shutil.which("dcraw"):
             seconds = min(
-                timed(["dcraw", "-T", "-6", "-w", "-q", "3", str(dng)])[0]
-                for _ in range(copies)
+                timed(["dcraw", "-T", "-6", "-w", "-q", "3", str(dng)])[0] for _ in range(copies)
             )
             print(
                 row.format("dcraw -T -6 -w -q 3 (AHD)", seconds, 0, "").replace(

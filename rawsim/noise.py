@@ -417,7 +417,7 @@ def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
 def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Tensor:
     """The noise (float64, (h, w)) added to ``signal`` DN above black.
 
-    The engine's ``site_noise`` computes the same per site; every step here is
+    The engine's ``noise_row`` computes the same per site; every step here is
     one rounded float64 operation in the same order, so the two agree bit for bit.
     Shot noise is K·Poisson(s/K) − s below :data:`EXACT_POISSON_BELOW` electrons
     and a normal of the same variance above (joined with the Gaussian read noise

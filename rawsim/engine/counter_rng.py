@@ -11,8 +11,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
 from numba import njit
-from numba.extending import overload
+from numba.core import types
+from numba.extending import intrinsic, overload
 
 from rawsim.counter_rng import (
     INVERSION_BELOW,
@@ -55,13 +57,13 @@ def _horner(x, coefficients):
     return horner
 
 
-_log_mantissa = njit(log_mantissa)
-_log_combine = njit(log_combine)
-_exp_reduced = njit(exp_reduced)
-_exp_reduce = njit(exp_reduce)
-_cos_reduced = njit(cos_reduced)
-_sin_reduced = njit(sin_reduced)
-_stirling_tail = njit(stirling_tail)
+_log_mantissa = njit(inline="always")(log_mantissa)
+_log_combine = njit(inline="always")(log_combine)
+_exp_reduced = njit(inline="always")(exp_reduced)
+_exp_reduce = njit(inline="always")(exp_reduce)
+_cos_reduced = njit(inline="always")(cos_reduced)
+_sin_reduced = njit(inline="always")(sin_reduced)
+_stirling_tail = njit(inline="always")(stirling_tail)
 
 
 def np_key(seed: int) -> tuple[np.uint64, np.uint64]:
@@ -83,11 +85,52 @@ def philox4x32(c0, c1, c2, c3, k0, k1):
     return c0, c1, c2, c3
 
 
+@intrinsic
+def _bits(typingctx, x):
+    """The IEEE 754 bits of a float64, as a uint64 (a bit cast: one register move)."""
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.IntType(64))
+
+    return types.uint64(types.float64), codegen
+
+
+@intrinsic
+def _float(typingctx, b):
+    """The float64 whose IEEE 754 bits are the uint64 ``b`` (a bit cast)."""
+    if b != types.uint64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], ir.DoubleType())
+
+    return types.float64(types.uint64), codegen
+
+
+# Integer ↔ float conversions by bit patterns: AVX2 has no vector instruction for
+# int64 ↔ float64, so LLVM would run them one lane at a time; these are exact.
+_TWO52_BITS = np.uint64(0x4330000000000000)  # 2⁵²: its low mantissa bits hold n < 2⁵²
+_TWO52 = 2.0**52
+_ROUND_BITS = np.uint64(0x4338000000000000)  # 1.5·2⁵²: holds a small signed integer
+_ROUND = 1.5 * 2.0**52
+_FRACTION = np.uint64(0x000FFFFFFFFFFFFF)
+_HALF_EXPONENT = np.uint64(0x3FE0000000000000)  # exponent field of [½, 1)
+_EXPONENT_BIAS = np.uint64(1023)
+_S52 = np.uint64(52)
+
+
+@njit(inline="always")
+def _small_int_to_float(n):
+    """A uint64 holding a signed integer |n| < 2⁵¹ (two's complement) → that float64."""
+    return _float(_ROUND_BITS + n) - _ROUND
+
+
 @njit(inline="always")
 def _uniform(a, b):
-    n = (a << _S20) | (b >> _S12)
-    # n < 2⁵²: through int64, whose conversion to float64 is one instruction.
-    return (np.float64(np.int64(n)) + 0.5) * UNIFORM_STEP
+    n = (a << _S20) | (b >> _S12)  # n < 2⁵²: 2⁵² + n is exact, and so is subtracting 2⁵²
+    return ((_float(_TWO52_BITS | n) - _TWO52) + 0.5) * UNIFORM_STEP
 
 
 @njit(inline="always")
@@ -97,42 +140,49 @@ def uniforms(index, stream, k0, k1, iteration):
     return _uniform(w0, w1), _uniform(w2, w3)
 
 
-@njit
+@njit(inline="always")
 def exact_log(x):
-    m, e = math.frexp(x)
-    if m < SQRT_HALF:
-        m = m * 2.0
-        e -= 1
-    return _log_combine(_log_mantissa(m), np.float64(e))
+    """ln x for a positive normal float64, the reference's bits, without branches.
+
+    The mantissa m in [½, 1) and exponent e are read from the bits (``frexp``'s),
+    then m is doubled below √½, as the reference does.
+    """
+    b = _bits(x)
+    e = _small_int_to_float((b >> _S52) - np.uint64(1022))
+    m = _float((b & _FRACTION) | _HALF_EXPONENT)
+    low = m < SQRT_HALF
+    m = m * 2.0 if low else m
+    e = e - 1.0 if low else e
+    return _log_combine(_log_mantissa(m), e)
 
 
-@njit
+@njit(inline="always")
 def exact_exp(x):
+    """eˣ for |x| < 700, the reference's bits: 2ᵏ · e^r, 2ᵏ built from its bits."""
     k = math.floor(x * INV_LN2 + 0.5)
-    return math.ldexp(_exp_reduced(_exp_reduce(x, k)), int(k))
+    k_bits = _bits(k + _ROUND) - _ROUND_BITS  # k as a two's-complement uint64
+    return _exp_reduced(_exp_reduce(x, k)) * _float((k_bits + _EXPONENT_BIAS) << _S52)
 
 
-@njit
+@njit(inline="always")
 def exact_cos_2pi(u):
+    """cos(2π u) for u in [0, 1): both quadrant polynomials, one selected (no branch)."""
     quarter = math.floor(u * 4.0)
     a = (u * 4.0 - quarter) * HALF_PI
-    if quarter == 0:
-        return _cos_reduced(a)
-    if quarter == 1:
-        return -_sin_reduced(a)
-    if quarter == 2:
-        return -_cos_reduced(a)
-    return _sin_reduced(a)
+    c, s = _cos_reduced(a), _sin_reduced(a)
+    odd = quarter == 1.0 or quarter == 3.0
+    r = s if odd else c
+    return -r if quarter == 1.0 or quarter == 2.0 else r
 
 
-@njit
+@njit(inline="always")
 def normal(index, stream, k0, k1):
     """A standard normal draw (Box–Muller cosine branch)."""
     u1, u2 = uniforms(index, stream, k0, k1, np.uint64(0))
     return math.sqrt(-2.0 * exact_log(u1)) * exact_cos_2pi(u2)
 
 
-@njit
+@njit(inline="always")
 def tukey_lambda(index, k0, k1, lam):
     """A standard Tukey-lambda draw by inverse transform (logistic for |λ| ≈ 0)."""
     u, _ = uniforms(index, TUKEY, k0, k1, np.uint64(0))
@@ -143,15 +193,58 @@ def tukey_lambda(index, k0, k1, lam):
     return (exact_exp(lo * lam) - exact_exp(hi * lam)) / lam
 
 
-@njit
+@njit(error_model="numpy")
+def normal_row(first, k0, k1, out):
+    """:func:`normal` of sites ``first``, ``first + 1``, … into ``out`` (n,): one
+    branch-free loop over the row, which LLVM vectorises."""
+    for x in range(out.size):
+        out[x] = normal(first + np.uint64(x), NORMAL, k0, k1)
+
+
+@njit(error_model="numpy")
+def tukey_lambda_row(first, k0, k1, lam, out):
+    """:func:`tukey_lambda` of sites ``first``, ``first + 1``, … into ``out`` (n,)."""
+    for x in range(out.size):
+        out[x] = tukey_lambda(first + np.uint64(x), k0, k1, lam)
+
+
+@njit(inline="always")
 def _log_factorial(k):
-    if k < _LOG_FACTORIAL.shape[0]:
-        return _LOG_FACTORIAL[int(k)]
+    """ln k! of a count k ≥ 0: the table, else Stirling (both computed, one selected)."""
+    table = _LOG_FACTORIAL[min(int(k), _LOG_FACTORIAL.shape[0] - 1)]
     k1 = k + 1.0
-    return _stirling_tail(k1, exact_log(k1))
+    return table if k < _LOG_FACTORIAL.shape[0] else _stirling_tail(k1, exact_log(k1))
 
 
-@njit
+@njit(inline="always")
+def _ptrs_constants(lam):
+    """PTRS's (b, a, vr) for mean ``lam`` ≥ 10."""
+    b = 0.931 + 2.53 * math.sqrt(lam)
+    a = -0.059 + 0.02483 * b
+    vr = 0.9277 - 3.6224 / (b - 2.0)
+    return b, a, vr
+
+
+@njit(inline="always")
+def _ptrs_candidate(lam, b, a, u, v):
+    """PTRS's candidate count from one block (u, v), its |u| margin, and whether the
+    squeeze accepts it outright."""
+    u = u - 0.5
+    us = 0.5 - abs(u)
+    k = math.floor((2.0 * a / us + b) * u + lam + 0.43)
+    return k, us, us >= 0.07
+
+
+@njit(inline="always")
+def _ptrs_accepts(lam, b, a, k, us, v):
+    """PTRS's full acceptance test of candidate ``k`` (after the squeeze failed)."""
+    log_inv_alpha = exact_log(1.1239 + 1.1328 / (b - 3.4))
+    lhs = exact_log(v) + log_inv_alpha - exact_log(a / (us * us) + b)
+    rhs = -lam + k * exact_log(lam) - _log_factorial(max(k, 0.0))
+    return (k >= 0.0) & ((us >= 0.013) | (v <= us)) & (lhs <= rhs)
+
+
+@njit(error_model="numpy")
 def poisson(lam, index, k0, k1):
     """An exact Poisson draw of mean ``lam`` ≥ 0 (a float count)."""
     if lam < INVERSION_BELOW:
@@ -164,22 +257,114 @@ def poisson(lam, index, k0, k1):
             p = p * lam / k
             cdf = cdf + p
         return k
-    slam = math.sqrt(lam)
-    loglam = exact_log(lam)
-    b = 0.931 + 2.53 * slam
-    a = -0.059 + 0.02483 * b
-    log_inv_alpha = exact_log(1.1239 + 1.1328 / (b - 3.4))
-    vr = 0.9277 - 3.6224 / (b - 2.0)
+    b, a, vr = _ptrs_constants(lam)
     for j in range(MAX_ITERATIONS):
         u, v = uniforms(index, POISSON, k0, k1, np.uint64(j))
-        u = u - 0.5
-        us = 0.5 - abs(u)
-        k = math.floor((2.0 * a / us + b) * u + lam + 0.43)
-        if us >= 0.07 and v <= vr:
-            return k
-        if k < 0 or (us < 0.013 and v > us):
-            continue
-        lhs = exact_log(v) + log_inv_alpha - exact_log(a / (us * us) + b)
-        if lhs <= -lam + k * loglam - _log_factorial(k):
+        k, us, squeeze = _ptrs_candidate(lam, b, a, u, v)
+        if (squeeze and v <= vr) or _ptrs_accepts(lam, b, a, k, us, v):
             return k
     return math.floor(lam)
+
+
+#: The inversion lanes of :func:`poisson_sites` drop their finished lanes this often.
+_COMPACT_EVERY = 4
+
+
+@njit(error_model="numpy")
+def poisson_sites(lam, sites, k0, k1, out):
+    """:func:`poisson` of means ``lam`` (n,) at ``sites`` (n,) uint64 into ``out`` (n,),
+    bit for bit, with the work spread over lanes that LLVM vectorises.
+
+    Inversion (λ < 10) runs all its lanes a step of the search at a time, each
+    lane stopping where the scalar search would, and drops finished lanes every
+    few steps. PTRS lanes try their first block together; the few the squeeze
+    does not accept run the scalar :func:`poisson`.
+    """
+    n = lam.size
+    small, large = np.empty(n, np.intp), np.empty(n, np.intp)
+    m = big = 0
+    for i in range(n):
+        if lam[i] < INVERSION_BELOW:
+            small[m] = i
+            m += 1
+        else:
+            large[big] = i
+            big += 1
+    mean, site = np.empty(big), np.empty(big, np.uint64)
+    for j in range(big):
+        mean[j], site[j] = lam[large[j]], sites[large[j]]
+    first = np.empty(big)
+    _ptrs_first(mean, site, k0, k1, first)
+    rest = 0
+    for j in range(big):
+        out[large[j]] = first[j]
+        large[rest] = large[j]
+        mean[rest], site[rest] = mean[j], site[j]
+        rest += first[j] < 0.0
+    _ptrs_first_test(mean[:rest], site[:rest], k0, k1, first[:rest])
+    for j in range(rest):
+        k = first[j]
+        out[large[j]] = k if k >= 0.0 else poisson(mean[j], site[j], k0, k1)
+    lane = small[:m].copy()
+    mean, site = np.empty(m), np.empty(m, np.uint64)
+    for j in range(m):
+        mean[j], site[j] = lam[lane[j]], sites[lane[j]]
+    u, p, cdf, count = np.empty(m), np.empty(m), np.empty(m), np.zeros(m)
+    _inversion_start(mean, site, k0, k1, u, p, cdf)
+    k = 0.0
+    while m and k < 1000.0:
+        k = _inversion_steps(k, mean[:m], u[:m], p[:m], cdf[:m], count[:m])
+        kept = 0
+        for j in range(m):
+            if u[j] > cdf[j] and count[j] < 1000.0:
+                lane[kept], mean[kept], u[kept] = lane[j], mean[j], u[j]
+                p[kept], cdf[kept], count[kept] = p[j], cdf[j], count[j]
+                kept += 1
+            else:
+                out[lane[j]] = count[j]
+        m = kept
+
+
+@njit(error_model="numpy")
+def _ptrs_first(mean, site, k0, k1, out):
+    """PTRS's first block for each lane: the count the squeeze accepts, else −1."""
+    for j in range(mean.size):
+        b, a, vr = _ptrs_constants(mean[j])
+        u, v = uniforms(site[j], POISSON, k0, k1, np.uint64(0))
+        k, us, squeeze = _ptrs_candidate(mean[j], b, a, u, v)
+        out[j] = k if squeeze & (v <= vr) else -1.0
+
+
+@njit(error_model="numpy")
+def _ptrs_first_test(mean, site, k0, k1, out):
+    """PTRS's full test of the first block, for lanes the squeeze did not accept:
+    the count it accepts, else −1."""
+    for j in range(mean.size):
+        b, a, _ = _ptrs_constants(mean[j])
+        u, v = uniforms(site[j], POISSON, k0, k1, np.uint64(0))
+        k, us, _ = _ptrs_candidate(mean[j], b, a, u, v)
+        out[j] = k if _ptrs_accepts(mean[j], b, a, k, us, v) else -1.0
+
+
+@njit(error_model="numpy")
+def _inversion_start(mean, site, k0, k1, u, p, cdf):
+    """The inversion's uniform and P(0) = e^−λ of each lane."""
+    for j in range(mean.size):
+        u[j], _ = uniforms(site[j], POISSON, k0, k1, np.uint64(0))
+        p[j] = exact_exp(-mean[j])
+        cdf[j] = p[j]
+
+
+@njit(error_model="numpy")
+def _inversion_steps(k, mean, u, p, cdf, count):
+    """:data:`_COMPACT_EVERY` steps of the search from count ``k``, on lanes still
+    below their uniform; returns the new count."""
+    for _ in range(_COMPACT_EVERY):
+        k += 1.0
+        for j in range(mean.size):
+            go = (u[j] > cdf[j]) & (k <= 1000.0)
+            q = p[j] * mean[j] / k
+            p[j] = q if go else p[j]
+            cdf[j] = cdf[j] + q if go else cdf[j]
+            count[j] = k if go else count[j]
+    return k

@@ -6,7 +6,7 @@ sRGB → camera matrix → inverse white balance (exact or Brooks's safe one) �
 mosaic (only the site's channel is kept) → vignetting → levels → noise →
 rounding and saturation → uint16. The torch reference of each stage is in
 :mod:`rawsim.sensors` and :mod:`rawsim.isp`; the noise is
-:func:`rawsim.noise.noise_field`, drawn here by :func:`site_noise` from the same
+:func:`rawsim.noise.noise_field`, drawn here by :func:`noise_row` from the same
 counter-based generator, bit for bit. Arithmetic is float64 (the reference runs
 in float32), so the clean codes agree with the reference within one code.
 """
@@ -19,11 +19,20 @@ import numpy as np
 from numba import njit, prange
 
 from rawsim.engine import configure
-from rawsim.engine.counter_rng import NORMAL, ROW, normal, poisson, tukey_lambda
+from rawsim.engine.counter_rng import (
+    ROW,
+    normal,
+    normal_row,
+    poisson_sites,
+    tukey_lambda_row,
+)
 from rawsim.noise import EXACT_POISSON_BELOW
 
 configure()
 
+#: Compiled once, cached; the numpy error model (no zero-division checks, whose early
+#: exits would keep LLVM from vectorising the row loops).
+_JIT = {"cache": True, "error_model": "numpy"}
 #: Noise model codes of the kernels.
 MODEL_CODES = {"none": 0, "gaussian": 1, "poisson-gaussian": 2, "physics": 3}
 #: Layout of the float64 noise-parameter vector (see :func:`noise_vector`).
@@ -47,50 +56,78 @@ def noise_vector(levels, black: float) -> np.ndarray:
     )
 
 
-@njit(cache=True)
-def site_noise(dn, site, model, p, k0, k1, row_noise, bias):
-    """The noise added to clean ``dn`` at ``site`` (the reference's ``noise_field``).
-
-    ``row_noise`` is the row's σ_row·N draw and ``bias`` the site's channel bias
-    (physics only). Operations and their order follow the reference exactly.
-    """
-    positive = max(dn - p[N_BLACK], 0.0)
-    z = normal(site, NORMAL, k0, k1)
-    if model == 1:
-        shot = p[N_ALPHA] * math.sqrt(positive) + p[N_BETA]
-        return math.sqrt(p[N_ISO_GAIN] * (shot * shot) + p[N_READ] * p[N_READ]) * z
-    k = p[N_GAIN]
-    physics = model == 3
-    read_var = 0.0 if physics else p[N_READ] * p[N_READ]
-    if positive < EXACT_POISSON_BELOW * k:
-        shot = k * poisson(positive / k, site, k0, k1) - positive
-        noise = shot if physics else shot + p[N_READ] * z
-    else:
-        noise = math.sqrt(k * positive + read_var) * z
-    if not physics:
-        return noise
-    t = tukey_lambda(site, k0, k1, p[N_LAMBDA])
-    noise = noise + p[N_READ] * t
-    noise = noise + row_noise
-    return noise + bias
-
-
-@njit(cache=True)
+@njit(**_JIT)
 def noise_row(dn, y, width, model, p, k0, k1, bias_tile, white, out):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
-    into codes ``out`` (w,): the compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`.
-    Model 0 (``none``) gives the clean codes."""
-    row = np.uint64(y)
-    row_noise = p[N_ROW] * normal(row, ROW, k0, k1) if model == 3 else 0.0
+    into codes ``out`` (w,): the compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`,
+    bit for bit (the reference's ``noise_field``: same operations, same order).
+
+    Model 0 (``none``) gives the clean codes. The draws and the arithmetic run as
+    whole-row loops without branches, which LLVM vectorises; only the exact
+    Poisson draws of dark sites (a rejection loop) run site by site.
+    """
+    w = dn.shape[0]
+    noise = np.zeros(w)
+    if model != 0:
+        first = np.uint64(y) * np.uint64(width)
+        z = np.empty(w)
+        normal_row(first, k0, k1, z)
+        black, read = p[N_BLACK], p[N_READ]
+        if model == 1:
+            alpha, beta, iso_gain = p[N_ALPHA], p[N_BETA], p[N_ISO_GAIN]
+            for x in range(w):
+                shot = alpha * math.sqrt(max(dn[x] - black, 0.0)) + beta
+                noise[x] = math.sqrt(iso_gain * (shot * shot) + read * read) * z[x]
+        else:
+            _shot_noise(dn, first, model == 3, p, k0, k1, z, noise)
+        if model == 3:
+            _physics_read_noise(y, first, p, k0, k1, bias_tile[y % 2], noise)
+    for x in range(w):
+        out[x] = min(max(np.rint(dn[x] + noise[x]), 0.0), white)
+
+
+@njit(**_JIT)
+def _shot_noise(dn, first, physics, p, k0, k1, z, noise):
+    """Shot noise (joined with Gaussian read noise unless ``physics``) into ``noise``:
+    a normal of variance K·s + σ² everywhere, then exact Poisson where s is below
+    :data:`EXACT_POISSON_BELOW` electrons."""
+    black, k, read = p[N_BLACK], p[N_GAIN], p[N_READ]
+    read_var = 0.0 if physics else read * read
     for x in range(dn.shape[0]):
-        v = dn[x]
-        if model != 0:
-            site = row * np.uint64(width) + np.uint64(x)
-            v = v + site_noise(v, site, model, p, k0, k1, row_noise, bias_tile[y % 2, x % 2])
-        out[x] = min(max(np.rint(v), 0.0), white)
+        noise[x] = math.sqrt(k * max(dn[x] - black, 0.0) + read_var) * z[x]
+    limit = EXACT_POISSON_BELOW * k
+    at = np.empty(dn.shape[0], np.intp)
+    n = 0
+    for x in range(dn.shape[0]):
+        at[n] = x
+        n += dn[x] - black < limit  # max(s, 0) < limit as limit > 0
+    lam, sites, counts = np.empty(n), np.empty(n, np.uint64), np.empty(n)
+    for i in range(n):
+        lam[i] = max(dn[at[i]] - black, 0.0) / k
+        sites[i] = first + np.uint64(at[i])
+    poisson_sites(lam, sites, k0, k1, counts)
+    for i in range(n):
+        x = at[i]
+        positive = max(dn[x] - black, 0.0)
+        shot = k * counts[i] - positive
+        noise[x] = shot if physics else shot + read * z[x]
 
 
-@njit(cache=True)
+@njit(**_JIT)
+def _physics_read_noise(y, first, p, k0, k1, bias, noise):
+    """The physics model's Tukey-lambda read noise, row noise and channel bias
+    (``bias``: the row's two sites of the CFA tile), added to ``noise``."""
+    t = np.empty(noise.size)
+    tukey_lambda_row(first, k0, k1, p[N_LAMBDA], t)
+    read = p[N_READ]
+    row_noise = p[N_ROW] * normal(np.uint64(y), ROW, k0, k1)
+    even, odd = bias[0], bias[1]
+    for x in range(noise.size):
+        v = (noise[x] + read * t[x]) + row_noise
+        noise[x] = v + (odd if x & 1 else even)
+
+
+@njit(**_JIT)
 def add_noise_rows(dn, top, width, model, p, k0, k1, bias_tile, white, out):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
     image ``width`` wide, into ``out`` (h, w); for the equality tests."""
@@ -100,7 +137,55 @@ def add_noise_rows(dn, top, width, model, p, k0, k1, bias_tile, white, out):
         )
 
 
-@njit(parallel=True, cache=True)
+@njit(**_JIT)
+def _linear_row(pixels, lut, scale, ccm_bias, r, g, b):
+    """Linear RGB of one row of ``pixels`` (w, 3) into ``r``, ``g``, ``b`` (w,) float64:
+    codes through ``lut`` (or floats as they are), times ``scale``, less ``ccm_bias``."""
+    with_lut = lut.shape[0] > 0
+    bias_r, bias_g, bias_b = ccm_bias[0], ccm_bias[1], ccm_bias[2]
+    for x in range(r.size):
+        # One body for codes and floats: the table branch types for both.
+        pr, pg, pb = pixels[x, 0], pixels[x, 1], pixels[x, 2]
+        vr = np.float64(lut[np.intp(pr)]) if with_lut else np.float64(pr)
+        vg = np.float64(lut[np.intp(pg)]) if with_lut else np.float64(pg)
+        vb = np.float64(lut[np.intp(pb)]) if with_lut else np.float64(pb)
+        r[x], g[x], b[x] = vr * scale - bias_r, vg * scale - bias_g, vb * scale - bias_b
+
+
+@njit(**_JIT)
+def _camera_row(r, g, b, colors, matrix, wb, safe, threshold, out):
+    """Each site's camera channel, white balance inverted, into ``out`` (w,): the
+    channel of column x is ``colors[x % 2]``. Brooks's safe inverse blends above
+    ``threshold`` of the grey level."""
+    m = matrix
+    even, odd = colors[0], colors[1]
+    for x in range(r.size):
+        cam0 = m[0, 0] * r[x] + m[0, 1] * g[x] + m[0, 2] * b[x]
+        cam1 = m[1, 0] * r[x] + m[1, 1] * g[x] + m[1, 2] * b[x]
+        cam2 = m[2, 0] * r[x] + m[2, 1] * g[x] + m[2, 2] * b[x]
+        c = odd if x & 1 else even
+        v = cam0 if c == 0 else (cam1 if c == 1 else cam2)
+        gain = wb[0] if c == 0 else (wb[1] if c == 1 else wb[2])
+        if safe:
+            inv = 1.0 / gain
+            gray = (cam0 + cam1 + cam2) / 3.0
+            t = max(gray - threshold, 0.0) / (1.0 - threshold)
+            out[x] = v * (inv + t * t * max(1.0 - inv, 0.0))
+        else:
+            out[x] = v / gain
+
+
+@njit(**_JIT)
+def _vignetting_row(y, cy, cx, norm, vignetting, v):
+    """Lens shading of row ``y`` applied to ``v`` (w,): divided by the radial gain."""
+    strength, k1, k2, k3 = vignetting[0], vignetting[1], vignetting[2], vignetting[3]
+    for x in range(v.size):
+        r2 = ((y - cy) ** 2 + (x - cx) ** 2) / norm
+        gain = 1.0 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+        v[x] = v[x] / (1.0 + strength * (gain - 1.0))
+
+
+@njit(parallel=True, **_JIT)
 def unprocess_kernel(
     pixels,
     lut,
@@ -135,47 +220,28 @@ def unprocess_kernel(
         colors: (2, 2) colour index of each site of the CFA tile.
         vignetting: (strength, k1, k2, k3); no shading when strength is 0.
         levels: (black, white) DN.
-        model, p, k0, k1, bias_tile: the noise (see :func:`site_noise`).
+        model, p, k0, k1, bias_tile: the noise (see :func:`noise_row`).
         noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
     black, white = levels[0], levels[1]
     span = white - black
-    with_lut = lut.shape[0] > 0
     want_clean = clean.shape[0] > 0
     strength = vignetting[0]
     cy, cx = (h - 1) / 2.0, (w - 1) / 2.0
     norm = cy * cy + cx * cx
-    inv = np.empty(3)
-    for c in range(3):
-        inv[c] = 1.0 / wb[c]
     for y in prange(h):
-        rgb = np.empty(3)
-        cam = np.empty(3)
-        dn = np.empty(w)
+        r, g, b, dn = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
+        _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
+        if mono:
+            for x in range(w):
+                dn[x] = (r[x] + g[x] + b[x]) / 3.0
+        else:
+            _camera_row(r, g, b, colors[y % 2], matrix, wb, safe, threshold, dn)
+        if strength > 0.0:
+            _vignetting_row(y, cy, cx, norm, vignetting, dn)
         for x in range(w):
-            for c in range(3):
-                # One body for codes and floats: the table branch types for both.
-                px = pixels[y, x, c]
-                v = np.float64(lut[np.intp(px)]) if with_lut else np.float64(px)
-                rgb[c] = v * scale - ccm_bias[c]
-            if mono:
-                v = (rgb[0] + rgb[1] + rgb[2]) / 3.0
-            else:
-                for c in range(3):
-                    cam[c] = matrix[c, 0] * rgb[0] + matrix[c, 1] * rgb[1] + matrix[c, 2] * rgb[2]
-                c = colors[y % 2, x % 2]
-                if safe:
-                    gray = (cam[0] + cam[1] + cam[2]) / 3.0
-                    m = max(gray - threshold, 0.0) / (1.0 - threshold)
-                    v = cam[c] * (inv[c] + m * m * max(1.0 - inv[c], 0.0))
-                else:
-                    v = cam[c] / wb[c]
-            if strength > 0.0:
-                r2 = ((y - cy) ** 2 + (x - cx) ** 2) / norm
-                gain = 1.0 + vignetting[1] * r2 + vignetting[2] * r2**2 + vignetting[3] * r2**3
-                v = v / (1.0 + strength * (gain - 1.0))
-            dn[x] = black + v * span
+            dn[x] = black + dn[x] * span
         if want_clean:
             noise_row(dn, y, w, 0, p, k0, k1, bias_tile, white, clean[y])
         noise_row(dn, y, w, model, p, k0, k1, bias_tile, white, noisy[y])
