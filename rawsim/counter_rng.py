@@ -17,7 +17,7 @@ products are split in 16-bit halves so nothing overflows.
 Distributions, each from :mod:`rawsim.exact_math` so the bits match:
 
 * uniform: ``(n + ½) · 2⁻⁵²`` from 52 bits of two words, in (0, 1) exactly;
-* normal: Box–Muller's cosine branch from one block (two uniforms);
+* normal: Box–Muller, both branches, from one block (two uniforms) per two sites;
 * Poisson: exact; inversion by sequential search below λ = 10, Hörmann's
   transformed rejection with squeeze (PTRS, "The transformed rejection method
   for generating Poisson random variables", 1993) from 10 up, with retries on
@@ -136,20 +136,28 @@ def ieee_sqrt(x: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(x)
 
 
-def exact_cos_2pi(u: torch.Tensor) -> torch.Tensor:
-    """cos(2π u) for u in [0, 1), by quadrant (exact reduction) and :func:`cos_reduced`."""
+def exact_cos_sin_2pi(u: torch.Tensor, sine: torch.Tensor) -> torch.Tensor:
+    """cos(2π u), or sin(2π u) where ``sine`` (bool), for u in [0, 1): by quadrant (an
+    exact reduction) and :func:`cos_reduced` / :func:`sin_reduced`.
+
+    In quadrant q, cos(2πu) is c, −s, −c, s and sin(2πu) is s, c, −s, −c.
+    """
     quarter = torch.floor(u * 4.0)
     a = (u * 4.0 - quarter) * HALF_PI
     c, s = cos_reduced(a), sin_reduced(a)
-    return torch.where(
-        quarter == 0, c, torch.where(quarter == 1, -s, torch.where(quarter == 2, -c, s))
-    )
+    odd_quarter = (quarter == 1.0) | (quarter == 3.0)
+    value = torch.where(odd_quarter ^ sine, s, c)
+    negative = (quarter == 2.0) | (quarter == torch.where(sine, 3.0, 1.0))
+    return torch.where(negative, -value, value)
 
 
 def normal(index: torch.Tensor, key, stream: str = "normal") -> torch.Tensor:
-    """Standard normal draws (float64) by Box–Muller: √(−2 ln u₁) · cos(2π u₂)."""
-    u1, u2 = uniforms(index, stream, key)
-    return ieee_sqrt(-2.0 * exact_log(u1)) * exact_cos_2pi(u2)
+    """Standard normal draws (float64) by Box–Muller, both branches: the sites 2i and
+    2i + 1 share block i, √(−2 ln u₁) times cos(2π u₂) for the even site and
+    sin(2π u₂) for the odd one."""
+    u1, u2 = uniforms(index.bitwise_right_shift(1), stream, key)
+    odd = index.bitwise_and(1).bool()
+    return ieee_sqrt(-2.0 * exact_log(u1)) * exact_cos_sin_2pi(u2, odd)
 
 
 def tukey_lambda(index: torch.Tensor, key, lam: float) -> torch.Tensor:

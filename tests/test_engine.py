@@ -74,15 +74,37 @@ def test_draws_are_bit_equal_in_both_backends():
         assert np.array_equal(row, want.numpy())
 
 
+@pytest.mark.parametrize("first,n", [(0, 31), (7, 30), (2**33 + 5, 17), (1, 1)])
+def test_normal_rows_are_bit_equal_for_any_start_and_length(first, n):
+    out = np.empty(n)
+    eng.normal_row(np.uint64(first), *eng.np_key(0x1234_5678_9ABC_DEF0), out)
+    sites = torch.arange(first, first + n, dtype=torch.int64)
+    assert np.array_equal(out, ref.normal(sites, KEY).numpy())
+
+
+def test_normals_are_standard_and_pairs_independent():
+    """Both Box–Muller branches: the even (cosine) and odd (sine) sites of a block are
+    each N(0, 1), and uncorrelated with each other, also in their squares."""
+    n = 400_000
+    z = np.empty(n)
+    eng.normal_row(np.uint64(0), *eng.np_key(17), z)
+    for half in (z[0::2], z[1::2]):
+        assert abs(half.mean()) < 5 / np.sqrt(half.size)
+        assert abs(half.var() - 1) < 5 * np.sqrt(2 / half.size)
+        assert stats.kstest(half, "norm").pvalue > 1e-4
+    for a, b in ((z[0::2], z[1::2]), (z[0::2] ** 2, z[1::2] ** 2)):
+        assert abs(np.corrcoef(a, b)[0, 1]) < 5 / np.sqrt(n / 2)
+
+
 def test_exact_math_is_accurate():
     x = np.geomspace(1e-300, 1e300, 5001)
     assert np.allclose(ref.exact_log(torch.from_numpy(x)).numpy(), np.log(x), rtol=1e-15, atol=0)
     e = np.linspace(-700, 700, 5001)
     assert np.allclose(ref.exact_exp(torch.from_numpy(e)).numpy(), np.exp(e), rtol=1e-15, atol=0)
-    u = np.linspace(0, 1, 4001)[:-1]
-    assert np.allclose(
-        ref.exact_cos_2pi(torch.from_numpy(u)).numpy(), np.cos(2 * np.pi * u), atol=1e-15
-    )
+    u = torch.linspace(0, 1, 4001, dtype=torch.float64)[:-1]
+    for sine, want in ((False, np.cos), (True, np.sin)):
+        got = ref.exact_cos_sin_2pi(u, torch.full(u.shape, sine)).numpy()
+        assert np.allclose(got, want(2 * np.pi * u.numpy()), atol=1e-15)
 
 
 @njit

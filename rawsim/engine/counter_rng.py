@@ -165,21 +165,25 @@ def exact_exp(x):
 
 
 @njit(inline="always")
-def exact_cos_2pi(u):
-    """cos(2π u) for u in [0, 1): both quadrant polynomials, one selected (no branch)."""
+def exact_cos_sin_2pi(u, sine):
+    """cos(2π u), or sin(2π u) if ``sine``, for u in [0, 1): the reference's bits, both
+    quadrant polynomials computed and one selected (no branch)."""
     quarter = math.floor(u * 4.0)
     a = (u * 4.0 - quarter) * HALF_PI
     c, s = _cos_reduced(a), _sin_reduced(a)
-    odd = quarter == 1.0 or quarter == 3.0
-    r = s if odd else c
-    return -r if quarter == 1.0 or quarter == 2.0 else r
+    odd_quarter = (quarter == 1.0) | (quarter == 3.0)
+    value = s if odd_quarter ^ sine else c
+    negative = (quarter == 2.0) | (quarter == (3.0 if sine else 1.0))
+    return -value if negative else value
 
 
 @njit(inline="always")
 def normal(index, stream, k0, k1):
-    """A standard normal draw (Box–Muller cosine branch)."""
-    u1, u2 = uniforms(index, stream, k0, k1, np.uint64(0))
-    return math.sqrt(-2.0 * exact_log(u1)) * exact_cos_2pi(u2)
+    """A standard normal draw: Box–Muller, both branches (sites 2i and 2i + 1 share
+    block i; cosine for the even site, sine for the odd)."""
+    u1, u2 = uniforms(index >> np.uint64(1), stream, k0, k1, np.uint64(0))
+    sine = (index & np.uint64(1)) == np.uint64(1)
+    return math.sqrt(-2.0 * exact_log(u1)) * exact_cos_sin_2pi(u2, sine)
 
 
 @njit(inline="always")
@@ -196,9 +200,18 @@ def tukey_lambda(index, k0, k1, lam):
 @njit(error_model="numpy")
 def normal_row(first, k0, k1, out):
     """:func:`normal` of sites ``first``, ``first + 1``, … into ``out`` (n,): one
-    branch-free loop over the row, which LLVM vectorises."""
-    for x in range(out.size):
-        out[x] = normal(first + np.uint64(x), NORMAL, k0, k1)
+    branch-free loop over the row's blocks, each giving two sites, which LLVM
+    vectorises."""
+    start = first & np.uint64(1)  # an odd first site is its block's second
+    pairs = (out.size + int(start) + 1) // 2
+    both = np.empty(2 * pairs)
+    block = first >> np.uint64(1)
+    for q in range(pairs):
+        u1, u2 = uniforms(block + np.uint64(q), NORMAL, k0, k1, np.uint64(0))
+        r = math.sqrt(-2.0 * exact_log(u1))
+        both[2 * q] = r * exact_cos_sin_2pi(u2, False)
+        both[2 * q + 1] = r * exact_cos_sin_2pi(u2, True)
+    out[:] = both[int(start) : int(start) + out.size]
 
 
 @njit(error_model="numpy")
