@@ -296,6 +296,37 @@ def use_engine(device: str) -> bool:
     return device == "cpu" and engine.available() and os.environ.get("RAWSIM_ENGINE", "1") != "0"
 
 
+#: Stages the float path leaves to the torch reference after the engine's linear output.
+_FLOAT_TAIL = ("tone", "transfer", "ycbcr")
+
+
+def render_float(raw: RawImage, config: list[dict], device="cpu"):
+    """``raw`` rendered to unquantised floats, (1, C, H, W), and the resolved values: what
+    :func:`render` gives, without gradients.
+
+    On the CPU the engine renders the stages up to tone/transfer (float32, unclipped,
+    within 1e-5 of the reference) and the reference's own modules apply the rest,
+    so curves are exact outside [0, 1] too. Elsewhere, or for a config the engine
+    lacks, the reference renders it all.
+    """
+    import torch
+
+    from rawsim.isp.pipeline import build_isp
+
+    enabled = [s for s in config if s["enabled"]]
+    names = [s["name"] for s in enabled]
+    at = min((names.index(n) for n in _FLOAT_TAIL if n in names), default=len(names))
+    head, tail = enabled[:at], enabled[at:]
+    plan = engine_plan(raw, head, "exr") if use_engine(str(device)) else None
+    if plan is None:
+        return render(raw, config, device)
+    linear = engine_render(raw, plan, "exr", 32)
+    image = torch.from_numpy(linear).permute(2, 0, 1).unsqueeze(0)
+    with torch.no_grad():  # orientation is in the engine's part or in the tail, not both
+        out = build_isp(tail, raw)(image)
+    return out, plan.info
+
+
 def render_samples(raw: RawImage, config: list[dict], fmt: str, bits: int, device="cpu"):
     """``raw`` rendered to (H, W, 3) samples for ``fmt``/``bits``, and the resolved values."""
     from rawsim.io.images import to_samples
