@@ -190,3 +190,50 @@ def test_process_command_does_not_import_torch(tmp_path):
     )
     subprocess.run([sys.executable, "-c", code], check=True)
     assert (tmp_path / "canon_eos60d_mlv.tif").is_file()
+
+
+def test_cold_command_reads_while_the_engine_loads_and_skips_the_blas_probe(tmp_path):
+    """The command's own start: the raw is read in a thread while numba loads (the same
+    raw as a plain read), numba is imported without ``scipy.linalg``, which still
+    imports normally afterwards, and the output is what an in-process render gives."""
+    dng = DATA / "raw" / "canon_eos60d_mlv.dng"
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "import rawsim.engine\n"
+        "from rawsim.io.raw import read_raw\n"
+        "from rawsim.pipelines.process import _read_while_loading_engine\n"
+        "rawsim.engine.lean_start = True\n"
+        f"raw = _read_while_loading_engine({str(dng)!r}, 'cpu')\n"
+        "assert 'rawsim.engine.process' in sys.modules and 'numba' in sys.modules\n"
+        "assert 'scipy.linalg' not in sys.modules\n"
+        f"plain = read_raw({str(dng)!r})\n"
+        "assert np.array_equal(raw.data, plain.data) and raw.iso == plain.iso\n"
+        "import scipy.linalg\n"
+        "assert scipy.linalg.cython_blas is not None\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+    done = subprocess.run(
+        [
+            "rawsim",
+            "-q",
+            "process",
+            str(dng),
+            "-o",
+            str(tmp_path),
+            "--format",
+            "tiff",
+            "--bits",
+            "16",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "1 done" in done.stderr  # the summary reaches the pipe before the fast exit
+    raw = read_raw(dng)
+    config = ProcessOptions(default_config(), "tiff", 16).effective_config()
+    ours = engine_render(raw, engine_plan(raw, config, "tiff"), "tiff", 16)
+    import tifffile
+
+    assert np.array_equal(tifffile.imread(tmp_path / "canon_eos60d_mlv.tif"), ours)

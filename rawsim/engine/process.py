@@ -123,6 +123,12 @@ def mosaic_table(colors, ops, opf):
     return table
 
 
+def load() -> None:
+    """Initialise numba's CPU target and load a cached kernel (no work): what the
+    first call would otherwise pay, done ahead (e.g. while a raw file is read)."""
+    mosaic_table(np.zeros(4, np.int64), np.zeros(0, np.int64), np.zeros((1, 18)))
+
+
 @njit(**_JIT)
 def _load_mosaic(raw, m, table, colors, ops, opf, r0, r1, c0, c1, h, w):
     """Mosaic stages on the tile's reach: raw DN (uint16) → ``m`` (float32, white = 1).

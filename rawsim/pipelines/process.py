@@ -338,13 +338,35 @@ def render_samples(raw: RawImage, config: list[dict], fmt: str, bits: int, devic
     return to_samples(rgb[0], fmt, bits), info
 
 
+def _read_while_loading_engine(path: Path, device) -> RawImage:
+    """:func:`read_raw` in a thread while this process loads the engine, the first time.
+
+    A cold process spends about 0.4 s in numba's start-up (its import, its target
+    initialisation and the cached kernels' load); LibRaw releases the GIL while
+    it decodes, so the two overlap.
+    """
+    import sys
+
+    if "rawsim.engine.process" in sys.modules:
+        return read_raw(path)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1, thread_name_prefix="rawsim-read") as pool:
+        future = pool.submit(read_raw, path)
+        if use_engine(str(device)):
+            from rawsim.engine import process as ep
+
+            ep.load()
+        return future.result()
+
+
 def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
         raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
-    raw = read_raw(task.source)
     config = validate_config(options.effective_config())
     device = resolve_device(options.device)
+    raw = _read_while_loading_engine(task.source, device)
     samples, info = render_samples(raw, config, options.fmt, options.bits, device)
     height, width = samples.shape[:2]
     enabled = {s["name"]: s for s in config if s["enabled"]}
