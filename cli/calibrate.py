@@ -71,7 +71,7 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite):
         raise click.UsageError(f"{out} exists (use --overwrite to replace it)")
 
     def load(paths) -> list:
-        found, _ = discover(paths, RAW_EXTENSIONS)  # click already checked they exist
+        found = discover(paths, RAW_EXTENSIONS).found  # click already checked they exist
         files = [path for path, _ in found]
         if not files and paths:
             raise ParameterError(f"no raw files in {', '.join(paths)}")

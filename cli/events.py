@@ -120,7 +120,7 @@ def command(
         raise ParameterError(f"{target} exists (use --overwrite to replace it)")
     paths = []
     for item in frames:
-        found, _ = discover([item], IMAGE_EXTENSIONS)
+        found = discover([item], IMAGE_EXTENSIONS).found
         paths += [p for p, _ in found]
     if len(paths) < 2:
         raise ParameterError(f"need at least 2 frames, got {len(paths)}")

@@ -26,9 +26,22 @@ def run_files(
     """Discover ``inputs``, plan their outputs, run ``job`` on each and report; exits."""
     from rawsim import batch
 
-    found, missing = batch.discover(inputs, extensions)
+    found, missing, ignored = batch.discover(inputs, extensions)
     if not found:
-        raise click.UsageError(f"no {what} found in {', '.join(inputs)}", ctx)
+        if missing:
+            raise click.UsageError(missing[0].message, ctx)
+        hint = f" (found only {_kinds(ignored)})" if ignored else ""
+        raise click.UsageError(f"no {what} found in {', '.join(inputs)}{hint}", ctx)
+    _check_writable(ctx, out_dir)
+    if ignored:
+        verbose = (ctx.obj or {}).get("verbose")
+        click.echo(
+            f"rawsim: not taken for their extension: {_kinds(ignored)}"
+            + ("" if verbose else " (-v lists them)"),
+            err=True,
+        )
+        for path in ignored if verbose else ():
+            click.echo(f"not taken: {_printable(str(path))}", err=True)
     tasks, pre_failed = batch.plan(
         found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
     )
@@ -41,6 +54,39 @@ def run_files(
         options=options,
     )
     run_batch(ctx, tasks, results, missing + pre_failed, json_records)
+
+
+def _kinds(paths) -> str:
+    """``12 files (.txt ×10, .crw ×2)``: how many, by extension."""
+    from collections import Counter
+
+    counts = Counter(p.suffix.lower() or "no extension" for p in paths)
+    kinds = ", ".join(f"{ext} ×{n}" for ext, n in counts.most_common())
+    return f"{len(paths)} file{'s' * (len(paths) != 1)} ({kinds})"
+
+
+def _check_writable(ctx: click.Context, out_dir) -> None:
+    """Create the output folder and write a file in it, before any input is read:
+    exit 2 with one message if that cannot be done."""
+    from pathlib import Path
+
+    from rawsim.io.atomic import atomic_output
+
+    try:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        with atomic_output(Path(out_dir) / ".rawsim-write-check") as probe:
+            probe.unlink()
+    except FileNotFoundError:
+        pass  # the probe's rename found nothing to move: writing works
+    except OSError as err:
+        reason = (err.strerror or str(err)).lower()
+        click.echo(f"rawsim: cannot write to {_printable(str(out_dir))}: {reason}", err=True)
+        ctx.exit(2)
+
+
+def _printable(text: str) -> str:
+    """``text`` on one line: control characters and undecodable bytes escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
@@ -60,16 +106,18 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
     def report(result) -> None:
         summary.add(result)
         if result.status == "failed":
-            click.echo(f"error: {result.message}", err=True)
+            click.echo(f"error: {_printable(result.message)}", err=True)
             if debug and result.detail:
                 click.echo(result.detail.rstrip(), err=True)
         elif result.status == "skipped" and not quiet:
-            click.echo(f"skip: {result.message}", err=True)
+            click.echo(f"skip: {_printable(result.message)}", err=True)
         elif verbose:
-            click.echo(f"done: {result.task.source} ({result.seconds:.2f} s)", err=True)
+            click.echo(
+                f"done: {_printable(str(result.task.source))} ({result.seconds:.2f} s)", err=True
+            )
         if not quiet:
             for warning in result.record.get("warnings", []):
-                click.echo(f"warning: {result.task.source}: {warning}", err=True)
+                click.echo(f"warning: {_printable(f'{result.task.source}: {warning}')}", err=True)
         if json_records:
             record = {
                 "input": str(result.task.source),

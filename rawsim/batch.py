@@ -8,23 +8,29 @@ gets its outcome in a :class:`Result`; one failure never stops the others.
 
 from __future__ import annotations
 
+import errno
 import multiprocessing
 import os
 import signal
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
+from typing import NamedTuple
 
 from rawsim.errors import ParameterError, RawsimError
+from rawsim.io.atomic import remove_stale_temporaries
 from rawsim.seeds import derive_seed
 
 #: Exit statuses of the batch commands.
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+#: The longest file name (bytes) of common file systems (ext4, XFS, APFS, NTFS).
+NAME_MAX = 255
 #: Seconds a terminated worker gets to remove its temporary files before it is killed.
 WORKER_GRACE = 1.5
 
@@ -102,28 +108,58 @@ class Result:
     seconds: float = 0.0
 
 
-def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> tuple[list, list]:
-    """Find input files. Folders are searched recursively for ``extensions``.
+class Discovered(NamedTuple):
+    """What :func:`discover` found.
 
-    Returns ``(found, missing)``: ``found`` is a sorted list of (path, key) pairs,
-    ``missing`` a failed :class:`Result` for each input that does not exist.
+    Attributes:
+        found: sorted (path, key) pairs.
+        missing: a failed :class:`Result` for each input that does not exist.
+        ignored: files in the searched folders whose extension is not taken.
     """
+
+    found: list[tuple[Path, str]]
+    missing: list[Result]
+    ignored: list[Path]
+
+
+def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> Discovered:
+    """Find input files. Folders are searched recursively for ``extensions``; hidden
+    files (and rawsim's temporaries) are left out, and files given by name are taken
+    whatever their extension."""
     exts = tuple(e.lower() for e in extensions)
     found: dict[Path, str] = {}
-    missing = []
+    missing, ignored = [], []
     for item in inputs:
         path = Path(item)
         if path.is_dir():
             for p in sorted(path.rglob("*")):
-                if p.is_file() and p.suffix.lower() in exts and not p.name.startswith("."):
+                if p.name.startswith("."):
+                    continue
+                if p.is_symlink() and not p.exists() and p.suffix.lower() in exts:
+                    message = f"{shown(p)}: broken symbolic link (its target is missing, or a loop)"
+                    missing.append(
+                        Result(Task(p, p.relative_to(path).as_posix(), {}, 0), "failed", message)
+                    )
+                elif not p.is_file():
+                    continue
+                elif p.suffix.lower() in exts:
                     found.setdefault(p, p.relative_to(path).as_posix())
+                else:
+                    ignored.append(p)
         elif path.exists():
             found.setdefault(path, path.name)
         else:
-            missing.append(
-                Result(Task(path, str(item), {}, 0), "failed", f"{item}: no such file or folder")
-            )
-    return sorted(found.items(), key=lambda kv: (kv[1], str(kv[0]))), missing
+            what = "folder" if str(item).endswith(os.sep) or not path.suffix else "file"
+            message = f"{shown(item)}: no such {what} (check the path)"
+            missing.append(Result(Task(path, str(item), {}, 0), "failed", message))
+    return Discovered(sorted(found.items(), key=lambda kv: (kv[1], str(kv[0]))), missing, ignored)
+
+
+def shown(path: str | Path) -> str:
+    """A path as messages print it: quoted (Python's escapes) if it holds control
+    characters or bytes that are not UTF-8, so one message stays one line."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)
 
 
 def parse_shard(text: str | None) -> tuple[int, int]:
@@ -151,63 +187,114 @@ def plan(
     ``suffixes`` maps output kinds to suffixes (``{"dng": ".dng"}``). The shard keeps
     every N-th file of the sorted list, so shards of one run never overlap and
     together cover it. Returns the tasks and failed results for inputs whose outputs
-    clash with another input's or would overwrite an input.
+    would overwrite an input, leave ``out_dir``, or take a name an earlier input's
+    output has (of ``a.jpg`` and ``a.png``, the first in key order is done and the
+    other fails, asking for a rename).
     """
     k, n = shard
     out_dir = Path(out_dir)
-    tasks = []
+    root = out_dir.resolve()
+    tasks, bad = [], {}
     for path, key in found:
         rel = Path(key)
-        stem = out_dir / rel.parent / rel.stem
+        stem = out_dir / rel.parent / output_stem(rel.name)
         outputs = {kind: stem.with_name(stem.name + sfx) for kind, sfx in suffixes.items()}
-        tasks.append(Task(path, key, outputs, derive_seed(seed, key)))
-    owners: dict[Path, list[Task]] = {}
-    for t in tasks:
-        for p in t.outputs.values():
-            owners.setdefault(p.resolve(), []).append(t)
+        task = Task(path, key, outputs, derive_seed(seed, key))
+        tasks.append(task)
+        if any(not p.resolve().is_relative_to(root) for p in outputs.values()):
+            bad[key] = f"its outputs would be outside {shown(out_dir)}: rename it"
+        elif any(len(os.fsencode(p.name)) > NAME_MAX for p in outputs.values()):
+            longest = max(outputs.values(), key=lambda p: len(os.fsencode(p.name)))
+            bad[key] = (
+                f"output name {shown(longest.name)} would be longer than the {NAME_MAX} bytes "
+                "file systems allow: shorten the input's name"
+            )
+    owner: dict[Path, Task] = {}
     inputs = {t.source.resolve() for t in tasks}
-    bad: dict[str, str] = {}
-    for p, ts in owners.items():
-        if len(ts) > 1:
-            names = " and ".join(str(t.source) for t in ts)
-            for t in ts:
-                bad.setdefault(t.key, f"output name clash: {names} would both write {p}")
-        if p in inputs:
-            for t in ts:
-                bad.setdefault(t.key, f"refusing to write {p}: it is an input")
+    for t in tasks:  # in key order: the first input to claim an output name keeps it
+        for p in map(Path.resolve, t.outputs.values()):
+            if p in inputs:
+                bad.setdefault(t.key, f"refusing to write {shown(p)}: it is an input")
+            first = owner.setdefault(p, t)
+            if first is not t:
+                bad.setdefault(
+                    t.key,
+                    f"output name clash: {shown(p)} is written for {shown(first.source)}; "
+                    "rename one of them or give them to separate runs",
+                )
     mine = [t for i, t in enumerate(tasks) if i % n == k - 1]
-    failed = [Result(t, "failed", f"{t.source}: {bad[t.key]}") for t in mine if t.key in bad]
+    failed = [Result(t, "failed", f"{shown(t.source)}: {bad[t.key]}") for t in mine if t.key in bad]
     return [t for t in mine if t.key not in bad], failed
 
 
+def output_stem(name: str) -> str:
+    """The outputs' name stem for an input ``name``: its stem, with ``_`` before a leading
+    dot (``.png`` → ``_.png``, ``..png`` → ``_.``), so no output is hidden or a
+    path component such as ``..``."""
+    stem = Path(name).stem
+    return f"_{stem}" if stem.startswith(".") or not stem else stem
+
+
 def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: dict) -> Result:
-    if not overwrite and all(p.exists() for p in task.outputs.values()):
-        return Result(task, "skipped", f"{task.source}: outputs exist (use --overwrite)")
+    """Run ``job`` on ``task``: skipped if all its outputs exist, refused if only some
+    do (they are not a finished set of this command's: nothing is overwritten without
+    ``--overwrite``). A job that fails or is interrupted leaves none of the outputs
+    it had begun to write."""
+    try:
+        existing = {p for p in task.outputs.values() if p.exists()}
+    except OSError as err:
+        return Result(task, "failed", f"{shown(task.source)}: cannot check its outputs: {err}")
+    if not overwrite and existing:
+        if len(existing) == len(task.outputs):
+            return Result(task, "skipped", f"{shown(task.source)}: outputs exist (use --overwrite)")
+        absent = next(p for p in task.outputs.values() if p not in existing)
+        return Result(
+            task,
+            "failed",
+            f"{shown(task.source)}: {shown(min(existing))} exists but {shown(absent)} does not; "
+            "not replacing a file this run did not finish (use --overwrite to replace it)",
+        )
     start = time.perf_counter()
     global _in_job
     _in_job = True
     try:
         record = job(task, **kwargs)
-    except Interrupted:
-        if _worker:  # terminated by the parent: the temporary files are gone, leave now
-            os._exit(128 + signal.SIGTERM)
-        raise
-    except RawsimError as err:
+    except BaseException as err:
+        for p in task.outputs.values():  # the outputs this job had written so far
+            if p not in existing:
+                p.unlink(missing_ok=True)
+        if isinstance(err, Interrupted):
+            if _worker:  # terminated by the parent: the temporary files are gone, leave now
+                os._exit(128 + signal.SIGTERM)
+            raise
+        if not isinstance(err, Exception):
+            raise
         detail = traceback.format_exc() if debug else ""
-        return Result(task, "failed", _one_line(err, task), detail=detail)
-    except Exception as err:  # a bug, or an error a library raised on a bad file
-        detail = traceback.format_exc() if debug else ""
-        msg = f"{task.source}: {type(err).__name__}: {_one_line(err, None)}"
-        return Result(task, "failed", msg, detail=detail)
+        return Result(task, "failed", _failure(err, task), detail=detail)
     finally:
         _in_job = False
     return Result(task, "done", record=record, seconds=time.perf_counter() - start)
 
 
+def _failure(err: Exception, task: Task) -> str:
+    """The one-line message of a job's error: a :class:`RawsimError` says it all; a
+    full disk says so; anything else (a bug, or a library's error on a bad file)
+    is named with its type."""
+    if isinstance(err, RawsimError):
+        return _one_line(err, task)
+    text = str(err)
+    if isinstance(err, OSError) and (
+        err.errno == errno.ENOSPC or ("requested and" in text and "written" in text)
+    ):
+        folder = next(iter(task.outputs.values())).parent
+        return f"{shown(task.source)}: disk full writing into {shown(folder)} (free some space)"
+    return f"{shown(task.source)}: {type(err).__name__}: {_one_line(err, None)}"
+
+
 def _one_line(err: BaseException, task: Task | None) -> str:
     text = " ".join(str(err).split()) or type(err).__name__
-    if task is not None and str(task.source) not in text:
-        text = f"{task.source}: {text}"
+    if task is not None and str(task.source) not in text and shown(task.source) not in text:
+        text = f"{shown(task.source)}: {text}"
     return text
 
 
@@ -246,6 +333,9 @@ def _init_worker(threads: int) -> None:
     to the parent, which terminates the workers with SIGTERM."""
     global _worker
     _worker = True
+    # rawpy warns of OpenMP in forked processes: the parent never ran LibRaw (nor any
+    # OpenMP code) before forking, so its threads cannot be held by a lost lock.
+    warnings.filterwarnings("ignore", "rawpy is being used in a process created by multi")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
     import torch
@@ -271,10 +361,13 @@ def run(
     """Run ``job`` on every task, yielding results as they finish.
 
     With ``jobs`` > 1, tasks run in that many worker processes, each with an equal
-    share of the CPU threads. Results do not depend on ``jobs``.
+    share of the CPU threads. Results do not depend on ``jobs``. Temporary files
+    that killed runs left in the output folders are removed first.
     """
     if jobs < 1:
         raise ParameterError(f"--jobs must be ≥ 1, got {jobs}")
+    for folder in {p.parent for t in tasks for p in t.outputs.values()}:
+        remove_stale_temporaries(folder)  # what killed runs left
     if jobs == 1 or len(tasks) <= 1:
         for t in tasks:
             yield _run_one(job, t, overwrite, debug, kwargs)

@@ -67,7 +67,7 @@ class UnprocessDataset(Dataset):
             raise ParameterError(f"crop must be an even number of pixels ≥ 2, got {crop}")
         if layout not in ("packed", "mosaic"):
             raise ParameterError(f"layout must be 'packed' or 'mosaic', got {layout!r}")
-        found, missing = discover([root], IMAGE_EXTENSIONS)
+        found, missing, _ = discover([root], IMAGE_EXTENSIONS)
         if missing or not found:
             raise ParameterError(f"{root}: no images found")
         self.files: Sequence[tuple[Path, str]] = found

@@ -1,11 +1,14 @@
+import os
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
 import torch
 
-from rawsim.batch import Task, discover, parse_shard, plan, run
+from rawsim.batch import Task, _run_one, discover, parse_shard, plan, run
 from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.io import atomic
 from rawsim.io.atomic import atomic_output
 from tests.conftest import ROOT
 
@@ -27,11 +30,12 @@ def test_discover_keys_are_relative_to_each_input(tmp_path):
     (tmp_path / "a" / "deep").mkdir(parents=True)
     for name in ("a/x.png", "a/deep/y.JPG", "a/z.txt", "a/.hidden.png", "b.exr"):
         (tmp_path / name).write_bytes(b"x")
-    found, missing = discover(
+    found, missing, ignored = discover(
         [tmp_path / "a", tmp_path / "b.exr", tmp_path / "nope"], [".png", ".jpg", ".exr"]
     )
     assert [key for _, key in found] == ["b.exr", "deep/y.JPG", "x.png"]
-    assert len(missing) == 1 and "no such file" in missing[0].message
+    assert len(missing) == 1 and "nope: no such folder" in missing[0].message
+    assert ignored == [tmp_path / "a" / "z.txt"]  # hidden files are neither taken nor counted
 
 
 def test_plan_mirrors_tree_and_rejects_clashes(tmp_path):
@@ -41,10 +45,68 @@ def test_plan_mirrors_tree_and_rejects_clashes(tmp_path):
         (tmp_path / "in/s/b.png", "s/b.png"),
     ]
     tasks, failed = plan(found, tmp_path / "out", {"dng": ".dng", "json": ".json"}, seed=3)
-    assert [t.key for t in tasks] == ["s/b.png"]
-    assert tasks[0].outputs["dng"] == tmp_path / "out" / "s" / "b.dng"
-    assert {r.task.key for r in failed} == {"a.png", "a.jpg"}
-    assert all("clash" in r.message for r in failed)
+    assert [t.key for t in tasks] == ["a.png", "s/b.png"]  # the first to claim a.dng keeps it
+    assert tasks[1].outputs["dng"] == tmp_path / "out" / "s" / "b.dng"
+    assert [r.task.key for r in failed] == ["a.jpg"]
+    assert "clash" in failed[0].message and "rename" in failed[0].message
+
+
+@pytest.mark.parametrize("name", ["..png", ".png", "...", "a\nb.png", " sp ace .png", "-x.png"])
+def test_outputs_stay_inside_the_output_folder_and_visible(tmp_path, name):
+    out = tmp_path / "out"
+    tasks, failed = plan([(tmp_path / name, name)], out, {"dng": ".dng", "json": ".json"}, 1)
+    assert not failed
+    for p in tasks[0].outputs.values():
+        assert p.parent == out and not p.name.startswith(".")
+
+
+def test_a_name_that_is_not_utf8_has_a_stable_seed(tmp_path):
+    name = os.fsdecode(b"caf\xe9.png")  # Latin-1 bytes: a surrogate escape in Python
+    first = plan([(tmp_path / name, name)], tmp_path / "o", {"dng": ".dng"}, 5)[0][0]
+    again = plan([(tmp_path / name, name)], tmp_path / "o", {"dng": ".dng"}, 5)[0][0]
+    other = plan([(tmp_path / "cafe.png", "cafe.png")], tmp_path, {"dng": ".dng"}, 5)[0][0]
+    assert first.seed == again.seed != other.seed
+
+
+def _writes_then_fails(task):
+    task.outputs["dng"].write_bytes(b"half a set")
+    raise UnsupportedInputError(f"{task.source}: broken")
+
+
+def test_a_failed_job_leaves_none_of_its_outputs_and_partial_sets_are_not_replaced(tmp_path):
+    outputs = {"dng": tmp_path / "a.dng", "json": tmp_path / "a.json"}
+    task = Task(tmp_path / "a.png", "a.png", outputs, 1)
+    result = _run_one(_writes_then_fails, task, False, False, {})
+    assert result.status == "failed" and not any(p.exists() for p in outputs.values())
+    outputs["json"].write_text("another command's")  # one of the two names taken
+    result = _run_one(_writes_then_fails, task, False, False, {})
+    assert result.status == "failed" and "use --overwrite" in result.message
+    assert outputs["json"].read_text() == "another command's" and not outputs["dng"].exists()
+    outputs["dng"].write_bytes(b"x")
+    assert _run_one(_writes_then_fails, task, False, False, {}).status == "skipped"
+
+
+def test_temporaries_fit_long_names_and_stale_ones_are_removed(tmp_path):
+    long = tmp_path / ("n" * 251 + ".dng")  # 255 bytes, the most ext4 allows
+    with atomic_output(long) as tmp:
+        assert len(tmp.name) < 40
+        tmp.write_bytes(b"ok")
+    assert long.read_bytes() == b"ok"
+    dead = _dead_pid()
+    stale = tmp_path / f".rawsim-{atomic._HOST}-{dead}-0123abcd.tmp.dng"
+    live = tmp_path / f".rawsim-{atomic._HOST}-{os.getpid()}-0123abcd.tmp.dng"
+    other = tmp_path / f".rawsim-ffffff-{dead}-0123abcd.tmp.dng"  # another machine's
+    for p in (stale, live, other):
+        p.write_bytes(b"")
+    task = Task(tmp_path / "in.png", "in.png", {"dng": tmp_path / "in.dng"}, 0)
+    list(run([task], lambda task: {}, jobs=1))
+    assert not stale.exists() and live.exists() and other.exists()
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
 
 
 def test_plan_refuses_to_overwrite_an_input(tmp_path):

@@ -274,10 +274,10 @@ def test_process_cli_formats_and_sidecars(tmp_path):
         img = oiio.ImageInput.open(str(out / "sub" / f"b{ext}"))
         assert str(img.spec().format) == kind and img.spec().width == 256
         img.close()
-        meta = json.loads((out / "a.json").read_text())
+        meta = json.loads((out / "a.process.json").read_text())
         assert meta["white_balance"] == pytest.approx([2.338, 1.0, 1.416], abs=1e-3)
         assert load_config_text(meta["config_toml"]) == meta["config"]
-    exr_meta = json.loads((tmp_path / "exr" / "a.json").read_text())
+    exr_meta = json.loads((tmp_path / "exr" / "a.process.json").read_text())
     assert not next(s for s in exr_meta["config"] if s["name"] == "transfer")["enabled"]
 
 
@@ -300,7 +300,7 @@ def test_process_cli_config_flags_and_errors(tmp_path):
         ],
     )
     assert r.exit_code == 0, r.output
-    meta = json.loads((tmp_path / "o" / "kodak_dc50_grbg.json").read_text())
+    meta = json.loads((tmp_path / "o" / "kodak_dc50_grbg.process.json").read_text())
     by = {s["name"]: s for s in meta["config"]}
     assert by["demosaic"]["method"] == "malvar" and by["tone"]["curve"] == "hable"
     assert any("grey world" in w for w in meta["warnings"])

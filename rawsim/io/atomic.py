@@ -1,16 +1,29 @@
-"""Atomic file writes: write to a temporary file beside the target, then rename."""
+"""Atomic file writes: write to a temporary file beside the target, then rename.
+
+Temporary files are named ``.rawsim-<host>-<pid>-<random>.tmp<suffix>``: short
+whatever the output name's length (a name of 255 bytes still has a temporary),
+hidden, and recognisable, so that :func:`remove_stale_temporaries` can delete
+those a killed run left (SIGKILL cannot be caught) without touching those of a
+run still going, here or on another machine sharing the folder.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import os
-import tempfile
+import re
+import secrets
+import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-# mkstemp creates 0600 files; outputs get the permissions of an ordinary new file.
+# New files get the permissions of an ordinary new file (the umask's).
 _UMASK = os.umask(0)
 os.umask(_UMASK)
+#: This machine, in temporary names: 6 hex digits of its host name's hash.
+_HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:6]
+_TEMPORARY = re.compile(r"^\.rawsim-(?P<host>[0-9a-f]{6})-(?P<pid>\d+)-[0-9a-f]{8}\.tmp")
 
 
 @contextmanager
@@ -23,14 +36,42 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(
-        prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent
-    )
-    os.close(fd)
+    suffix = path.suffix if len(path.suffix) <= 16 else ""
+    tmp = path.parent / f".rawsim-{_HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
     try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~_UMASK)
+        yield tmp
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
+
+
+def remove_stale_temporaries(folder: str | Path) -> int:
+    """Delete the temporaries in ``folder`` (not below it) of rawsim processes of this
+    machine that no longer run; returns how many. Missing folders have none."""
+    removed = 0
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return 0
+    for entry in entries:
+        match = _TEMPORARY.match(entry.name)
+        if match and match["host"] == _HOST and not _running(int(match["pid"])):
+            try:
+                os.unlink(entry.path)
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True

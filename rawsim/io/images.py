@@ -14,32 +14,84 @@ from pathlib import Path
 import numpy as np
 
 from rawsim.errors import UnsupportedInputError
+from rawsim.io.clibs import collected_stderr, openable_name
 from rawsim.io.png import write_png
 
 #: Extensions picked up when scanning folders (files named explicitly are always tried).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".bmp", ".webp")
 #: Camera raw extensions: these go through ``rawsim process``, not here.
-RAW_EXTENSIONS = (
-    ".dng",
-    ".cr2",
-    ".cr3",
-    ".nef",
-    ".nrw",
-    ".arw",
-    ".srf",
-    ".sr2",
-    ".raf",
-    ".orf",
-    ".rw2",
-    ".pef",
-    ".srw",
-    ".kdc",
-    ".dcr",
-    ".mrw",
-    ".3fr",
-    ".iiq",
-    ".x3f",
+RAW_EXTENSIONS = tuple(
+    "." + e
+    for e in (
+        "3fr ari arw bay cap cr2 cr3 crw cs1 dc2 dcr dng drf eip erf fff gpr iiq k25 kdc mdc "
+        "mef mos mrw nef nrw orf pef ptx pxn qtk raf raw rw2 rwl rwz sr2 srf srw sti x3f"
+    ).split()
 )
+"""Camera raw extensions (the formats LibRaw reads): these go through ``rawsim process``."""
+
+#: Leading bytes of the image formats read here, with their extensions.
+_SIGNATURES = (
+    (b"\x89PNG\r\n\x1a\n", "PNG", (".png",)),
+    (b"\xff\xd8\xff", "JPEG", (".jpg", ".jpeg")),
+    (b"II*\x00", "TIFF", (".tif", ".tiff")),
+    (b"MM\x00*", "TIFF", (".tif", ".tiff")),
+    (b"v/1\x01", "OpenEXR", (".exr",)),
+    (b"#?RADIANCE", "Radiance HDR", (".hdr",)),
+    (b"#?RGBE", "Radiance HDR", (".hdr",)),
+    (b"BM", "BMP", (".bmp",)),
+)
+
+
+def sniff(path: Path) -> tuple[str | None, str | None]:
+    """What ``path`` holds by its first bytes: (format name or None, a warning or None).
+
+    Raises :class:`UnsupportedInputError` for a camera raw (by any name): a DNG or
+    CR2 (TIFF-based, by their tags), or any file of no image format that LibRaw
+    reads. The warning says when the content does not match the extension.
+    TIFFs are asked to LibRaw only when their tags say camera (LibRaw also reads
+    plain grey TIFFs).
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    kind = next(((name, exts) for sig, name, exts in _SIGNATURES if head.startswith(sig)), None)
+    if kind is None and head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        kind = ("WebP", (".webp",))
+    if kind is None or (kind[0] == "TIFF" and _tiff_raw(path, head)):
+        if _libraw_reads(path):
+            raise UnsupportedInputError(
+                f"{path}: this is a camera raw file (LibRaw reads it), not an image: "
+                "use 'rawsim process'"
+            )
+        return None, None
+    name, exts = kind
+    if path.suffix.lower() not in exts:
+        return name, f"the file holds a {name} image, not what its extension {path.suffix!r} says"
+    return name, None
+
+
+def _tiff_raw(path: Path, head: bytes) -> bool:
+    """Whether a TIFF-structured file may be a camera raw: Canon's CR2 marker, or a
+    DNGVersion or camera Make tag in its first directory (LibRaw then decides)."""
+    if head[8:10] == b"CR":
+        return True
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(path) as tif:
+            tags = tif.pages.first.tags
+            return 50706 in tags or 271 in tags
+    except Exception:  # not a readable TIFF: OpenImageIO will say why
+        return False
+
+
+def _libraw_reads(path: Path) -> bool:
+    import rawpy
+
+    try:
+        with collected_stderr([]), openable_name(path) as name, rawpy.imread(name):
+            return True
+    except Exception:
+        return False
 
 
 @dataclass(frozen=True)
@@ -53,6 +105,7 @@ class DecodedImage:
         source_size: (width, height) of the file before cropping.
         dropped_channels: names of channels that were not used (alpha, …).
         format_name: OpenImageIO's name of the file format.
+        warnings: what the user should know (e.g. content not matching the extension).
     """
 
     pixels: np.ndarray
@@ -61,6 +114,7 @@ class DecodedImage:
     source_size: tuple[int, int]
     dropped_channels: tuple[str, ...]
     format_name: str
+    warnings: tuple[str, ...] = ()
 
     @property
     def is_float(self) -> bool:
@@ -80,9 +134,62 @@ class DecodedImage:
         }
 
 
+def _decode(path: Path):
+    """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed)."""
+    import OpenImageIO as oiio
+
+    with openable_name(path) as name:
+        inp = oiio.ImageInput.open(name)
+    if inp is None:
+        reason = oiio.geterror().strip().splitlines()
+        if any("imagesize_MB" in line for line in reason):
+            limit = oiio.get_int_attribute("limits:imagesize_MB", 32768)
+            return (
+                None,
+                None,
+                None,
+                [
+                    f"declared image size is over the {limit // 1024} GB rawsim decodes "
+                    "(a corrupt header?)"
+                ],
+            )
+        return None, None, None, [f"not a readable image ({reason[-1] if reason else '?'})"]
+    try:
+        spec = inp.spec()
+        base = spec.format.basetype
+        if base not in (oiio.UINT8, oiio.UINT16, oiio.HALF, oiio.FLOAT, oiio.DOUBLE):
+            return (
+                None,
+                spec,
+                None,
+                [f"unsupported sample type {spec.format} (need 8/16-bit or float)"],
+            )
+        fmt = base if base in (oiio.UINT8, oiio.UINT16) else oiio.FLOAT
+        size_mb = (
+            spec.width * spec.height * spec.nchannels * (4 if fmt == oiio.FLOAT else 2) / 2**20
+        )
+        limit = oiio.get_int_attribute("limits:imagesize_MB", 32768)
+        if size_mb > limit:
+            return (
+                None,
+                spec,
+                None,
+                [
+                    f"declared size {spec.width}×{spec.height} would take {size_mb / 1024:.0f} GB "
+                    f"to decode, over the {limit // 1024} GB limit (a corrupt header?)"
+                ],
+            )
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+        error = inp.geterror().strip()
+        if pixels is None or error:
+            return None, spec, None, [f"cannot decode pixels ({error or 'truncated?'})"]
+        return pixels, spec, inp.format_name(), []
+    finally:
+        inp.close()
+
+
 def read_image(path: str | Path) -> DecodedImage:
     """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
-    import OpenImageIO as oiio
 
     path = Path(path)
     if path.suffix.lower() in RAW_EXTENSIONS:
@@ -93,35 +200,15 @@ def read_image(path: str | Path) -> DecodedImage:
         raise UnsupportedInputError(f"{path}: not a file")
     if path.stat().st_size == 0:
         raise UnsupportedInputError(f"{path}: empty file (0 bytes)")
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        reason = oiio.geterror().strip().splitlines()
-        raise UnsupportedInputError(
-            f"{path}: not a readable image ({reason[-1] if reason else 'unknown format'})"
-        )
-    try:
-        spec = inp.spec()
-        base = spec.format.basetype
-        if base == oiio.UINT8:
-            fmt, code_max = oiio.UINT8, 255
-        elif base == oiio.UINT16:
-            fmt, code_max = oiio.UINT16, 65535
-        elif base in (oiio.HALF, oiio.FLOAT, oiio.DOUBLE):
-            fmt, code_max = oiio.FLOAT, None
-        else:
-            raise UnsupportedInputError(
-                f"{path}: unsupported sample type {spec.format} (need 8/16-bit or float)"
-            )
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
-        error = inp.geterror()
-        format_name = inp.format_name()
-    finally:
-        inp.close()
-    if pixels is None or error:
-        raise UnsupportedInputError(
-            f"{path}: cannot decode pixels ({error.strip() or 'truncated?'})"
-        )
+    _, mismatch = sniff(path)
+    said: list[str] = []
+    with collected_stderr(said):
+        pixels, spec, format_name, error = _decode(path)
+    if pixels is None:
+        reason = "; ".join([*error, *said]) or "truncated?"
+        raise UnsupportedInputError(f"{path}: {reason}")
     pixels = np.asarray(pixels)
+    code_max = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}.get(pixels.dtype)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     names = tuple(spec.channelnames) or tuple(f"ch{i}" for i in range(spec.nchannels))
@@ -144,6 +231,7 @@ def read_image(path: str | Path) -> DecodedImage:
         source_size=(width, height),
         dropped_channels=tuple(dropped),
         format_name=format_name,
+        warnings=tuple(w for w in (mismatch, *(f"decoder: {line}" for line in said)) if w),
     )
 
 

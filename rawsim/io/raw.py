@@ -23,6 +23,7 @@ import numpy as np
 
 from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.io.clibs import collected_stderr, openable_name
 
 # LibRaw's flip code → EXIF/TIFF orientation.
 _FLIP_TO_ORIENTATION = {0: 1, 3: 3, 5: 8, 6: 6}
@@ -94,6 +95,16 @@ def _camera_names(path: Path) -> tuple[str, str]:
         return "unknown", "unknown"
 
 
+def _image_hint(path: Path) -> str:
+    """``"; it is a PNG image: use 'rawsim unprocess'"`` for an image named as a raw."""
+    from rawsim.io.images import _SIGNATURES
+
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    kind = next((name for sig, name, _ in _SIGNATURES if head.startswith(sig)), None)
+    return "" if kind in (None, "TIFF") else f"; it is a {kind} image: use 'rawsim unprocess'"
+
+
 def read_raw(path: str | Path) -> RawImage:
     """Decode a camera raw with rawpy. Raises :class:`UnsupportedInputError` with the reason."""
     import rawpy
@@ -104,8 +115,13 @@ def read_raw(path: str | Path) -> RawImage:
     if path.stat().st_size == 0:
         raise UnsupportedInputError(f"{path}: empty file (0 bytes)")
     warnings: list[str] = []
+    libraw_said: list[str] = []
     try:
-        with rawpy.imread(str(path)) as raw:
+        with (
+            collected_stderr(libraw_said),
+            openable_name(path) as name,
+            rawpy.imread(name) as raw,
+        ):
             pattern = raw.raw_pattern
             mono = int(raw.num_colors) == 1 and raw.raw_image_visible.ndim == 2
             if mono:
@@ -134,10 +150,15 @@ def read_raw(path: str | Path) -> RawImage:
     except UnsupportedInputError:
         raise
     except rawpy.LibRawFileUnsupportedError:
-        raise UnsupportedInputError(f"{path}: not a raw file LibRaw can read") from None
+        raise UnsupportedInputError(
+            f"{path}: not a raw file LibRaw can read{_image_hint(path)}"
+        ) from None
     except (rawpy.LibRawError, OSError) as err:
-        reason = " ".join(str(err).strip("b'\"").split()) or type(err).__name__
-        raise UnsupportedInputError(f"{path}: cannot decode raw data ({reason})") from None
+        reason = "; ".join([" ".join(str(err).strip("b'\"").split()), *libraw_said])
+        raise UnsupportedInputError(
+            f"{path}: truncated or not a raw file (LibRaw: {reason}){_image_hint(path)}"
+        ) from None
+    warnings += [f"LibRaw: {line}" for line in libraw_said]
 
     if mono:
         data = data[:, :, None]
@@ -166,6 +187,8 @@ def read_raw(path: str | Path) -> RawImage:
         # LibRaw's visible area may start on any site: keep whole 2×2 tiles.
         data = np.ascontiguousarray(data[: h - h % 2, : w - w % 2])
         black_level = black[pattern.astype(int)]  # per tile site
+    if not np.isfinite(white) or not np.isfinite(black_level).all():
+        raise UnsupportedInputError(f"{path}: black or white level is not a number")
     if not white > float(np.max(black_level)):
         raise UnsupportedInputError(f"{path}: white level {white:g} is not above black")
 

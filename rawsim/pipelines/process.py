@@ -66,7 +66,7 @@ class ProcessOptions:
     device: str = "cpu"
 
     def output_suffixes(self) -> dict[str, str]:
-        return {"image": OUTPUT_FORMATS[self.fmt], "json": ".json"}
+        return {"image": OUTPUT_FORMATS[self.fmt], "json": ".process.json"}
 
     def effective_config(self) -> list[dict]:
         """EXR is scene-linear: its renders skip the tone curve, transfer and YCbCr."""

@@ -433,6 +433,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "code_max": decoded.code_max,
         "crop": decoded.crop,
         "dropped_channels": list(decoded.dropped_channels),
+        "warnings": list(decoded.warnings),
         "orientation": decoded.orientation,
         "width": w,
         "height": h,
