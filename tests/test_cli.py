@@ -183,7 +183,16 @@ def test_usage_errors_exit_2(photos, tmp_path):
     r = run("unprocess", photos, "-o", out, "-p", bad, "--iso", 100)
     assert r.exit_code == 2 and str(bad) in r.output and "'white_level'" in r.output
     r = run("unprocess", tmp_path / "nothing", "-o", out, "-p", "sony_a7s2", "--iso", 100)
-    assert r.exit_code == 2 and "no input images" in r.output
+    assert r.exit_code == 2 and "nothing: no such folder" in r.output
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "notes.txt").write_text("x")
+    r = run("unprocess", tmp_path / "empty", "-o", out, "-p", "sony_a7s2", "--iso", 100)
+    assert r.exit_code == 2 and "no input images found" in r.output and ".txt ×1" in r.output
+    blocked = tmp_path / "a_file"
+    blocked.write_text("x")
+    r = run("unprocess", photos, "-o", blocked / "out", "-p", "sony_a7s2", "--iso", 100)
+    assert r.exit_code == 2 and r.output.count("cannot write to") == 1, r.output
+    assert "not a directory" in r.output
     r = run("unprocess", photos, "-o", out, "-p", "sony_a7s2", "--iso", 100, "--transfer", "pq")
     assert r.exit_code == 2 and "transfer" in r.output
     assert not out.exists()

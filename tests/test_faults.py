@@ -148,9 +148,9 @@ def raw_corpus(folder: Path) -> dict[str, str]:
     for i in range(30):
         put(f"flip{i}.dng", _flipped(good, rng, 1 + i * i), EITHER)
     for ext in (".dng", ".cr2", ".nef", ".crw", ".arw"):
-        put(f"zero{ext}", b"", BAD)
-        put(f"text{ext}", b"RAW? no.\n" * 50, BAD)
-        put(f"png_as{ext}", (DATA / "srgb" / "chelsea.png").read_bytes(), BAD)
+        put(f"zero_{ext[1:]}{ext}", b"", BAD)
+        put(f"text_{ext[1:]}{ext}", b"RAW? no.\n" * 50, BAD)
+        put(f"png_as_{ext[1:]}{ext}", (DATA / "srgb" / "chelsea.png").read_bytes(), BAD)
     put("new\nline.dng", good, GOOD)
     put("a" * 240 + ".dng", good, GOOD)
     put("b" * 251 + ".dng", good, BAD)
@@ -208,6 +208,7 @@ def test_unprocess_fault_campaign(tmp_path, jobs):
     )
     _check(done, expect, out, (".dng", ".json"))
     assert "not taken for their extension: 2 files" in done.stderr_text
+    assert "clash" not in done.stderr_text
 
 
 def test_process_fault_campaign(tmp_path):
@@ -215,3 +216,28 @@ def test_process_fault_campaign(tmp_path):
     assert len(expect) >= 50
     done = _run(["process", "in", "-o", "out", "--format", "tiff", "--jobs", "2"], tmp_path)
     _check(done, expect, tmp_path / "out", (".tif", ".process.json"))
+    assert "clash" not in done.stderr_text
+    assert "it is a PNG image: use 'rawsim unprocess'" in done.stderr_text
+
+
+def _outcome(path: Path) -> str:
+    from rawsim.errors import RawsimError
+    from rawsim.io.raw import read_raw
+
+    try:
+        raw = read_raw(path)
+    except RawsimError as err:
+        return f"error: {err}"
+    return f"{raw.data.shape} {hash(raw.data.tobytes())} {raw.white_level} {raw.warnings}"
+
+
+def test_reading_a_raw_does_not_depend_on_the_files_read_before(tmp_path):
+    """LibRaw state must not leak between files: each file's outcome (its data or its
+    error) is the same whatever was read before it in the process."""
+    raw_corpus(tmp_path / "in")
+    files = sorted((tmp_path / "in").iterdir())
+    forward = {p.name: _outcome(p) for p in files}
+    backward = {p.name: _outcome(p) for p in reversed(files)}
+    shuffled = list(files)
+    random.Random(3).shuffle(shuffled)
+    assert forward == backward == {p.name: _outcome(p) for p in shuffled}

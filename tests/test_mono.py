@@ -87,5 +87,5 @@ def test_process_renders_mono_dngs_to_grey(mono_run, tmp_path):
         data = raw.raw_image.astype(np.float64)
     ranks = [np.argsort(np.argsort(v.ravel())) for v in (grey, data)]
     assert np.corrcoef(*ranks)[0, 1] > 0.995  # a monotone render of the raw values
-    meta = json.loads((out / "chelsea.clean.json").read_text())
+    meta = json.loads((out / "chelsea.clean.process.json").read_text())
     assert meta["monochrome"] is True and meta["cfa_pattern"] is None
