@@ -161,3 +161,22 @@ def test_readme_python_example_runs():
     assert namespace["rgb"].shape == (8, 3, 256, 256)
     assert namespace["images"].grad.abs().sum() > 0
     assert Path(ROOT / "examples" / "photos").is_dir()
+
+
+def _fills_the_disk(task):
+    raise OSError(28, "No space left on device")
+
+
+def _short_write(task):
+    raise OSError("393216 requested and 267976 written")
+
+
+@pytest.mark.parametrize("job", [_fills_the_disk, _short_write])
+def test_a_full_disk_is_said_in_words(tmp_path, job):
+    task = Task(tmp_path / "a.png", "a.png", {"dng": tmp_path / "out" / "a.dng"}, 0)
+    result = _run_one(job, task, False, False, {})
+    assert result.status == "failed"
+    assert (
+        result.message
+        == f"{tmp_path / 'a.png'}: disk full writing into {tmp_path / 'out'} (free some space)"
+    )
