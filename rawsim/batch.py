@@ -12,6 +12,7 @@ import errno
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -345,6 +346,8 @@ def _init_worker(threads: int) -> None:
 
     torch.set_num_threads(threads)
     png.set_threads(threads)
+    if "OpenImageIO" in sys.modules:  # decoders' own thread pools: the same share
+        sys.modules["OpenImageIO"].attribute("threads", threads)
     if engine.available():
         engine.set_threads(threads)
 
