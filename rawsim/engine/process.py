@@ -327,6 +327,14 @@ def _diagonals(b, i, ja, jb, s):
     )
 
 
+@njit(inline="always", **_JIT)
+def _sum5(lines, out):
+    """``out`` = the five row views ``lines`` summed, in the reference's order."""
+    a0, a1, a2, a3, a4 = lines
+    for k in range(out.size):
+        out[k] = (((a0[k] + a1[k]) + a2[k]) + a3[k]) + a4[k]
+
+
 @njit(**_JIT)
 def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`)."""
@@ -363,19 +371,13 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(6, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for src, dst in ((gh, bh), (gv, bv)):
-            a0, a1, a2, a3, a4 = _line_h(src, i, ja, jb)
-            out = _at(dst, i, ja, jb, 0)
-            for k in range(jb - ja):
-                out[k] = (((a0[k] + a1[k]) + a2[k]) + a3[k]) + a4[k]
+            _sum5(_line_h(src, i, ja, jb), _at(dst, i, ja, jb, 0))
     for q in (bh, bv):
         _mirror(q, 6, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for src, dst in ((bh, sh), (bv, sv)):
-            a0, a1, a2, a3, a4 = _line_v(src, i, ja, jb)
-            out = _at(dst, i, ja, jb, 0)
-            for k in range(jb - ja):
-                out[k] = (((a0[k] + a1[k]) + a2[k]) + a3[k]) + a4[k]
+            _sum5(_line_v(src, i, ja, jb), _at(dst, i, ja, jb, 0))
     for q in (sh, sv):
         _mirror(q, 4, r0, r1, c0, c1, h, w)
     # Green: the four one-sided estimates, weighted by 1 / (gradient sum)².
