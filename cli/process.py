@@ -29,6 +29,12 @@ FORMATS = ("png", "tiff", "jpg", "exr")
     help="ISP config (TOML, see 'rawsim isp show'); flags below override it.",
 )
 @click.option("--wb", help="White balance: camera, daylight, auto (grey world) or R,G,B gains.")
+@click.option(
+    "--white-level",
+    type=click.Choice(["file", "auto"]),
+    help="file (default), or auto: the image's maximum if above 75% of the file's "
+    "(LibRaw's default render).",
+)
 @click.option("--demosaic", type=click.Choice(DEMOSAICS), help="Demosaic method.")
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
@@ -59,6 +65,7 @@ def command(
     out_dir,
     config_path,
     wb,
+    white_level,
     demosaic,
     highlights,
     tone,
@@ -101,6 +108,7 @@ def command(
     config = override(
         config,
         wb=wb,
+        white_level=white_level,
         demosaic=demosaic,
         highlights=highlights,
         tone=tone,

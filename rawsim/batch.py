@@ -369,7 +369,8 @@ def run(
     """
     if jobs < 1:
         raise ParameterError(f"--jobs must be ≥ 1, got {jobs}")
-    for folder in {p.parent for t in tasks for p in t.outputs.values()}:
+    folders = {p.parent for t in tasks for p in t.outputs.values()}
+    for folder in folders:
         remove_stale_temporaries(folder)  # what killed runs left
     if jobs == 1 or len(tasks) <= 1:
         for t in tasks:
@@ -392,6 +393,8 @@ def run(
                 yield Result(task, "failed", f"{task.source}: worker failed: {err}")
     except BaseException:  # interrupted (or the consumer stopped): no file starts any more
         _terminate(pool)
+        for folder in folders:  # those of workers killed after the grace period
+            remove_stale_temporaries(folder)
         raise
     pool.shutdown()
 

@@ -40,8 +40,10 @@ class RawImage:
         cfa: the Bayer pattern, None for 3-channel or monochrome data.
         black_level: (2, 2) black per CFA tile site (DN), or (C,) per channel.
         white_level: saturation level (DN).
-        as_shot_wb: camera white-balance gains (R, G, B), G = 1, or None if unknown.
-        daylight_wb: daylight gains (R, G, B), G = 1, or None if unknown.
+        as_shot_wb: camera white-balance gains (R, G, B), G = 1, or None where LibRaw
+            would not use the camera's multipliers.
+        daylight_wb: daylight gains (R, G, B), G = 1 (LibRaw's starting
+            multipliers), or None if unknown.
         xyz_to_camera: (3, 3) D65 XYZ → camera matrix, or None.
         camera_to_srgb: (3, 3) LibRaw's camera → linear sRGB matrix, or None.
         orientation: EXIF orientation 1–8.
@@ -49,6 +51,10 @@ class RawImage:
         make, model: camera names ("unknown" when the file does not say).
         path: the file.
         warnings: fallbacks taken while reading.
+        camera_wb_fallback: what LibRaw uses instead of unusable camera multipliers:
+            ``auto``, or ``daylight`` (when only the blue multiplier is missing).
+        camera_wb_note: the camera's multipliers as the file gives them, for messages.
+        matrix_source: where ``xyz_to_camera`` / ``camera_to_srgb`` come from.
     """
 
     data: np.ndarray
@@ -65,16 +71,28 @@ class RawImage:
     model: str
     path: str
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    camera_wb_fallback: str = "auto"
+    camera_wb_note: str = ""
+    matrix_source: str = ""
 
 
-def _gains(values, name: str, warnings: list[str]) -> tuple[float, float, float] | None:
-    """Green-normalised (R, G, B) gains from LibRaw's 4 multipliers, None if unknown."""
-    v = np.asarray(values, dtype=np.float64)[:4]
-    rgb = v[:3]
-    if not np.all(np.isfinite(rgb)) or np.any(rgb <= 0) or np.allclose(rgb, rgb[1]):
-        warnings.append(f"{name} white balance unknown ({np.round(v, 4).tolist()})")
-        return None
-    return tuple(float(x) for x in rgb / rgb[1])
+#: LibRaw's smallest multiplier taken as set.
+_SET = 0.00001
+
+
+def _multipliers(values) -> tuple[tuple[float, float, float] | None, str]:
+    """LibRaw's rule for a file's multipliers (R, G, B, G2): (gains with G = 1, or None
+    where LibRaw would not use them; what LibRaw falls back to then).
+
+    LibRaw uses them when R and B are set (> 1e-5); a missing G counts as 1. A first
+    multiplier ≤ 1e-5 (−1 "use auto", or 0 "not recorded") means automatic WB;
+    R set but B missing keeps the daylight multipliers.
+    """
+    v = np.nan_to_num(np.asarray(values, dtype=np.float64)[:4], nan=0.0)
+    if v[0] > _SET and v[2] > _SET:
+        g = v[1] if v[1] > _SET else 1.0
+        return (float(v[0] / g), 1.0, float(v[2] / g)), ""
+    return None, "auto" if v[0] <= _SET else "daylight"
 
 
 def _camera_names(path: Path) -> tuple[str, str]:
@@ -93,6 +111,49 @@ def _camera_names(path: Path) -> tuple[str, str]:
             return make or "unknown", model or "unknown"
     except Exception:  # not TIFF-based: rawpy does not expose the names
         return "unknown", "unknown"
+
+
+def _measured_rgb_cam(raw) -> np.ndarray | None:
+    """LibRaw's camera → sRGB matrix for a camera it knows no published matrix of
+    (rawpy shows none, yet LibRaw applies one of its own), measured through LibRaw.
+
+    The raw data is replaced by four flat fields (grey at 25 % of the range, and
+    grey plus 10 % in R, G or B), rendered by LibRaw without white balance in
+    linear sRGB, and each matrix column read from its field's centre. Restored
+    after. None if LibRaw cannot render it.
+    """
+    import rawpy
+
+    data = raw.raw_image
+    saved = data.copy()
+    colors = raw.raw_colors
+    black = np.asarray(raw.black_level_per_channel, np.float64)[colors]
+    span = float(raw.white_level) - black
+    h = data.shape[0]
+    fields = np.minimum(np.arange(h) * 4 // h, 3)[:, None]  # 4 bands of rows
+    level = black + span * (0.25 + 0.1 * ((colors % 3 == fields) & (colors != 3) & (fields < 3)))
+    level += span * 0.1 * ((fields == 1) & (colors == 3))  # G2 is green too
+    try:
+        data[:] = np.rint(level).astype(data.dtype)
+        out = raw.postprocess(
+            output_color=rawpy.ColorSpace.sRGB,
+            gamma=(1, 1),
+            user_wb=[1.0, 1.0, 1.0, 1.0],
+            no_auto_bright=True,
+            adjust_maximum_thr=0.0,
+            output_bps=16,
+            half_size=True,
+            user_flip=0,
+        ).astype(np.float64)
+    except Exception:
+        return None
+    finally:
+        data[:] = saved
+    n = out.shape[0]
+    centres = [out[int((k + 0.5) * n / 4) - 2 : int((k + 0.5) * n / 4) + 2] for k in range(4)]
+    means = [c.reshape(-1, 3).mean(axis=0) / 65535.0 for c in centres]
+    matrix = np.stack([(means[c] - means[3]) / 0.1 for c in range(3)], axis=1)
+    return matrix if np.all(np.isfinite(matrix)) and not np.allclose(matrix, 0) else None
 
 
 def _image_hint(path: Path) -> str:
@@ -147,6 +208,9 @@ def read_raw(path: str | Path) -> RawImage:
             flip = int(raw.sizes.flip)
             iso = float(raw.other.iso_speed)
             colors = int(raw.num_colors)
+            measured = None
+            if np.allclose(xyz, 0) and np.allclose(cam_srgb, 0) and colors == 3 and not mono:
+                measured = _measured_rgb_cam(raw)
     except UnsupportedInputError:
         raise
     except rawpy.LibRawFileUnsupportedError:
@@ -194,26 +258,30 @@ def read_raw(path: str | Path) -> RawImage:
 
     if mono:  # no colour: no matrix, no white balance
         xyz_out = cam_srgb_out = None
-        camera_wb = daylight_wb = None
-    elif np.allclose(xyz, 0):
-        xyz_out = None
-        if np.allclose(cam_srgb, 0):
-            warnings.append("no colour matrix in the file: camera RGB is treated as sRGB")
-            cam_srgb_out = None
-        else:
-            cam_srgb_out = cam_srgb
-            warnings.append("rgb_xyz_matrix is zero: using LibRaw's camera→sRGB color_matrix")
-    else:
+        source = "none (monochrome)"
+    elif not np.allclose(xyz, 0):
         xyz_out, cam_srgb_out = xyz, None if np.allclose(cam_srgb, 0) else cam_srgb
-
+        source = "the file's or LibRaw's table (rgb_xyz_matrix)"
+    elif not np.allclose(cam_srgb, 0):
+        xyz_out, cam_srgb_out = None, cam_srgb
+        source = "the file (LibRaw's color_matrix)"
+    elif measured is not None:
+        xyz_out, cam_srgb_out = None, measured
+        source = "LibRaw's built-in camera matrix (measured through LibRaw)"
+    else:
+        xyz_out = cam_srgb_out = None
+        source = "none: camera RGB treated as sRGB"
+        warnings.append("no colour matrix for this camera: camera RGB is treated as sRGB")
+    as_shot, fallback = (None, "auto") if mono else _multipliers(camera_wb)
+    daylight = None if mono else _multipliers(daylight_wb)[0]
     make, model = _camera_names(path)
     return RawImage(
         data=data,
         cfa=cfa,
         black_level=black_level,
         white_level=white,
-        as_shot_wb=None if mono else _gains(camera_wb, "as-shot", warnings),
-        daylight_wb=None if mono else _gains(daylight_wb, "daylight", warnings),
+        as_shot_wb=as_shot,
+        daylight_wb=daylight,
         xyz_to_camera=xyz_out,
         camera_to_srgb=cam_srgb_out,
         orientation=_FLIP_TO_ORIENTATION.get(flip, 1),
@@ -222,4 +290,7 @@ def read_raw(path: str | Path) -> RawImage:
         model=model,
         path=str(path),
         warnings=tuple(warnings),
+        camera_wb_fallback=fallback,
+        camera_wb_note=str(np.round(np.asarray(camera_wb, np.float64)[:4], 4).tolist()),
+        matrix_source=source,
     )

@@ -9,7 +9,7 @@ A config is a list of tables, one per stage, in processing order::
 Every stage takes ``enabled`` (bool) besides its own keys; :func:`default_config`
 lists them all with their defaults, and ``rawsim isp show`` prints it as TOML.
 :func:`validate_config` rejects unknown stages and keys, bad values and orders
-that cannot work (listing what is valid). :func:`resolve_white_balance` and
+that cannot work (listing what is valid). :func:`white_balance` and
 :func:`camera_to_output` give a stage's values for a particular raw.
 
 No torch here: the compiled engine and ``rawsim process`` start without it. The
@@ -118,7 +118,11 @@ class Param:
 
 #: Stage name → its parameters, in the default processing order.
 STAGES: dict[str, dict[str, Param]] = {
-    "black_level": {},
+    "black_level": {
+        "white_level": Param(
+            "file", _choice(("file", "auto")), "file, or auto (LibRaw's adjust_maximum_thr=0.75)"
+        ),
+    },
     "dead_pixel": {
         "threshold": Param(0.1, _number(1e-6), "deviation from the neighbours' mean (white = 1)"),
         "kernel": Param(3, _choice((3, 5)), "neighbourhood size within the colour plane"),
@@ -272,10 +276,12 @@ def _toml_value(value) -> str:
 
 
 def override(config: list[dict], **changes) -> list[dict]:
-    """Apply the CLI's flags (``wb``, ``demosaic``, ``highlights``, ``tone``, ``exposure``,
-    ``output_space``, ``transfer``); None leaves a value as it is. Re-validates."""
+    """Apply the CLI's flags (``wb``, ``white_level``, ``demosaic``, ``highlights``,
+    ``tone``, ``exposure``, ``output_space``, ``transfer``); None leaves a value as it is.
+    Re-validates."""
     keys = {
         "wb": ("white_balance", "mode"),
+        "white_level": ("black_level", "white_level"),
         "demosaic": ("demosaic", "method"),
         "highlights": ("highlights", "mode"),
         "tone": ("tone", "curve"),
@@ -361,39 +367,94 @@ class TransferSpec:
         return v
 
 
-def grey_world_gains(mosaic: np.ndarray, cfa, black, white) -> tuple[float, float, float]:
-    """Grey-world gains (G = 1): mean(G) / mean(C) over unsaturated sites, black subtracted."""
-    x = (mosaic.astype(np.float64) - black) / (white - black)
-    colors = np.asarray(cfa.colors).reshape(2, 2) if cfa is not None else None
-    means = []
-    for c in range(3):
-        if colors is None:
-            v = x[..., c]
-        else:
-            v = np.concatenate(
-                [x[r::2, q::2].ravel() for r in range(2) for q in range(2) if colors[r, q] == c]
-            )
-        v = v[v < 0.98]
-        means.append(max(float(v.mean()) if v.size else 0.0, 1e-6))
-    return (means[1] / means[0], 1.0, means[1] / means[2])
+def auto_white_balance(raw) -> tuple[float, float, float]:
+    """LibRaw's automatic white balance (``use_auto_wb``), G = 1: grey world over 8 × 8
+    blocks of the raw data, from the top-left corner (edge blocks partial), leaving
+    out every block that holds a value within 25 DN of the white level; each
+    colour's multiplier is its count of sites over its sum above black."""
+    data = raw.data.astype(np.float64)
+    h, w = data.shape[:2]
+    rows, cols = np.arange(0, h, 8), np.arange(0, w, 8)
+
+    def blocks(x: np.ndarray) -> np.ndarray:  # (H, W) → per-block sums (H/8, W/8)
+        return np.add.reduceat(np.add.reduceat(x, rows, axis=0), cols, axis=1)
+
+    if raw.cfa is None:  # 3-channel data: every channel of every pixel
+        over = (data > raw.white_level - 25).any(axis=2)
+        above = np.maximum(data - np.asarray(raw.black_level, np.float64)[:3], 0.0)
+        planes = [(above[..., c], np.ones((h, w))) for c in range(3)]
+    else:
+        over = data > raw.white_level - 25
+        black = np.tile(np.asarray(raw.black_level, np.float64), (h // 2, w // 2))
+        above = np.maximum(data - black, 0.0)
+        colors = np.tile(np.asarray(raw.cfa.colors).reshape(2, 2), (h // 2, w // 2))
+        planes = [(above * (colors == c), (colors == c).astype(np.float64)) for c in range(3)]
+    keep = blocks(over.astype(np.float64)) == 0
+    mul = []
+    for values, sites in planes:
+        total = blocks(values)[keep].sum()
+        mul.append(blocks(sites)[keep].sum() / total if total > 0 else 0.0)
+    if min(mul) <= 0:
+        return (1.0, 1.0, 1.0)  # no usable block (all saturated, or black)
+    return (mul[0] / mul[1], 1.0, mul[2] / mul[1])
 
 
-def resolve_white_balance(mode: str, raw, warnings: list[str]) -> tuple[float, float, float]:
-    """Gains for ``mode`` and this raw, falling back (with a warning) when unknown."""
-    if mode not in ("camera", "daylight", "auto"):
-        return parse_gains(mode)
+#: LibRaw's default ``adjust_maximum_thr``: a data maximum above this share of the white
+#: level becomes the white level.
+ADJUST_MAXIMUM = 0.75
+
+
+def white_level(stage: dict, raw, info: dict) -> float:
+    """The white level (DN) of a ``black_level`` stage for this raw: the file's, or with
+    ``white_level = "auto"`` the image's maximum where that lies between 75 % of
+    the file's and the file's (LibRaw's default render: the brightest value becomes
+    white). Recorded in ``info["white_level"]``."""
+    level = float(raw.white_level)
+    if stage.get("white_level", "file") == "auto":
+        top = float(raw.data.max())
+        if ADJUST_MAXIMUM * level < top < level:
+            level = top
+    info["white_level"] = level
+    return level
+
+
+def white_balance(stage: dict, config: list[dict], raw, warnings: list[str], info: dict):
+    """Gains (R, G, B) of a ``white_balance`` stage for this raw, as LibRaw chooses them.
+
+    ``camera``: the camera's multipliers where LibRaw uses them; where they are
+    missing or marked unusable (a first multiplier ≤ 0, e.g. −1 or ``[0, 1, 0, 0]``)
+    LibRaw's automatic white balance, and where only the blue one is missing the
+    daylight multipliers (which LibRaw then keeps). ``daylight``: the multipliers
+    LibRaw starts from. ``auto``: :func:`auto_white_balance`. A fallback is warned
+    and ``info["white_balance_source"]`` says which gains were used and why.
+
+    With highlights clipped (LibRaw's default) the gains are scaled so that the
+    smallest is 1, as LibRaw does: every channel reaches white together and clipped
+    highlights stay neutral. With other highlight modes they keep G = 1.
+    """
+    mode, source = stage["mode"], stage["mode"]
+    if mode == "camera" and raw.as_shot_wb is None:
+        mode = raw.camera_wb_fallback
+        why = f"the camera's multipliers are unusable ({raw.camera_wb_note})"
+        source = f"{mode}: {why}, as LibRaw does"
+        warnings.append(f"camera white balance: {why}; using {mode}, as LibRaw does")
+    if mode == "daylight" and raw.daylight_wb is None:
+        mode, source = "auto", "auto: no daylight multipliers"
+        warnings.append("daylight white balance unknown: using auto (grey world)")
     if mode == "camera":
-        if raw.as_shot_wb is not None:
-            return raw.as_shot_wb
-        warnings.append("camera white balance unknown: using daylight")
-        mode = "daylight"
-    if mode == "daylight":
-        if raw.daylight_wb is not None:
-            return raw.daylight_wb
-        warnings.append("daylight white balance unknown: using grey world")
-    h, w = raw.data.shape[:2]
-    black = raw.black_level if raw.cfa is None else np.tile(raw.black_level, (h // 2, w // 2))
-    return grey_world_gains(raw.data, raw.cfa, black, raw.white_level)
+        gains = raw.as_shot_wb
+    elif mode == "daylight":
+        gains = raw.daylight_wb
+    elif mode == "auto":
+        gains = auto_white_balance(raw)
+    else:
+        gains, source = parse_gains(mode), "user"
+    if any(s["name"] == "highlights" and s["enabled"] and s["mode"] == "clip" for s in config):
+        low = min(gains)
+        gains = tuple(g / low for g in gains)
+    info["white_balance"] = list(gains)
+    info["white_balance_source"] = source
+    return gains
 
 
 def camera_to_output(raw, space: str) -> np.ndarray:

@@ -24,16 +24,17 @@ from rawsim.isp.config import (  # noqa: F401 - the config API, also reachable f
     OUTPUT_SPACES,
     STAGES,
     WB_MODES,
+    auto_white_balance,
     camera_to_output,
     config_to_toml,
     default_config,
-    grey_world_gains,
     load_config,
     load_config_text,
     override,
     parse_gains,
-    resolve_white_balance,
     validate_config,
+    white_balance,
+    white_level,
 )
 from rawsim.isp.dead_pixel import DeadPixelCorrection
 from rawsim.isp.demosaic import Demosaic
@@ -117,7 +118,7 @@ def build_isp(config: list[dict], raw) -> Isp:
         if mono and name in COLOUR_ONLY:
             continue
         if name == "black_level":
-            module = Levels(_black_map(raw), raw.white_level)
+            module = Levels(_black_map(raw), white_level(s, raw, info))
         elif name == "dead_pixel":
             module = DeadPixelCorrection(cfa, s["threshold"], s["kernel"], s["temperature"])
         elif name == "lens_shading":
@@ -125,9 +126,7 @@ def build_isp(config: list[dict], raw) -> Isp:
         elif name == "anti_aliasing":
             module = AntiAliasing(cfa, s["method"], s["sigma"])
         elif name == "white_balance":
-            gains = resolve_white_balance(s["mode"], raw, warnings)
-            info["white_balance"] = list(gains)
-            module = WhiteBalance(gains, cfa)
+            module = WhiteBalance(white_balance(s, config, raw, warnings, info), cfa)
         elif name == "highlights":
             module = Highlights(s["mode"])
         elif name == "demosaic":

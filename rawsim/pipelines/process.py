@@ -32,8 +32,9 @@ from rawsim.isp.config import (
     camera_to_output,
     config_to_toml,
     default_config,
-    resolve_white_balance,
     validate_config,
+    white_balance,
+    white_level,
 )
 from rawsim.isp.curves import (
     _ACES_WHITE,
@@ -156,14 +157,12 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
         elif name == "black_level":
             black = np.asarray(raw.black_level, dtype=np.float64).reshape(4)
             if np.allclose(black, black[0]):  # the reference's scalar black level
-                divisor = np.full(4, np.float32(raw.white_level - black[0]))
+                divisor = np.full(4, np.float32(white_level(s, raw, info) - black[0]))
             else:  # its per-site tile, in float32
-                divisor = np.float32(raw.white_level) - black.astype(np.float32)
+                divisor = np.float32(white_level(s, raw, info)) - black.astype(np.float32)
             ops.append((ep.OP_LEVELS, [*black, *divisor]))
         elif name == "white_balance":
-            gains = resolve_white_balance(s["mode"], raw, warnings)
-            info["white_balance"] = list(gains)
-            ops.append((ep.OP_WB, gains))
+            ops.append((ep.OP_WB, white_balance(s, config, raw, warnings, info)))
         elif name == "highlights":
             if s["mode"] == "clip":
                 ops.append((ep.OP_CLIP, []))
@@ -379,7 +378,8 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         "camera": {"make": raw.make, "model": raw.model},
         "cfa_pattern": None if raw.cfa is None else raw.cfa.pattern,
         "black_level": np.asarray(raw.black_level).tolist(),
-        "white_level": raw.white_level,
+        "white_level": raw.white_level,  # the file's; info's "white_level" is the one used
+        "matrix_source": raw.matrix_source,
         "iso": raw.iso,
         "orientation": raw.orientation,
         "width": width,
@@ -388,7 +388,8 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         "bits": options.bits,
         "config": config,
         "config_toml": config_to_toml(config),
-        **info,
+        **{k: v for k, v in info.items() if k != "white_level"},
+        "white_level_used": info.get("white_level", raw.white_level),
     }
     with atomic_output(task.outputs["image"]) as tmp:
         write_image(tmp, samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
