@@ -28,7 +28,11 @@ FORMATS = ("png", "tiff", "jpg", "exr")
     type=click.Path(dir_okay=False),
     help="ISP config (TOML, see 'rawsim isp show'); flags below override it.",
 )
-@click.option("--wb", help="White balance: camera, daylight, auto (grey world) or R,G,B gains.")
+@click.option(
+    "--wb",
+    help="White balance: camera (with LibRaw's fallbacks), daylight, auto (LibRaw's grey "
+    "world) or R,G,B gains.",
+)
 @click.option(
     "--white-level",
     type=click.Choice(["file", "auto"]),
@@ -90,7 +94,7 @@ def command(
     denoise and YCbCr stages. No automatic brightening: at exposure 0 the
     white level maps to 1.0.
 
-    Each file gives <stem>.<ext> and <stem>.json (camera data, warnings, the
+    Each file gives <stem>.<ext> and <stem>.process.json (camera data, warnings, the
     white balance and matrix used, and the effective config). Raws without
     a CFA (linear DNGs) are rendered as 3-channel data; X-Trans and other
     non-Bayer mosaics are reported as not supported.
