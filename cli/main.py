@@ -20,6 +20,7 @@ COMMANDS = {
     "unprocess": ("rawsim_cli.unprocess", "Turn sRGB/EXR images into noisy Bayer DNGs."),
     "process": ("rawsim_cli.process", "Render camera raws through rawsim's ISP."),
     "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
+    "info": ("rawsim_cli.info", "Print what rawsim reads from raws and will use."),
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
     "calibrate": ("rawsim_cli.calibrate", "Fit a noise profile from a camera's raws."),
     "events": ("rawsim_cli.events", "Simulate event-camera (DVS) counts from frames."),

@@ -455,3 +455,19 @@ def test_minimal_config_without_colour_matrix(tmp_path):
     img = oiio.ImageInput.open(str(tmp_path / "o" / "canon_eos60d_mlv.tif"))
     assert img.spec().get_string_attribute("oiio:ColorSpace") != "sRGB"  # camera RGB, untagged
     img.close()
+
+
+def test_info_prints_what_is_read_and_used(tmp_path):
+    bad = tmp_path / "bad.dng"
+    bad.write_text("not a raw")
+    r = CliRunner().invoke(
+        cli, ["info", str(RAW / "apple_quicktake150.qtk"), str(RAW / "kodak_dc50_grbg.kdc")]
+    )
+    assert r.exit_code == 0, r.output
+    assert "white_balance_source     auto: the camera's multipliers are unusable" in r.output
+    assert "matrix_source            LibRaw's built-in camera matrix" in r.output
+    r = CliRunner().invoke(cli, ["info", str(RAW / "canon_eos60d_mlv.dng"), str(bad), "--json"])
+    assert r.exit_code == 1 and "bad.dng: truncated or not a raw file" in r.output
+    record = json.loads(next(line for line in r.output.splitlines() if line.startswith("{")))
+    assert record["model"] == "Canon EOS 60D" and record["white_balance_source"] == "camera"
+    assert min(record["white_balance"]) == 1.0 and len(record["color_matrix"]) == 3

@@ -396,7 +396,7 @@ def auto_white_balance(raw) -> tuple[float, float, float]:
         mul.append(blocks(sites)[keep].sum() / total if total > 0 else 0.0)
     if min(mul) <= 0:
         return (1.0, 1.0, 1.0)  # no usable block (all saturated, or black)
-    return (mul[0] / mul[1], 1.0, mul[2] / mul[1])
+    return (float(mul[0] / mul[1]), 1.0, float(mul[2] / mul[1]))
 
 
 #: LibRaw's default ``adjust_maximum_thr``: a data maximum above this share of the white
@@ -451,7 +451,7 @@ def white_balance(stage: dict, config: list[dict], raw, warnings: list[str], inf
         gains, source = parse_gains(mode), "user"
     if any(s["name"] == "highlights" and s["enabled"] and s["mode"] == "clip" for s in config):
         low = min(gains)
-        gains = tuple(g / low for g in gains)
+        gains = tuple(float(g / low) for g in gains)
     info["white_balance"] = list(gains)
     info["white_balance_source"] = source
     return gains

@@ -359,6 +359,42 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
         return future.result()
 
 
+def describe(raw: RawImage, config: list[dict]) -> dict:
+    """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
+    camera, CFA, levels, the camera's and daylight multipliers, the white balance
+    and matrix it will apply with where they come from, orientation, ISO."""
+    warnings, info = list(raw.warnings), {}
+    stages = {s["name"]: s for s in config if s["enabled"]}
+    mono = raw.cfa is None and raw.data.shape[-1] == 1
+    out = {
+        "file": raw.path,
+        "make": raw.make,
+        "model": raw.model,
+        "cfa_pattern": None if raw.cfa is None else raw.cfa.pattern,
+        "width": int(raw.data.shape[1]),
+        "height": int(raw.data.shape[0]),
+        "black_level": np.asarray(raw.black_level).tolist(),
+        "white_level": raw.white_level,
+        "orientation": raw.orientation,
+        "iso": raw.iso,
+    }
+    if "black_level" in stages:
+        out["white_level_used"] = white_level(stages["black_level"], raw, info)
+    if not mono:
+        out["camera_multipliers"] = raw.camera_wb_note
+        out["daylight_white_balance"] = raw.daylight_wb
+        if "white_balance" in stages:
+            white_balance(stages["white_balance"], config, raw, warnings, info)
+            out["white_balance"] = info["white_balance"]
+            out["white_balance_source"] = info["white_balance_source"]
+        if "color_matrix" in stages:
+            space = stages["color_matrix"]["output_space"]
+            out["color_matrix"] = np.round(camera_to_output(raw, space), 6).tolist()
+            out["matrix_source"] = raw.matrix_source
+    out["warnings"] = warnings
+    return out
+
+
 def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:

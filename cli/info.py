@@ -1,0 +1,62 @@
+"""``rawsim info``: what rawsim reads from raws and what it will use on them."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from rawsim_cli.options import usage_errors
+
+HIGHLIGHTS = ("clip", "blend")
+
+
+@click.command("info")
+@click.argument("inputs", nargs=-1, required=True, metavar="RAW...")
+@click.option("--wb", help="White balance mode to resolve, as for 'rawsim process'.")
+@click.option("--white-level", type=click.Choice(["file", "auto"]), help="As for process.")
+@click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="As for process.")
+@click.option(
+    "-c", "--config", "config_path", type=click.Path(dir_okay=False), help="ISP config (TOML)."
+)
+@click.option("--json", "as_json", is_flag=True, help="One JSON record per file on stdout.")
+@click.pass_context
+@usage_errors
+def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
+    """Print what rawsim reads from each raw and what 'rawsim process' would use:
+    camera, CFA, black and white levels, the camera's and daylight multipliers,
+    the white balance it applies and why, the colour matrix and its source,
+    orientation and ISO. Folders are searched as 'process' searches them.
+
+    \b
+    Example:
+      rawsim info IMG_0001.CR2 --wb camera
+    """
+    from rawsim.batch import discover, shown
+    from rawsim.errors import RawsimError
+    from rawsim.io.images import RAW_EXTENSIONS
+    from rawsim.io.raw import read_raw
+    from rawsim.isp.config import default_config, load_config, override
+    from rawsim.pipelines.process import describe
+
+    config = load_config(config_path) if config_path else default_config()
+    config = override(config, wb=wb, white_level=white_level, highlights=highlights)
+    found, missing, _ = discover(inputs, RAW_EXTENSIONS)
+    failed = len(missing)
+    for result in missing:
+        click.echo(f"error: {result.message}", err=True)
+    for path, _ in found:
+        try:
+            facts = describe(read_raw(path), config)
+        except RawsimError as err:
+            click.echo(f"error: {err}", err=True)
+            failed += 1
+            continue
+        if as_json:
+            click.echo(json.dumps(facts))
+            continue
+        click.echo(shown(path))
+        for key, value in facts.items():
+            if key != "file" and value not in (None, []):
+                click.echo(f"  {key:<24} {value}")
+    ctx.exit(1 if failed else 0)
