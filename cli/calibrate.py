@@ -8,10 +8,11 @@ from pathlib import Path
 
 import click
 
-from rawsim_cli.options import usage_errors
+from rawsim_cli.options import output_options, usage_errors
 
 
 @click.command("calibrate")
+@output_options
 @click.argument("raws", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option(
     "-o",

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import click
 
-from rawsim_cli.options import usage_errors
+from rawsim_cli.options import output_options, usage_errors
 
 
 @click.command("events")
+@output_options
 @click.argument("frames", nargs=-1, required=True, type=click.Path(exists=True))
 @click.option(
     "-o",

@@ -6,12 +6,13 @@ import json
 
 import click
 
-from rawsim_cli.options import usage_errors
+from rawsim_cli.options import output_options, usage_errors
 
 HIGHLIGHTS = ("clip", "blend")
 
 
 @click.command("info")
+@output_options
 @click.argument("inputs", nargs=-1, required=True, metavar="RAW...")
 @click.option("--wb", help="White balance mode to resolve, as for 'rawsim process'.")
 @click.option("--white-level", type=click.Choice(["file", "auto"]), help="As for process.")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from rawsim_cli.options import usage_errors
+from rawsim_cli.options import output_options, usage_errors
 
 
 @click.group("isp")
@@ -18,6 +18,7 @@ def command():
 
 
 @command.command("show")
+@output_options
 @usage_errors
 def show_cmd():
     """Print the default ISP config as TOML (edit it and pass it to 'rawsim process -c')."""
@@ -27,6 +28,7 @@ def show_cmd():
 
 
 @command.command("check")
+@output_options
 @click.argument("config", type=click.Path(dir_okay=False))
 @usage_errors
 def check_cmd(config):

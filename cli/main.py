@@ -94,13 +94,11 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     Example:
       rawsim unprocess photos/ -o raw/ --profile sony_a7s2 --iso 1600
     """
-    level = logging.WARNING
-    if quiet:
-        level = logging.ERROR
-    elif verbose:
-        level = logging.INFO if verbose == 1 else logging.DEBUG
-    logging.basicConfig(level=level, format="rawsim: %(message)s", stream=sys.stderr)
+    from rawsim_cli.options import set_log_level
+
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
+    logging.basicConfig(level=logging.WARNING, format="rawsim: %(message)s", stream=sys.stderr)
+    set_log_level(ctx.obj)
 
 
 def main() -> None:

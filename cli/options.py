@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import logging
 import traceback
 
 import click
@@ -94,3 +95,58 @@ def usage_errors(func):
             raise click.UsageError(str(err), ctx) from None
 
     return wrapper
+
+
+def _output_flag(ctx: click.Context, param: click.Parameter, value) -> None:
+    """-v/-q/--debug given after the subcommand: the same effect as before it."""
+    if not value:
+        return
+    obj = ctx.ensure_object(dict)
+    if param.name == "verbose":
+        obj["verbose"] = obj.get("verbose", 0) + value
+    else:
+        obj[param.name] = True
+    set_log_level(obj)
+
+
+def set_log_level(obj: dict) -> None:
+    """The log level for the -v/-q flags in ``obj``."""
+    if obj.get("quiet"):
+        level = logging.ERROR
+    elif obj.get("verbose"):
+        level = logging.INFO if obj["verbose"] == 1 else logging.DEBUG
+    else:
+        level = logging.WARNING
+    logging.getLogger().setLevel(level)
+
+
+def output_options(func):
+    """-v, -q and --debug on a subcommand too (``rawsim process … -q``)."""
+    options = (
+        click.option(
+            "-v",
+            "--verbose",
+            count=True,
+            expose_value=False,
+            callback=_output_flag,
+            help="More output (repeat for debug logs).",
+        ),
+        click.option(
+            "-q",
+            "--quiet",
+            is_flag=True,
+            expose_value=False,
+            callback=_output_flag,
+            help="Only errors and the summary.",
+        ),
+        click.option(
+            "--debug",
+            is_flag=True,
+            expose_value=False,
+            callback=_output_flag,
+            help="Show tracebacks for errors.",
+        ),
+    )
+    for option in reversed(options):
+        func = option(func)
+    return func

@@ -8,6 +8,7 @@ from rawsim_cli.options import (
     TONES,
     batch_options,
     files_in_out,
+    output_options,
     usage_errors,
 )
 from rawsim_cli.report import run_files
@@ -17,9 +18,12 @@ DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend")
 SPACES = ("srgb", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
+#: Other usual spellings of the formats.
+FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 
 
 @click.command("process")
+@output_options
 @files_in_out
 @click.option(
     "-c",
@@ -48,7 +52,8 @@ FORMATS = ("png", "tiff", "jpg", "exr")
 @click.option(
     "--format",
     "fmt",
-    type=click.Choice(FORMATS),
+    type=click.Choice(FORMATS + tuple(FORMAT_ALIASES), case_sensitive=False),
+    callback=lambda ctx, param, value: FORMAT_ALIASES.get(value.lower(), value.lower()),
     default="png",
     show_default=True,
     help="Output format; EXR is scene-linear (no tone curve or transfer).",

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from rawsim_cli.options import usage_errors
+from rawsim_cli.options import output_options, usage_errors
 
 
 @click.group("profiles")
@@ -21,6 +21,7 @@ def command():
 
 
 @command.command("list")
+@output_options
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
 @usage_errors
 def list_cmd(as_json):
@@ -53,6 +54,7 @@ def list_cmd(as_json):
 
 
 @command.command("show")
+@output_options
 @click.argument("profile", metavar="NAME|PATH")
 @click.option("--iso", type=float, help="Also print the noise model's values at this ISO.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")

@@ -8,6 +8,7 @@ from rawsim_cli.options import (
     TONES,
     batch_options,
     files_in_out,
+    output_options,
     profile_opt,
     seed_opt,
     usage_errors,
@@ -19,6 +20,7 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
 
 
 @click.command("unprocess")
+@output_options
 @files_in_out
 @profile_opt
 @click.option(

@@ -8,6 +8,7 @@ profiles") and the seed's flat config keys (``bayer_pattern``, ``bit``,
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 from dataclasses import dataclass, field
@@ -167,10 +168,14 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
     text = str(name_or_path)
     path = Path(text)
     if not (path.suffix == ".json" or path.exists() or "/" in text):
-        path = profile_dir() / f"{text}.json"
+        names = list_profiles()
+        folded = {n.casefold(): n for n in names}
+        path = profile_dir() / f"{folded.get(text.casefold(), text)}.json"
         if not path.exists():
+            close = difflib.get_close_matches(text.casefold(), folded, n=1, cutoff=0.6)
+            hint = f"did you mean {folded[close[0]]}? " if close else ""
             raise ProfileError(
-                f"unknown sensor profile {text!r}; bundled: {', '.join(list_profiles())} "
+                f"unknown sensor profile {text!r}; {hint}bundled: {', '.join(names)} "
                 "(or give a path to a JSON file)"
             )
     try:

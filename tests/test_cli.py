@@ -1,5 +1,6 @@
 """The command line: outputs, batch behaviour, errors and exit codes, determinism."""
 
+import datetime
 import hashlib
 import json
 import shutil
@@ -331,3 +332,46 @@ def test_cli_choices_match_the_core():
 
     assert set(unprocess.TONES) == set(TONE_CURVES)
     assert set(unprocess.NOISES) == set(NOISE_MODELS)
+
+
+def test_output_flags_after_the_subcommand_and_friendly_options(tmp_path):
+    raws = DATA / "raw" / "canon_eos60d_mlv.dng"
+    r = run("process", raws, "-o", tmp_path / "a", "--format", "TIF", "-v")
+    assert r.exit_code == 0 and "done: " in r.output, r.output  # -v after the command
+    assert (tmp_path / "a" / "canon_eos60d_mlv.tif").is_file()  # tif, any case
+    r = run("process", DATA / "raw" / "apple_quicktake150.qtk", "-o", tmp_path / "b", "-q")
+    assert r.exit_code == 0 and "warning" not in r.output, r.output  # -q after the command
+    r = run("process", raws, "-o", tmp_path / "c", "--format", "jpeg")
+    assert r.exit_code == 0 and (tmp_path / "c" / "canon_eos60d_mlv.jpg").is_file()
+    photo = DATA / "srgb" / "chelsea.png"
+    r = run("unprocess", photo, "-o", tmp_path / "d", "-p", "sony_a7s3", "--iso", 100)
+    assert r.exit_code == 2 and "did you mean sony_a7s2?" in r.output
+    r = run("unprocess", photo, "-o", tmp_path / "d", "-p", "SONY_A7S2", "--iso", 1234.5)
+    assert r.exit_code == 0, r.output
+    assert "ISO 1234.5 is written as 1234 in the DNG" in r.output
+    assert json.loads((tmp_path / "d" / "chelsea.json").read_text())["params"]["iso"] == 1234.5
+
+
+def test_dng_takes_the_capture_time_of_the_photo(tmp_path):
+    buf = oiio.ImageBuf(str(DATA / "srgb" / "rocket.jpg"))
+    buf.specmod().attribute("Exif:DateTimeOriginal", "2021:06:05 14:03:09")
+    assert buf.write(str(tmp_path / "shot.jpg"))
+    for out in ("a", "b"):
+        r = run(
+            "unprocess",
+            tmp_path / "shot.jpg",
+            "-o",
+            tmp_path / out,
+            "-p",
+            "sony_a7s2",
+            "--iso",
+            400,
+        )
+        assert r.exit_code == 0, r.output
+    dng = tmp_path / "a" / "shot.dng"
+    assert dng.read_bytes() == (tmp_path / "b" / "shot.dng").read_bytes()  # no time of writing
+    with rawpy.imread(str(dng)) as raw:  # LibRaw reads it back
+        when = raw.other.timestamp
+    if not isinstance(when, datetime.datetime):
+        when = datetime.datetime.fromtimestamp(when)
+    assert when.strftime("%Y:%m:%d %H:%M:%S") == "2021:06:05 14:03:09"

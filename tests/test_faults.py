@@ -97,7 +97,7 @@ def image_corpus(folder: Path) -> dict[str, str]:
         path = work / f"{label}.exr"
         assert oiio.ImageBuf(img).write(str(path))
         put(f"{label}.exr", path.read_bytes(), BAD)
-        tifffile.imwrite(work / f"{label}.tif", img)
+        tifffile.imwrite(work / f"{label}.tif", img, photometric="rgb")
         put(f"{label}_tif.tif", (work / f"{label}.tif").read_bytes(), BAD)
     put("raw_as.png", (DATA / "raw" / "kodak_dc50_grbg.kdc").read_bytes(), BAD)
     put("dng_as.tif", (DATA / "raw" / "canon_eos60d_mlv.dng").read_bytes(), BAD)

@@ -39,6 +39,9 @@ class DngInfo:
         baseline_exposure: stops.
         orientation: TIFF orientation 1–8.
         software: writer name.
+        datetime: the capture time ``"YYYY:MM:DD HH:MM:SS"`` (DateTime and EXIF
+            DateTimeOriginal), e.g. from the input image, or None for no time tag
+            (never the time of writing: outputs are byte-identical run to run).
     """
 
     cfa: CFA | None
@@ -54,6 +57,7 @@ class DngInfo:
     baseline_exposure: float = 0.0
     orientation: int = 1
     software: str = "rawsim"
+    datetime: str | None = None
 
 
 def _rationals(values, signed: bool) -> tuple[int, ...]:
@@ -118,16 +122,18 @@ def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
         subfiletype=0,
         metadata=None,
         software=info.software,
+        datetime=info.datetime,
         extratags=dng_tags(info),
     )
-    _append_exif_ifd(path, int(round(info.iso)))
+    _append_exif_ifd(path, int(round(info.iso)), info.datetime)
     if info.cfa is None:
         with tifffile.TiffFile(path, mode="r+") as tif:
             tif.pages.first.tags["PhotometricInterpretation"].overwrite(34892)  # LinearRaw
 
 
-def _append_exif_ifd(path: str | Path, iso: int) -> None:
-    """Append a minimal EXIF IFD (ISO speed) and point IFD0's ExifIFD tag at it.
+def _append_exif_ifd(path: str | Path, iso: int, datetime: str | None = None) -> None:
+    """Append a minimal EXIF IFD (ISO speed, and DateTimeOriginal when ``datetime`` is
+    given) and point IFD0's ExifIFD tag at it.
 
     tifffile writes no EXIF sub-IFD, and LibRaw and dcraw read the ISO only from
     there. EXIF 2.3: ISOSpeedRatings is a SHORT, 65535 meaning "see ISOSpeed".
@@ -141,18 +147,25 @@ def _append_exif_ifd(path: str | Path, iso: int) -> None:
         (34864, 3, 1, 3),  # SensitivityType: ISO speed, SHORT
         (34867, 4, 1, iso),  # ISOSpeed, LONG
     ]
+    text = (datetime.encode("ascii") + b"\0") if datetime else b""
+    if text:
+        entries.append((36867, 2, len(text), 0))  # DateTimeOriginal, ASCII after the IFD
     with tifffile.TiffFile(path, mode="r+") as tif:
         order = tif.byteorder
-        body = struct.pack(order + "H", len(entries))
-        for code, kind, count, value in entries:
-            packed = struct.pack(order + ("H2x" if kind == 3 else "I"), value)
-            body += struct.pack(order + "HHI", code, kind, count) + packed
-        body += struct.pack(order + "I", 0)
         fh = tif.filehandle
         fh.seek(0, 2)
         if fh.tell() % 2:
             fh.write(b"\0")
         offset = fh.tell()
+        after = offset + 2 + 12 * len(entries) + 4  # where the ASCII value goes
+        body = struct.pack(order + "H", len(entries))
+        for code, kind, count, value in entries:
+            if kind == 2:
+                packed = struct.pack(order + "I", after)
+            else:
+                packed = struct.pack(order + ("H2x" if kind == 3 else "I"), value)
+            body += struct.pack(order + "HHI", code, kind, count) + packed
+        body += struct.pack(order + "I", 0) + text
         fh.write(body)
         placeholder = tif.pages.first.tags[_EXIF_PLACEHOLDER]
         fh.seek(placeholder.offset)

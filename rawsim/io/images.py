@@ -8,6 +8,7 @@ odd sizes are cropped to even (the crop is reported).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,6 +107,8 @@ class DecodedImage:
         dropped_channels: names of channels that were not used (alpha, …).
         format_name: OpenImageIO's name of the file format.
         warnings: what the user should know (e.g. content not matching the extension).
+        datetime: the capture time from the file's EXIF (``"YYYY:MM:DD HH:MM:SS"``),
+            or None.
     """
 
     pixels: np.ndarray
@@ -115,6 +118,7 @@ class DecodedImage:
     dropped_channels: tuple[str, ...]
     format_name: str
     warnings: tuple[str, ...] = ()
+    datetime: str | None = None
 
     @property
     def is_float(self) -> bool:
@@ -188,6 +192,15 @@ def _decode(path: Path):
         inp.close()
 
 
+def _capture_time(spec) -> str | None:
+    """EXIF DateTimeOriginal (else DateTime) of an image, if it is a valid EXIF time."""
+    for name in ("Exif:DateTimeOriginal", "DateTime"):
+        value = str(spec.getattribute(name) or "").strip()
+        if re.fullmatch(r"\d{4}:\d{2}:\d{2} \d{2}:\d{2}:\d{2}", value):
+            return value
+    return None
+
+
 def read_image(path: str | Path) -> DecodedImage:
     """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
 
@@ -232,6 +245,7 @@ def read_image(path: str | Path) -> DecodedImage:
         dropped_channels=tuple(dropped),
         format_name=format_name,
         warnings=tuple(w for w in (mismatch, *(f"decoder: {line}" for line in said)) if w),
+        datetime=_capture_time(spec),
     )
 
 

@@ -370,7 +370,9 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
-    info = _dng_info(options, params, levels, decoded.orientation)
+    info = replace(
+        _dng_info(options, params, levels, decoded.orientation), datetime=decoded.datetime
+    )
     if "dng" in task.outputs:
         with atomic_output(task.outputs["dng"]) as tmp:
             write_dng(tmp, noisy_np, info)
@@ -393,6 +395,17 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     with atomic_output(task.outputs["json"]) as tmp:
         Path(tmp).write_text(json.dumps(metadata, indent=2) + "\n")
     return metadata
+
+
+def _iso_warning(options: UnprocessOptions) -> list[str]:
+    """A fixed ISO that is not a whole number is rounded in the DNG (an integer tag)."""
+    iso = options.iso
+    if iso is None or float(iso).is_integer():
+        return []
+    return [
+        f"ISO {iso:g} is written as {round(iso)} in the DNG (an integer tag); "
+        f"the sidecar keeps {iso:g}"
+    ]
 
 
 def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
@@ -433,7 +446,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "code_max": decoded.code_max,
         "crop": decoded.crop,
         "dropped_channels": list(decoded.dropped_channels),
-        "warnings": list(decoded.warnings),
+        "warnings": list(decoded.warnings) + _iso_warning(options),
         "orientation": decoded.orientation,
         "width": w,
         "height": h,
