@@ -14,9 +14,11 @@ that peak memory (max RSS) is its own:
     compiled engine and, for wcd, on the torch reference (RAWSIM_ENGINE=0);
   * the default output (8-bit PNG) per image, and the write alone;
   * single cold invocations of ``rawsim process x.dng --format tiff --bits 16``:
-    the first after clearing numba's cache (compiling) and later ones.
-Targets (issue 13): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
-default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write.
+    the first after clearing numba's cache (compiling) and later ones;
+  * forward and backward of ``rawsim.process`` with gradients on 1 MP.
+Targets (issues 13, 15): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
+default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write;
+backward ≤ 3× forward.
 """
 
 from __future__ import annotations
@@ -212,6 +214,32 @@ def main() -> None:
             "  targets: wcd ≤ 0.5× LibRaw with peak ≤ 1.0 GB; PNG default ≤ 0.75× LibRaw + TIFF;"
             " cold ≤ 1.0× rawpy + TIFF"
         )
+    gradients_1mp()
+
+
+def gradients_1mp() -> None:
+    """Forward and backward of ``rawsim.process`` (torch reference, default ISP) on 1 MP."""
+    import torch
+
+    import rawsim
+
+    sensor = rawsim.RGBSensor.from_profile("nikon_d850")
+    image = torch.rand(1, 3, 1024, 1024)
+    noisy, _, meta = rawsim.unprocess(image, sensor, seeds=[1], iso=800)
+    forward, backward = [], []
+    for _ in range(3):
+        mosaic = noisy.clone().requires_grad_()
+        start = time.perf_counter()
+        rgb = rawsim.process(mosaic, sensor, meta)
+        forward.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        rgb.mean().backward()
+        backward.append(time.perf_counter() - start)
+    fwd, bwd = min(forward), min(backward)
+    print(
+        f"rawsim.process with gradients, 1 MP (torch reference): forward {fwd:.2f} s, "
+        f"backward {bwd:.2f} s = {bwd / fwd:.1f}× forward (target ≤ 3×)"
+    )
 
 
 def rawsim_engine_dir() -> str:

@@ -185,8 +185,9 @@ def process(
             model=p.model,
             path="<tensor>",
         )
-        codes = _codes(mosaics[i, 0])
-        if codes is not None and not (torch.is_grad_enabled() and mosaics.requires_grad):
+        grad = torch.is_grad_enabled() and mosaics.requires_grad
+        codes = None if grad else _codes(mosaics[i, 0])
+        if codes is not None:
             out, _ = render_float(replace(raw, data=codes[..., None] if mono else codes), config)
             outs.append(out.to(mosaics.device))
             continue

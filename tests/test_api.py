@@ -153,11 +153,15 @@ def test_dataset_is_deterministic_across_workers_and_epochs(sensor):
         rawsim.UnprocessDataset(DATA / "srgb", sensor, crop=63)
 
 
-def test_example_training_script_runs():
+def test_example_training_script_denoises_held_out_crops():
+    """The README's example, shorter: on crops of a photo it never trains on, the
+    denoised planes are closer to the clean ones than the noisy input (the full
+    2000 steps give +3.6 dB at ISO 3200 in 2.6 minutes on 2 cores)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("train", ROOT / "examples" / "train_denoiser.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    losses = module.main(["--data", str(DATA / "srgb"), "--steps", "4", "--crop", "64"])
-    assert len(losses) == 4 and all(np.isfinite(losses))
+    result = module.main(["--steps", "250", "--valid-crops", "4"])
+    assert len(result["losses"]) == 250 and all(np.isfinite(result["losses"]))
+    assert result["denoised_psnr"] >= result["noisy_psnr"] + 0.4, result
