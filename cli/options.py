@@ -29,7 +29,8 @@ device_opt = click.option(
     type=click.Choice(["auto", "cpu", "cuda"]),
     default="cpu",
     show_default=True,
-    help="Where tensors live (the noise is the same bits on every device).",
+    help="Where to compute: cpu (the compiled engine where it can), cuda or auto. "
+    "Results agree across devices; unprocess's noise is the same bits on each.",
 )
 seed_opt = click.option(
     "--seed",

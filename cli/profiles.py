@@ -45,12 +45,33 @@ def list_cmd(as_json):
     if as_json:
         click.echo(json.dumps(rows, indent=2))
         return
-    click.echo(f"{'name':<22} {'camera':<28} {'cfa':<5} {'bits':>4}  iso")
+    name_w = max(len("name"), *(len(r["name"]) for r in rows))
+    camera_w = max(len("camera"), *(len(r["camera"]) for r in rows))
+    click.echo(f"{'name':<{name_w}}  {'camera':<{camera_w}}  {'cfa':<4}  {'bits':>4}  iso")
     for r in rows:
         click.echo(
-            f"{r['name']:<22} {r['camera']:<28} {r['cfa']:<5} {r['bits']:>4}  "
-            f"{r['iso_min']:g}–{r['iso_max']:g}"
+            f"{r['name']:<{name_w}}  {r['camera']:<{camera_w}}  {r['cfa']:<4}  {r['bits']:>4}  "
+            f"{_iso_range(r['iso_min'], r['iso_max'])}"
         )
+
+
+def _iso_range(lo: float, hi: float) -> str:
+    return f"{lo:g} only" if lo == hi else f"{lo:g}–{hi:g}"
+
+
+def _curve(spec: dict, unit: str) -> str:
+    """A noise curve of a profile, readable: its model and values, not a dict."""
+    spec = dict(spec)
+    model = spec.pop("model", "?")
+    if model == "table" and "iso" in spec:
+        points = ", ".join(
+            f"{i:g} → {v:g}" for i, v in zip(spec.pop("iso"), spec.pop("sigma"), strict=False)
+        )
+        rest = ", ".join(f"{k} {v:g}" for k, v in spec.items() if v)
+        return f"table by ISO ({unit}): {points}" + (f"; {rest}" if rest else "")
+    return f"{model}: " + ", ".join(
+        f"{k} {v:g}" if isinstance(v, int | float) else f"{k} {v}" for k, v in spec.items()
+    )
 
 
 @command.command("show")
@@ -104,13 +125,13 @@ def show_cmd(profile, iso, as_json, plot):
         f"  CFA {p.cfa.pattern}, {p.bit_depth}-bit, black {p.black_level:g}, "
         f"white {p.white_level:g} DN"
     )
-    click.echo(f"  ISO {p.iso_range[0]:g}–{p.iso_range[1]:g}" if p.iso_range else "  ISO any")
+    click.echo(f"  ISO {_iso_range(*p.iso_range)}" if p.iso_range else "  ISO any")
     click.echo(
         "  XYZ→camera: " + "; ".join(" ".join(f"{v:+.4f}" for v in row) for row in p.xyz_to_camera)
     )
     click.echo("  daylight WB gains: " + " ".join(f"{v:.4f}" for v in p.white_balance))
-    click.echo(f"  noise K(ISO): {data['noise']['gain']}")
-    click.echo(f"  read σ: {data['noise']['read_sigma']}")
+    click.echo(f"  noise K(ISO): {_curve(data['noise']['gain'], 'DN/e⁻')}")
+    click.echo(f"  read σ(ISO): {_curve(data['noise']['read_sigma'], 'DN')}")
     if iso is not None:
         for model, values in data["at_iso"]["models"].items():
             click.echo(

@@ -375,3 +375,15 @@ def test_dng_takes_the_capture_time_of_the_photo(tmp_path):
     if not isinstance(when, datetime.datetime):
         when = datetime.datetime.fromtimestamp(when)
     assert when.strftime("%Y:%m:%d %H:%M:%S") == "2021:06:05 14:03:09"
+
+
+def test_profiles_print_readably_and_flags_errors_speak_in_flags(tmp_path):
+    r = run("profiles", "list")
+    lines = r.output.splitlines()
+    assert len({line.index("RGGB" if "RGGB" in line else "BGGR") for line in lines[1:]}) == 1
+    assert "100 only" in r.output and "100–100" not in r.output
+    r = run("profiles", "show", "sony_a7s2")
+    assert "{" not in r.output and "table by ISO (DN): 100 → 1.01" in r.output
+    r = run("process", DATA / "raw" / "canon_eos60d_mlv.dng", "-o", tmp_path, "--wb", "foo")
+    assert r.exit_code == 2 and "--wb 'foo': valid: camera, daylight, auto" in r.output
+    assert "stage" not in r.output

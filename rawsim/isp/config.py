@@ -294,6 +294,11 @@ def override(config: list[dict], **changes) -> list[dict]:
         if value is None:
             continue
         stage, key = keys[flag]
+        try:  # in the user's terms: the flag and what they typed
+            value = STAGES[stage][key].check(value)
+        except ParameterError as err:
+            why = str(err).removeprefix(f"{value!r}; ")  # the value is said once
+            raise ParameterError(f"--{flag.replace('_', '-')} {value!r}: {why}") from None
         matches = [s for s in out if s["name"] == stage]
         if not matches:
             out.append({"name": stage})
