@@ -68,8 +68,9 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite):
     from rawsim.profiles import profile_from_dict
 
     out = Path(output)
-    if out.exists() and not overwrite:
-        raise click.UsageError(f"{out} exists (use --overwrite to replace it)")
+    if out.exists() and not overwrite:  # the same policy as every command: skip
+        click.echo(f"skip: {out} exists (use --overwrite to replace it)", err=True)
+        return
 
     def load(paths) -> list:
         found = discover(paths, RAW_EXTENSIONS).found  # click already checked they exist

@@ -117,8 +117,9 @@ def command(
 
     out = Path(out_dir)
     target = out / "events.npz"
-    if target.exists() and not overwrite:
-        raise ParameterError(f"{target} exists (use --overwrite to replace it)")
+    if target.exists() and not overwrite:  # the same policy as every command: skip
+        click.echo(f"skip: {target} exists (use --overwrite to replace it)", err=True)
+        return
     paths = []
     for item in frames:
         found = discover([item], IMAGE_EXTENSIONS).found

@@ -82,6 +82,9 @@ class LazyGroup(click.Group):
 def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     """rawsim: raw image unprocessing and processing on a differentiable torch ISP.
 
+    Outputs that exist are never replaced without --overwrite: every command
+    skips them (and says so).
+
     \b
     Exit codes:
       0  every file was done (or skipped because its outputs exist)

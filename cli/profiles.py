@@ -89,8 +89,9 @@ def show_cmd(profile, iso, as_json, plot):
     """Show a profile: levels, matrix, white balance, noise and sources.
 
     With --iso N --json only the noise model's values at that ISO are printed:
-    K (DN/e⁻), read_sigma, row_sigma and lambda of the physics model (null where
-    the profile has no physics parameters), and each model's full values.
+    K (DN/e⁻), the read noise's standard deviation (read_std_dn, the default
+    model's), the physics model's tukey_scale_dn, tukey_lambda and row_sigma_dn
+    (null where the profile has no physics parameters), and each model's values.
 
     \b
     Example:
@@ -108,13 +109,14 @@ def show_cmd(profile, iso, as_json, plot):
     if iso is not None:
         models = ["poisson-gaussian", "gaussian"] + (["physics"] if p.noise.has_physics else [])
         at = {m: p.noise.levels(m, p.check_iso(iso)).to_dict() for m in models}
-        main = at.get("physics", at["poisson-gaussian"])
+        physics = at.get("physics", {})
         data["at_iso"] = {
             "iso": iso,
-            "K": main["gain_dn_per_electron"],
-            "read_sigma": main["read_sigma_dn"],
-            "row_sigma": main.get("row_sigma_dn"),
-            "lambda": main.get("tukey_lambda"),
+            "K": at["poisson-gaussian"]["gain_dn_per_electron"],
+            "read_std_dn": at["poisson-gaussian"]["read_std_dn"],  # the default model's
+            "tukey_scale_dn": physics.get("tukey_scale_dn"),
+            "tukey_lambda": physics.get("tukey_lambda"),
+            "row_sigma_dn": physics.get("row_sigma_dn"),
             "models": at,
         }
     if as_json:

@@ -89,6 +89,21 @@ def _printable(text: str) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
+#: Sidecar entries repeated in ``--json`` records: ISO, seeds, the parameters drawn
+#: (unprocess) or the values used (process), and the warnings.
+_RECORD_KEYS = (
+    "iso",
+    "seed",
+    "file_seed",
+    "params",
+    "noise",
+    "white_balance",
+    "white_balance_source",
+    "color_matrix",
+    "warnings",
+)
+
+
 def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
     """Consume batch results with a progress bar; print failures, summary; exit.
 
@@ -126,6 +141,9 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
             }
             if result.status == "failed":
                 record["error"] = result.message
+            for key in _RECORD_KEYS:  # what the job drew and used, from its sidecar
+                if key in result.record:
+                    record[key] = result.record[key]
             click.echo(json.dumps(record))
 
     show_bar = not quiet and sys.stderr.isatty()

@@ -114,7 +114,7 @@ class UnprocessDataset(Dataset):
             "clean": self._arrange(clean),
             "iso": torch.tensor(m["iso"], dtype=torch.float32),
             "gain": torch.tensor(m["noise"].get("gain_dn_per_electron", 0.0), dtype=torch.float32),
-            "read_sigma": torch.tensor(m["noise"]["read_sigma_dn"], dtype=torch.float32),
+            "read_sigma": torch.tensor(m["noise"]["read_std_dn"], dtype=torch.float32),
             "wb_gains": torch.tensor(m["params"]["wb_gains"], dtype=torch.float32),
             "xyz_to_camera": torch.tensor(m["params"]["xyz_to_camera"], dtype=torch.float32),
             "index": index,

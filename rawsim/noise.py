@@ -339,15 +339,23 @@ class NoiseLevels:
         return a / span, b / span**2
 
     def to_dict(self) -> dict:
-        out = {"model": self.model, "iso": self.iso, "read_sigma_dn": self.read_sigma}
+        """The levels as the sidecars write them. ``read_std_dn`` is the standard
+        deviation of the read noise in every model (what ``rawsim calibrate`` fits);
+        ``read_sigma_dn``, kept for the Gaussian models, is the same figure; the
+        physics model's Tukey-lambda scale is ``tukey_scale_dn``."""
+        out = {"model": self.model, "iso": self.iso}
+        if self.model == "physics":
+            out["read_std_dn"] = math.sqrt(self.read_variance - self.row_sigma**2)
+        else:
+            out |= {"read_std_dn": self.read_sigma, "read_sigma_dn": self.read_sigma}
         if self.model in ("poisson-gaussian", "physics"):
             out["gain_dn_per_electron"] = self.gain
         if self.model == "physics":
             out |= {
+                "tukey_scale_dn": self.read_sigma,
                 "tukey_lambda": self.tukey_lambda,
                 "row_sigma_dn": self.row_sigma,
                 "channel_bias_dn": list(self.channel_bias),
-                "read_std_dn": math.sqrt(self.read_variance - self.row_sigma**2),
             }
         elif self.model == "gaussian":
             out |= {

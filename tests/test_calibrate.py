@@ -76,6 +76,9 @@ def test_flat_field_calibration_recovers_the_model(frames, tmp_path):
     args = ["calibrate", str(frames / "flats"), "--dark", str(frames / "darks")]
     r = CliRunner().invoke(cli, [*args, "-o", str(out), "--plot", str(plot), "--json"])
     assert r.exit_code == 0, r.output
+    written = out.read_bytes()
+    again = CliRunner().invoke(cli, [*args, "-o", str(out)])  # exists: skipped, as everywhere
+    assert again.exit_code == 0 and "skip: " in again.output and out.read_bytes() == written
     fits = json.loads(r.stdout)
     assert [f["iso"] for f in fits] == list(ISOS)
     for fit in fits:
@@ -190,7 +193,8 @@ def test_every_shipped_profile_plots_and_unprocesses(name, tmp_path):
     for iso in prof.iso_range:
         r = runner.invoke(cli, ["profiles", "show", name, "--iso", str(iso), "--json"])
         values = json.loads(r.stdout)
-        assert set(values) >= {"K", "read_sigma", "row_sigma", "lambda"} and values["K"] > 0
+        keys = {"K", "read_std_dn", "tukey_scale_dn", "tukey_lambda", "row_sigma_dn"}
+        assert set(values) >= keys and values["K"] > 0
         out = tmp_path / f"iso{iso:g}"
         args = ["unprocess", str(DATA / "srgb" / "coffee.png"), "-o", str(out), "-p", name]
         r = runner.invoke(cli, [*args, "--iso", str(iso), "--noise", noise])

@@ -300,7 +300,13 @@ def test_profiles_commands():
     shown = json.loads(run("profiles", "show", "sony_a7s2", "--iso", 1600, "--json").output)
     assert shown["K"] == pytest.approx(1.52543)
     assert shown["models"]["poisson-gaussian"]["read_sigma_dn"] == pytest.approx(6.30)
-    assert shown["lambda"] == pytest.approx(load_profile("sony_a7s2").noise.tukey_lambda(1.52543))
+    assert shown["tukey_lambda"] == pytest.approx(
+        load_profile("sony_a7s2").noise.tukey_lambda(1.52543)
+    )
+    assert shown["read_std_dn"] == pytest.approx(6.30)  # the default model's read std
+    physics = shown["models"]["physics"]  # the Tukey scale is named apart from the std
+    assert physics["tukey_scale_dn"] == shown["tukey_scale_dn"] < physics["read_std_dn"]
+    assert "read_sigma_dn" not in physics
     assert "source[noise.gain]" in run("profiles", "show", "nikon_d850").output
     assert run("profiles", "show", "nope").exit_code == 2
 
@@ -322,6 +328,9 @@ def test_json_records_on_stdout(photos, tmp_path):
     )
     records = [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
     assert records and records[0]["status"] == "done"
+    record = records[0]  # the file, its outputs, and what was drawn for it
+    assert record["params"]["iso"] == 100 and record["file_seed"] and record["noise"]
+    assert record["warnings"] == [] and record["outputs"]["dng"].endswith("rocket.dng")
 
 
 def test_cli_choices_match_the_core():
