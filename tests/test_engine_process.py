@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from rawsim.cfa import BAYER_PATTERNS, CFA
-from rawsim.errors import ParameterError
 from rawsim.io.images import to_samples
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.isp.config import DEMOSAIC_METHODS, default_config, override
@@ -159,14 +158,14 @@ def test_reference_only_configs_fall_back():
     assert engine_plan(replace(raw, data=raw.data[:8, :8]), default_config(), "tiff") is None
 
 
-def test_smoothstep_outside_its_domain_is_refused_by_both():
+def test_smoothstep_clips_outside_its_domain_in_both():
+    """Smoothstep is defined on [0, 1]: both forms clip there (ordinary photos reach
+    beyond white) and agree."""
     raw = synthetic_raw()
-    config = override(default_config(), tone="smoothstep")
-    plan = engine_plan(raw, config, "tiff")
-    with pytest.raises(ParameterError, match="smoothstep"):
-        engine_render(raw, plan, "tiff", 16)
-    with pytest.raises(ParameterError, match="smoothstep"):
-        render(raw, config)
+    config = override(default_config(), tone="smoothstep", exposure=2.0)
+    ours, ref = _both(raw, config)
+    assert (ours == 65535).any()  # values beyond white reached the curve
+    _assert_close(ours, ref)
 
 
 @pytest.mark.parametrize("name", ["canon_eos60d_mlv.dng", "synthetic_colorchecker_bggr.dng"])

@@ -640,11 +640,10 @@ def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0,
 
     ``out`` is (H', W', 3): uint8/uint16 codes (``scale`` = 2^bits − 1) or float32
     (``out_mode`` OUT_FLOAT), already in display orientation: ``orient`` = (transpose,
-    flip rows, flip columns). Row by row, each stage over the whole row. Returns
-    whether any tone input left [0, 1]. Overwrites ``rgb``.
+    flip rows, flip columns). Row by row, each stage over the whole row.
+    Overwrites ``rgb``.
     """
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
-    outside = 0
     for i in range(ia, ib):
         y, x0 = r0 - HALO + i, c0 - HALO + ja
         r, g, b = _at(rgb[0], i, ja, jb, 0), _at(rgb[1], i, ja, jb, 0), _at(rgb[2], i, ja, jb, 0)
@@ -652,9 +651,8 @@ def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0,
             _rgb_stage(ops[k], opf[k], r, g, b, y, x0, h, w)
         if out_mode != OUT_FLOAT:
             for v in (r, g, b):
-                outside |= _encode(v, out_mode, lut, gamma, scale)
+                _encode(v, out_mode, lut, gamma, scale)
         _store(r, g, b, out, y, x0, orient)
-    return outside != 0
 
 
 @njit(**_JIT)
@@ -698,16 +696,11 @@ def _rgb_stage(op, p, r, g, b, y, x0, h, w):
 
 @njit(**_JIT)
 def _encode(v, out_mode, lut, gamma, scale):
-    """Tone ∘ transfer and quantisation of a row of one channel, in place (codes as floats).
-
-    Returns 1 if any input was outside [0, 1], else 0.
-    """
+    """Tone ∘ transfer and quantisation of a row of one channel, in place (codes as
+    floats). Inputs are clipped to [0, 1], where the table is defined."""
     one, zero = np.float32(1.0), np.float32(0.0)
-    outside = 0
     for q in range(v.size):
-        x = v[q]
-        outside |= (x < zero) | (x > one)
-        x = min(max(x, zero), one)
+        x = min(max(v[q], zero), one)
         t = x * np.float32(LUT_SIZE - 1)
         n = min(int(t), LUT_SIZE - 2)
         x = lut[n] + (t - np.float32(n)) * (lut[n + 1] - lut[n])
@@ -715,7 +708,6 @@ def _encode(v, out_mode, lut, gamma, scale):
             x = np.float32(max(x, np.float32(1e-12)) ** gamma) if x > 0 else x
         x = min(max(x, zero), one)
         v[q] = np.rint(x * np.float32(scale))
-    return outside
 
 
 @njit(**_JIT)
@@ -815,8 +807,7 @@ def process_kernel(
     """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
 
     ``colors``: the CFA's colour index at the 4 tile sites (row-major);
-    ``method``: a :data:`DEMOSAIC_CODES` value. Returns whether any value reaching
-    the tone curve was outside [0, 1]. ``threads``: numba's thread count (each
+    ``method``: a :data:`DEMOSAIC_CODES` value. ``threads``: numba's thread count (each
     thread gets its own tile buffers); tiles are ``tile_rows`` × ``tile_cols``
     (even numbers: tiles keep the CFA phase; default :data:`TILE_ROWS`,
     :data:`TILE_COLS`).
@@ -825,7 +816,6 @@ def process_kernel(
     rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
     tiles = rows * cols
     threads = max(1, min(tiles, threads))
-    flags = np.zeros(threads, dtype=np.bool_)
     shape = (tile_rows + 2 * HALO, tile_cols + 2 * HALO)
     cmap = np.empty((2, shape[1]), np.int8)  # colour index at (row parity, buffer column)
     for j in range(shape[1]):
@@ -846,7 +836,7 @@ def process_kernel(
                 _menon(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
             else:
                 _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
-            outside = _finish(
+            _finish(
                 rgb,
                 post_ops,
                 post_f,
@@ -863,5 +853,3 @@ def process_kernel(
                 h,
                 w,
             )
-            flags[t] = flags[t] or outside
-    return flags.any()

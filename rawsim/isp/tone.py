@@ -5,9 +5,10 @@ Every curve is normalised to map linear 0 → 0 and its white point 1 → 1
 unprocessing a display value of 1 returns to the sensor's white level.
 
 Domains:
-  * ``smoothstep`` (Brooks et al. 2019, f(x) = 3x² − 2x³): forward and reverse on
-    [0, 1] only; values outside raise :class:`ParameterError` (the cubic is not
-    monotone there).
+  * ``smoothstep`` (Brooks et al. 2019, f(x) = 3x² − 2x³): defined on [0, 1] (the
+    cubic is not monotone outside); forward clips its input there (renders of
+    ordinary photos reach beyond white), reverse takes display values in [0, 1]
+    only and raises :class:`ParameterError` otherwise.
   * ``reinhard`` (extended, white W = 4), ``aces`` (Narkowicz 2015 fit, white where
     it reaches 1, ≈ 7.24), ``hable`` (Uncharted 2, W = 11.2): forward on all reals —
     above 1 highlights compress towards the curve's asymptote, below 0 the curve
@@ -89,8 +90,8 @@ def apply_tone_curve(x: torch.Tensor, curve: str) -> torch.Tensor:
     check_choice("tone curve", curve, TONE_CURVES)
     if curve == "none":
         return x
-    if curve == "smoothstep":
-        _check_unit(x, curve)
+    if curve == "smoothstep":  # defined on [0, 1]: flat (0 and 1) outside
+        x = x.clamp(0, 1)
         return x * x * (3 - 2 * x)
     g, _, white, slope0, _ = _CURVES[curve]
     scale = float(g(torch.tensor(white, dtype=torch.float64)))

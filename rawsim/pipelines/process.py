@@ -119,7 +119,6 @@ class EnginePlan:
     out_mode: int
     lut: np.ndarray
     gamma: float
-    smoothstep: bool
     orientation: int
     info: dict
 
@@ -177,7 +176,7 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
             ops.append((ep.OP_MATRIX, matrix.ravel()))
         elif name == "exposure":
             ops.append((ep.OP_EXPOSURE, [2.0 ** s["ev"]]))
-    out_mode, lut, gamma, smoothstep = _output_table(tail, fmt)
+    out_mode, lut, gamma = _output_table(tail, fmt)
     if out_mode is None:
         return None
     return EnginePlan(
@@ -187,7 +186,6 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
         out_mode,
         lut,
         gamma,
-        smoothstep,
         orientation,
         info,
     )
@@ -206,7 +204,7 @@ _TONE["hable"] = (_hable, _HABLE_WHITE)
 
 
 def _output_table(tail: list[dict], fmt: str):
-    """(mode, table, gamma, smoothstep) for the tone/transfer stages, or Nones.
+    """(mode, table, gamma) for the tone/transfer stages, or Nones.
 
     The table is tone ∘ transfer on [0, 1] in float64, in the config's order; a
     power-law transfer (infinite slope at 0) must come last and is left to the
@@ -216,12 +214,11 @@ def _output_table(tail: list[dict], fmt: str):
 
     x = np.linspace(0.0, 1.0, ep.LUT_SIZE)
     if fmt == "exr":
-        return (ep.OUT_FLOAT, x.astype(np.float32), 1.0, False) if not tail else (None,) * 4
-    gamma, smoothstep = 1.0, False
+        return (ep.OUT_FLOAT, x.astype(np.float32), 1.0) if not tail else (None,) * 3
+    gamma = 1.0
     for at, s in enumerate(tail):
         if s["name"] == "tone":
             curve = s["curve"]
-            smoothstep = smoothstep or curve == "smoothstep"
             if curve == "smoothstep":
                 x = x * x * (3 - 2 * x)
             elif curve != "none":
@@ -234,10 +231,10 @@ def _output_table(tail: list[dict], fmt: str):
             x = np.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
         elif spec.kind == "gamma":
             if at != len(tail) - 1:
-                return (None,) * 4
+                return (None,) * 3
             gamma = 1.0 / spec.gamma
     mode = ep.OUT_GAMMA if gamma != 1.0 else ep.OUT_TABLE
-    return mode, x.astype(np.float32), gamma, smoothstep
+    return mode, x.astype(np.float32), gamma
 
 
 def engine_render(
@@ -263,7 +260,7 @@ def engine_render(
         table = np.empty((0, 0), dtype=np.float32)
     else:
         table = ep.mosaic_table(colors, plan.pre_ops, plan.pre_f)
-    outside = ep.process_kernel(
+    ep.process_kernel(
         np.ascontiguousarray(raw.data),
         colors,
         plan.method,
@@ -281,8 +278,6 @@ def engine_render(
         numba.get_num_threads(),
         *(tile or (ep.TILE_ROWS, ep.TILE_COLS)),
     )
-    if plan.smoothstep and outside:
-        raise ParameterError("smoothstep tone curve is defined on [0, 1]; input has values outside")
     if fmt == "exr" and bits == 16:
         return out.astype(np.float16)
     return out.astype(np.uint8) if bits == 8 and dtype == np.uint16 else out
