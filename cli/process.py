@@ -47,6 +47,11 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
 @click.option("--exposure", type=float, metavar="EV", help="Exposure in stops (default 0).")
+@click.option(
+    "--baseline-exposure",
+    type=click.Choice(["apply", "ignore"]),
+    help="The DNG's BaselineExposure: apply (default, as Adobe's DNG SDK) or ignore (as LibRaw).",
+)
 @click.option("--output-space", type=click.Choice(SPACES), help="Colour space of the output.")
 @click.option("--transfer", metavar="srgb|gamma:G|linear", help="Output transfer function.")
 @click.option(
@@ -79,6 +84,7 @@ def command(
     highlights,
     tone,
     exposure,
+    baseline_exposure,
     output_space,
     transfer,
     fmt,
@@ -122,6 +128,7 @@ def command(
         highlights=highlights,
         tone=tone,
         exposure=exposure,
+        baseline_exposure=baseline_exposure,
         output_space=output_space,
         transfer=transfer,
     )

@@ -8,6 +8,7 @@ Shapes: images (B, 3, H, W) with H, W even; mosaics (B, 1, H, W) in DN.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -146,7 +147,8 @@ def process(
         mosaics: (B, 1, H, W) DN.
         sensor: the sensor that recorded them.
         metadata: :func:`unprocess`'s dicts: each sample's white balance and
-            matrix are used (``white_balance`` mode ``camera``).
+            matrix are used (``white_balance`` mode ``camera``), and its baseline
+            exposure (the DNG's BaselineExposure) unless the config ignores it.
         config: an ISP config (see ``rawsim isp show``); default: the default ISP.
         changes: stage overrides as ``rawsim process`` takes them, e.g.
             ``demosaic="bilinear"``.
@@ -181,6 +183,7 @@ def process(
             camera_to_srgb=None,
             orientation=1,
             iso=meta["iso"],
+            baseline_exposure=math.log2(params["brightness"]) - params["exposure_ev"],
             make=p.make,
             model=p.model,
             path="<tensor>",

@@ -180,7 +180,8 @@ def test_colour_agrees_with_libraw_on_every_raw(name, wb):
     settings: its white-balance rules and scaling, its matrices (also those rawpy
     does not show), for --wb camera, daylight and auto."""
     raw = read_raw(RAW / name)
-    ours, info = render(raw, override(default_config(), demosaic="bilinear", wb=wb))
+    matched = {"demosaic": "bilinear", "wb": wb, "baseline_exposure": "ignore"}  # as LibRaw
+    ours, info = render(raw, override(default_config(), **matched))
     with rawpy.imread(str(RAW / name)) as r:
         ref = r.postprocess(
             output_color=rawpy.ColorSpace.sRGB,
@@ -204,7 +205,7 @@ def test_default_render_agrees_with_libraw_ahd_in_colour(name):
     from scipy.ndimage import uniform_filter
 
     raw = read_raw(RAW / name)
-    ours, _ = render(raw, default_config())
+    ours, _ = render(raw, override(default_config(), baseline_exposure="ignore"))
     with rawpy.imread(str(RAW / name)) as r:
         ahd = LIBRAW_MATCHED | {"demosaic_algorithm": rawpy.DemosaicAlgorithm.AHD}
         ref = r.postprocess(output_color=rawpy.ColorSpace.sRGB, gamma=(2.4, 12.92), **ahd)
@@ -300,6 +301,27 @@ def test_smooth_round_trip_is_exact_but_for_quantisation(tmp_path):
     out, _ = render(read_raw(outputs["clean_dng"]), default_config())
     photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)
     assert psnr(_crop(_rgb(out)), _crop(photo)) >= 50
+
+
+def test_round_trip_restores_brightness_through_baseline_exposure(tmp_path):
+    """unprocess darkens by a stop and writes BaselineExposure +1; process applies it
+    (the source's brightness comes back), or renders a stop darker when told to ignore it."""
+    y, x = np.mgrid[0:128, 0:192] / 256.0
+    img = np.stack([0.2 + 0.3 * x, 0.3 + 0.4 * y, 0.25 + 0.1 * np.sin(3 * x)], -1)
+    src = tmp_path / "smooth.tif"
+    buf = oiio.ImageBuf(oiio.ImageSpec(192, 128, 3, oiio.UINT16))
+    buf.set_pixels(oiio.ROI(), img.astype(np.float32))
+    assert buf.write(str(src))
+    options = UnprocessOptions(load_profile("nikon_d850"), iso=100, clean=True, exposure_ev=-1.0)
+    outputs = {k: tmp_path / f"s{v}" for k, v in options.output_suffixes().items()}
+    unprocess_file(Task(src, src.name, outputs, 1), options)
+    raw = read_raw(outputs["clean_dng"])
+    assert raw.baseline_exposure == 1.0
+    photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)
+    applied, _ = render(raw, default_config())
+    ignored, _ = render(raw, override(default_config(), baseline_exposure="ignore"))
+    assert psnr(_crop(_rgb(applied)), _crop(photo)) >= 45
+    assert psnr(_crop(_rgb(ignored)), _crop(photo)) < 25
 
 
 # ---- CLI ------------------------------------------------------------------------------
@@ -471,3 +493,16 @@ def test_info_prints_what_is_read_and_used(tmp_path):
     record = json.loads(next(line for line in r.output.splitlines() if line.startswith("{")))
     assert record["model"] == "Canon EOS 60D" and record["white_balance_source"] == "camera"
     assert min(record["white_balance"]) == 1.0 and len(record["color_matrix"]) == 3
+
+
+def test_baseline_exposure_is_applied_unless_ignored():
+    """The 6D's DNG says BaselineExposure +0.25: applied as Adobe's SDK does (a
+    brighter render), ignored on request as LibRaw does."""
+    raw = read_raw(RAW / "canon_eos6d_linear_raw_no_cfa.dng")
+    assert raw.baseline_exposure == 0.25
+    cfg = override(default_config(), transfer="linear", tone="none")
+    applied, info = render(raw, cfg)
+    ignored, info_ignored = render(raw, override(cfg, baseline_exposure="ignore"))
+    assert info["exposure_stops"] == 0.25 and info_ignored["exposure_stops"] == 0.0
+    inside = ignored < 0.5
+    assert torch.allclose(applied[inside], ignored[inside] * 2**0.25, rtol=1e-5, atol=1e-6)

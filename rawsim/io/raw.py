@@ -55,6 +55,7 @@ class RawImage:
             ``auto``, or ``daylight`` (when only the blue multiplier is missing).
         camera_wb_note: the camera's multipliers as the file gives them, for messages.
         matrix_source: where ``xyz_to_camera`` / ``camera_to_srgb`` come from.
+        baseline_exposure: the DNG BaselineExposure tag (stops), 0 if absent.
     """
 
     data: np.ndarray
@@ -71,6 +72,7 @@ class RawImage:
     model: str
     path: str
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    baseline_exposure: float = 0.0
     camera_wb_fallback: str = "auto"
     camera_wb_note: str = ""
     matrix_source: str = ""
@@ -154,6 +156,24 @@ def _measured_rgb_cam(raw) -> np.ndarray | None:
     means = [c.reshape(-1, 3).mean(axis=0) / 65535.0 for c in centres]
     matrix = np.stack([(means[c] - means[3]) / 0.1 for c in range(3)], axis=1)
     return matrix if np.all(np.isfinite(matrix)) and not np.allclose(matrix, 0) else None
+
+
+def _baseline_exposure(path: Path) -> float:
+    """The DNG BaselineExposure tag (50730) of a TIFF-based raw, in stops; 0 if none."""
+    with open(path, "rb") as fh:
+        if fh.read(4) not in (b"II*\0", b"MM\0*"):
+            return 0.0
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            tag = tif.pages.first.tags.get(50730)
+            value = tag.value if tag is not None else 0.0
+    except Exception:  # LibRaw read it; a tag we cannot parse counts as absent
+        return 0.0
+    if isinstance(value, tuple):  # a rational
+        value = value[0] / value[1] if value[1] else 0.0
+    return float(value) if np.isfinite(value) else 0.0
 
 
 def _image_hint(path: Path) -> str:
@@ -293,4 +313,5 @@ def read_raw(path: str | Path) -> RawImage:
         camera_wb_fallback=fallback,
         camera_wb_note=str(np.round(np.asarray(camera_wb, np.float64)[:4], 4).tolist()),
         matrix_source=source,
+        baseline_exposure=_baseline_exposure(path),
     )

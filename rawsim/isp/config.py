@@ -156,7 +156,14 @@ STAGES: dict[str, dict[str, Param]] = {
             "srgb", _choice(OUTPUT_SPACES), "linear sRGB primaries, XYZ, or camera RGB"
         ),
     },
-    "exposure": {"ev": Param(0.0, _number(-20, 20), "stops; 0 maps the white level to 1")},
+    "exposure": {
+        "ev": Param(0.0, _number(-20, 20), "stops; 0 maps the white level to 1"),
+        "baseline": Param(
+            "apply",
+            _choice(("apply", "ignore")),
+            "the DNG's BaselineExposure: apply (as Adobe's DNG SDK) or ignore (as LibRaw)",
+        ),
+    },
     "tone": {"curve": Param("none", _choice(TONE_CURVES), "tone curve")},
     "transfer": {"function": Param("srgb", _transfer, "srgb, gamma:G or linear")},
     "ycbcr": {},
@@ -282,6 +289,7 @@ def override(config: list[dict], **changes) -> list[dict]:
     keys = {
         "wb": ("white_balance", "mode"),
         "white_level": ("black_level", "white_level"),
+        "baseline_exposure": ("exposure", "baseline"),
         "demosaic": ("demosaic", "method"),
         "highlights": ("highlights", "mode"),
         "tone": ("tone", "curve"),
@@ -407,6 +415,14 @@ def auto_white_balance(raw) -> tuple[float, float, float]:
 #: LibRaw's default ``adjust_maximum_thr``: a data maximum above this share of the white
 #: level becomes the white level.
 ADJUST_MAXIMUM = 0.75
+
+
+def exposure_stops(stage: dict, raw, info: dict) -> float:
+    """Stops of an ``exposure`` stage for this raw: its ``ev``, plus the file's DNG
+    BaselineExposure unless ``baseline = "ignore"``. Recorded in ``info``."""
+    stops = stage["ev"] + (raw.baseline_exposure if stage["baseline"] == "apply" else 0.0)
+    info["exposure_stops"] = stops
+    return stops
 
 
 def white_level(stage: dict, raw, info: dict) -> float:

@@ -28,6 +28,7 @@ from rawsim.isp.config import (  # noqa: F401 - the config API, also reachable f
     camera_to_output,
     config_to_toml,
     default_config,
+    exposure_stops,
     load_config,
     load_config_text,
     override,
@@ -144,7 +145,7 @@ def build_isp(config: list[dict], raw) -> Isp:
             info["color_matrix"] = matrix.tolist()
             module = ColorMatrix(torch.as_tensor(matrix, dtype=torch.float32))
         elif name == "exposure":
-            module = Exposure(s["ev"])
+            module = Exposure(exposure_stops(s, raw, info))
         elif name == "tone":
             module = ToneCurve(s["curve"])
         elif name == "transfer":

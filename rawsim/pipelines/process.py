@@ -32,6 +32,7 @@ from rawsim.isp.config import (
     camera_to_output,
     config_to_toml,
     default_config,
+    exposure_stops,
     validate_config,
     white_balance,
     white_level,
@@ -175,7 +176,7 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
             info["color_matrix"] = matrix.tolist()
             ops.append((ep.OP_MATRIX, matrix.ravel()))
         elif name == "exposure":
-            ops.append((ep.OP_EXPOSURE, [2.0 ** s["ev"]]))
+            ops.append((ep.OP_EXPOSURE, [2.0 ** exposure_stops(s, raw, info)]))
     out_mode, lut, gamma = _output_table(tail, fmt)
     if out_mode is None:
         return None
