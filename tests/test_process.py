@@ -288,17 +288,27 @@ def test_round_trip_unprocess_then_process(tmp_path):
         assert results[name, "wcd"] > results[name, "bilinear"] + 4
 
 
-def test_smooth_round_trip_is_exact_but_for_quantisation(tmp_path):
-    y, x = np.mgrid[0:128, 0:192] / 128.0
-    img = np.stack([0.2 + 0.3 * x, 0.3 + 0.5 * y, 0.5 + 0.3 * np.sin(3 * x)], -1)
-    src = tmp_path / "smooth.tif"
+def _smooth_photo(path, scale: float, green: float, blue: tuple[float, float]):
+    """A smooth 192 × 128 16-bit TIFF: gentle ramps and a sine, no edges to demosaic."""
+    y, x = np.mgrid[0:128, 0:192] / scale
+    img = np.stack([0.2 + 0.3 * x, 0.3 + green * y, blue[0] + blue[1] * np.sin(3 * x)], -1)
     buf = oiio.ImageBuf(oiio.ImageSpec(192, 128, 3, oiio.UINT16))
     buf.set_pixels(oiio.ROI(), img.astype(np.float32))
-    assert buf.write(str(src))
-    options = UnprocessOptions(load_profile("nikon_d850"), iso=100, clean=True)
+    assert buf.write(str(path))
+    return path
+
+
+def _clean_dng(src, tmp_path, **changes):
+    options = UnprocessOptions(load_profile("nikon_d850"), iso=100, clean=True, **changes)
     outputs = {k: tmp_path / f"s{v}" for k, v in options.output_suffixes().items()}
     unprocess_file(Task(src, src.name, outputs, 1), options)
-    out, _ = render(read_raw(outputs["clean_dng"]), default_config())
+    return read_raw(outputs["clean_dng"])
+
+
+def test_smooth_round_trip_is_exact_but_for_quantisation(tmp_path):
+    src = _smooth_photo(tmp_path / "smooth.tif", 128.0, 0.5, (0.5, 0.3))
+    raw = _clean_dng(src, tmp_path)
+    out, _ = render(raw, default_config())
     photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)
     assert psnr(_crop(_rgb(out)), _crop(photo)) >= 50
 
@@ -306,16 +316,8 @@ def test_smooth_round_trip_is_exact_but_for_quantisation(tmp_path):
 def test_round_trip_restores_brightness_through_baseline_exposure(tmp_path):
     """unprocess darkens by a stop and writes BaselineExposure +1; process applies it
     (the source's brightness comes back), or renders a stop darker when told to ignore it."""
-    y, x = np.mgrid[0:128, 0:192] / 256.0
-    img = np.stack([0.2 + 0.3 * x, 0.3 + 0.4 * y, 0.25 + 0.1 * np.sin(3 * x)], -1)
-    src = tmp_path / "smooth.tif"
-    buf = oiio.ImageBuf(oiio.ImageSpec(192, 128, 3, oiio.UINT16))
-    buf.set_pixels(oiio.ROI(), img.astype(np.float32))
-    assert buf.write(str(src))
-    options = UnprocessOptions(load_profile("nikon_d850"), iso=100, clean=True, exposure_ev=-1.0)
-    outputs = {k: tmp_path / f"s{v}" for k, v in options.output_suffixes().items()}
-    unprocess_file(Task(src, src.name, outputs, 1), options)
-    raw = read_raw(outputs["clean_dng"])
+    src = _smooth_photo(tmp_path / "smooth.tif", 256.0, 0.4, (0.25, 0.1))
+    raw = _clean_dng(src, tmp_path, exposure_ev=-1.0)
     assert raw.baseline_exposure == 1.0
     photo = oiio.ImageBuf(str(src)).get_pixels(oiio.FLOAT)
     applied, _ = render(raw, default_config())
