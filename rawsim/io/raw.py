@@ -1,12 +1,15 @@
 """Reading camera raw files with rawpy (LibRaw) into a :class:`RawImage`.
 
 Everything is copied out of LibRaw before the file closes. The quirks seen on
-real files are handled here, each with a warning in ``RawImage.warnings``:
+real files are handled here, the way LibRaw handles them:
 
-* all-zero colour matrices: ``rgb_xyz_matrix`` is used when set, else LibRaw's
-  ``color_matrix`` (camera → sRGB), else the identity;
-* unknown white balance (``-1`` or all ones): daylight multipliers, else grey
-  world (decided by the ISP's ``auto`` mode);
+* colour matrices: ``rgb_xyz_matrix`` when set, else LibRaw's ``color_matrix``
+  (camera → sRGB), else the matrix LibRaw has built in for the camera, measured
+  through LibRaw (:func:`_measured_rgb_cam`), else the identity (warned);
+  ``RawImage.matrix_source`` says which;
+* white balance: the camera's multipliers where LibRaw would use them, else
+  what LibRaw falls back to (``RawImage.camera_wb_fallback``, applied by the
+  ISP's :func:`~rawsim.isp.config.white_balance`);
 * files without a CFA (LinearRaw DNGs): read as 3-channel linear data and
   rendered without demosaicking;
 * monochrome files (one colour, no filter): read as (H, W, 1) grey data and

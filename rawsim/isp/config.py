@@ -137,7 +137,7 @@ STAGES: dict[str, dict[str, Param]] = {
         "sigma": Param(0.5, _number(1e-3), "Gaussian σ in plane pixels"),
     },
     "white_balance": {
-        "mode": Param("camera", _wb_mode, "camera, daylight, auto (grey world) or R,G,B"),
+        "mode": Param("camera", _wb_mode, "camera, daylight, auto (LibRaw's grey world) or R,G,B"),
     },
     "highlights": {
         "mode": Param("clip", _choice(HIGHLIGHT_MODES), "clip, or blend (after demosaic)"),
