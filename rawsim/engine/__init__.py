@@ -10,6 +10,12 @@ first run on a machine compiles.
 
 :func:`available` says whether numba can be imported; callers fall back to the
 torch reference when it cannot.
+
+For developers: numba keys a cached kernel on its own module's file only. The
+kernels inline functions of :mod:`rawsim.engine.counter_rng` and
+:mod:`rawsim.exact_math`, so after editing those alone, delete the cache
+(``find rawsim -name '*.nbi' -delete``) or touch the kernel modules. Installs
+are not affected: a new version replaces every file.
 """
 
 from __future__ import annotations
