@@ -43,6 +43,13 @@ _SIGNATURES = (
 )
 
 
+def image_format(head: bytes) -> tuple[str, tuple[str, ...]] | None:
+    """(format name, its extensions) of an image by its first 16 bytes, or None."""
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "WebP", (".webp",)
+    return next(((name, exts) for sig, name, exts in _SIGNATURES if head.startswith(sig)), None)
+
+
 def sniff(path: Path) -> tuple[str | None, str | None]:
     """What ``path`` holds by its first bytes: (format name or None, a warning or None).
 
@@ -54,9 +61,7 @@ def sniff(path: Path) -> tuple[str | None, str | None]:
     """
     with open(path, "rb") as fh:
         head = fh.read(16)
-    kind = next(((name, exts) for sig, name, exts in _SIGNATURES if head.startswith(sig)), None)
-    if kind is None and head[:4] == b"RIFF" and head[8:12] == b"WEBP":
-        kind = ("WebP", (".webp",))
+    kind = image_format(head)
     if kind is None or (kind[0] == "TIFF" and _tiff_raw(path, head)):
         if _libraw_reads(path):
             raise UnsupportedInputError(

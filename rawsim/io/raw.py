@@ -181,12 +181,13 @@ def _baseline_exposure(path: Path) -> float:
 
 def _image_hint(path: Path) -> str:
     """``"; it is a PNG image: use 'rawsim unprocess'"`` for an image named as a raw."""
-    from rawsim.io.images import _SIGNATURES
+    from rawsim.io.images import image_format
 
     with open(path, "rb") as fh:
-        head = fh.read(16)
-    kind = next((name for sig, name, _ in _SIGNATURES if head.startswith(sig)), None)
-    return "" if kind in (None, "TIFF") else f"; it is a {kind} image: use 'rawsim unprocess'"
+        kind = image_format(fh.read(16))
+    if kind is None or kind[0] == "TIFF":  # raws are TIFFs too
+        return ""
+    return f"; it is a {kind[0]} image: use 'rawsim unprocess'"
 
 
 def read_raw(path: str | Path) -> RawImage:
