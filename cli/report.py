@@ -68,16 +68,13 @@ def _kinds(paths) -> str:
 def _check_writable(ctx: click.Context, out_dir) -> None:
     """Create the output folder and write a file in it, before any input is read:
     exit 2 with one message if that cannot be done."""
+    import tempfile
     from pathlib import Path
-
-    from rawsim.io.atomic import atomic_output
 
     try:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        with atomic_output(Path(out_dir) / ".rawsim-write-check") as probe:
-            probe.unlink()
-    except FileNotFoundError:
-        pass  # the probe's rename found nothing to move: writing works
+        with tempfile.TemporaryFile(dir=out_dir) as probe:  # removed on close
+            probe.write(b"rawsim")
     except OSError as err:
         reason = (err.strerror or str(err)).lower()
         click.echo(f"rawsim: cannot write to {_printable(str(out_dir))}: {reason}", err=True)
