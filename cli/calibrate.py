@@ -41,18 +41,29 @@ from rawsim_cli.options import output_options, usage_errors
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write a PNG of the fits.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list, one object per ISO.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output profile.")
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Write the profile even when a fit cannot be trusted; it is marked unreliable.",
+)
 @usage_errors
-def command(raws, output, darks, method, iso, name, plot, as_json, overwrite):
+def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, force):
     """Fit K (DN/e⁻), read σ, row σ and λ per ISO from RAWS and write a profile.
 
     RAWS are flat-field frames of one camera (or ordinary photos with --method
     patches); folders are searched for raws. Frames are grouped by the ISO in
-    their metadata. Per ISO and CFA channel, tile variance versus mean is fitted
-    robustly: the slope is K, the offset the read noise. Dark frames (--dark)
-    give the read σ, the row σ (full-width row means), the per-channel bias and
-    the Tukey-lambda shape λ; without them λ is not fitted and the profile has
-    no physics model. The profile also takes the files' CFA pattern, black and
-    white levels and colour matrix, and a "calibration" list with every fit.
+    their metadata and read one at a time. Per ISO and CFA channel, block
+    variance versus mean is fitted robustly: the slope is K, the offset the read
+    noise. Dark frames (--dark) give the read σ, the row σ (full-width row
+    means), the per-channel bias and the Tukey-lambda shape λ; without them λ is
+    not fitted and the profile has no physics model. Every figure comes with a
+    standard error (±, a bootstrap over image regions).
+
+    A fit that cannot be trusted (frames that are not flat fields, too few
+    signal levels, no shot noise, a negative read variance, a poor line fit,
+    dark frames that are not dark, mixed cameras or ISOs) is refused: exit 1,
+    the reasons, nothing written. --force writes it anyway and marks the
+    profile unreliable.
 
     \b
     Example:
@@ -60,7 +71,14 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite):
       rawsim calibrate photos/*.CR2 --method patches -o mycam.json --json
     """
     from rawsim.batch import discover
-    from rawsim.calibrate import build_profile, calibrate_iso, same_camera
+    from rawsim.calibrate import (
+        CalibrationRefused,
+        build_profile,
+        calibrate_iso,
+        dark_stats,
+        frame_stats,
+        same_camera,
+    )
     from rawsim.errors import ParameterError
     from rawsim.io.atomic import atomic_output
     from rawsim.io.images import RAW_EXTENSIONS
@@ -72,53 +90,93 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite):
         click.echo(f"skip: {out} exists (use --overwrite to replace it)", err=True)
         return
 
-    def load(paths) -> list:
+    def load(paths, reduce) -> list:
+        """Each file's statistics; files are read one at a time and not kept."""
         found = discover(paths, RAW_EXTENSIONS).found  # click already checked they exist
-        files = [path for path, _ in found]
-        if not files and paths:
+        if not found and paths:
             raise ParameterError(f"no raw files in {', '.join(paths)}")
-        frames = []
-        for f in files:
+        stats, isos = [], set()
+        for f, _ in found:
             raw = read_raw(f)
             if iso is None and not raw.iso > 0:
                 raise ParameterError(f"{f}: no ISO in the metadata; give --iso")
-            frames.append(raw)
-        return frames
+            isos.add(raw.iso)
+            stats.append(reduce(raw, iso))
+        if iso is not None and len(isos - {0.0}) > 1:
+            listed = ", ".join(f"{i:g}" for i in sorted(isos - {0.0}))
+            why = f"--iso {iso:g} would fit files shot at ISO {listed} as one"
+            raise CalibrationRefused([why + "; calibrate each ISO on its own (leave out --iso)"])
+        return stats
 
-    flats, dark_frames = load(raws), load(darks)
-    same_camera(flats + dark_frames)
-    by_iso: dict[float, list] = defaultdict(list)
-    dark_by_iso: dict[float, list] = defaultdict(list)
-    for raw in flats:
-        by_iso[iso or raw.iso].append(raw)
-    for raw in dark_frames:
-        dark_by_iso[iso or raw.iso].append(raw)
-    orphans = sorted(set(dark_by_iso) - set(by_iso))
-    if orphans:
-        raise ParameterError(f"dark frames at ISO {orphans[0]:g} have no flat frames")
-    fits = [
-        calibrate_iso(value, by_iso[value], dark_by_iso.get(value, []), method)
-        for value in sorted(by_iso)
-    ]
-    profile = build_profile(fits, flats[0], name or out.stem, method)
+    try:
+        flats = load(raws, lambda raw, value: frame_stats(raw, method, value))
+        dark_frames = load(darks, dark_stats)
+        same_camera(flats + dark_frames)
+        by_iso: dict[float, list] = defaultdict(list)
+        dark_by_iso: dict[float, list] = defaultdict(list)
+        for f in flats:
+            by_iso[f.iso].append(f)
+        for d in dark_frames:
+            dark_by_iso[d.iso].append(d)
+        orphans = sorted(set(dark_by_iso) - set(by_iso))
+        if orphans:
+            raise ParameterError(f"dark frames at ISO {orphans[0]:g} have no flat frames")
+        fits = [
+            calibrate_iso(value, by_iso[value], dark_by_iso.get(value, []), method)
+            for value in sorted(by_iso)
+        ]
+        profile = build_profile(fits, flats[0], name or out.stem, method, forced=force)
+    except CalibrationRefused as err:
+        for problem in err.problems:
+            click.echo(f"rawsim: cannot calibrate: {problem}", err=True)
+        click.echo(
+            f"rawsim: nothing written to {out} (--force writes it anyway, marked unreliable)",
+            err=True,
+        )
+        raise SystemExit(1) from None
     profile_from_dict(profile, str(out))  # the written profile must load
-    for warning in profile["warnings"]:
-        click.echo(f"warning: {warning}", err=True)
+    for problem in profile.get("unreliable", [])[1:]:
+        click.echo(f"warning: unreliable: {problem}", err=True)
     with atomic_output(out) as tmp:
         tmp.write_text(json.dumps(profile, indent=2) + "\n")
     if plot:
         from rawsim.plots import plot_calibration
 
-        plot_calibration(fits, plot, f"{flats[0].make} {flats[0].model} ({method})")
+        camera = flats[0].camera.describe()
+        plot_calibration(fits, plot, f"{camera} ({method})")
     if as_json:
         click.echo(json.dumps([f.to_dict() for f in fits], indent=2))
     else:
-        click.echo(f"{'ISO':>7} {'K DN/e⁻':>10} {'read σ':>8} {'row σ':>8} {'λ':>6}  frames")
-        for f in fits:
-            row = "–" if f.row_sigma is None else f"{f.row_sigma:.3f}"
-            lam = "–" if f.lam is None else f"{f.lam:+.2f}"
-            click.echo(
-                f"{f.iso:>7g} {f.K:>10.4f} {f.read_sigma:>8.3f} {row:>8} {lam:>6}  "
-                f"{f.frames} + {f.darks} dark"
-            )
+        click.echo(summary(fits))
     click.echo(f"wrote {out}" + (f" and {plot}" if plot else ""), err=True)
+
+
+def summary(fits) -> str:
+    """The fits as a table, each figure ± its standard error."""
+
+    def pm(value, key, fit, digits):
+        if value is None:
+            return "–"
+        err = fit.errors.get(key)
+        text = f"{value:.{digits}f}"
+        return text + (f" ± {err:.{digits}f}" if err is not None and err == err else "")
+
+    rows = [("ISO", "K DN/e⁻", "read σ DN", "row σ DN", "λ", "frames")]
+    for f in fits:
+        rows.append(
+            (
+                f"{f.iso:g}",
+                pm(f.K, "K", f, 4),
+                pm(f.read_sigma, "read_sigma", f, 3),
+                pm(f.row_sigma, "row_sigma", f, 3),
+                pm(f.lam, "lambda", f, 2),
+                f"{f.frames} + {f.darks} dark" + ("" if not f.problems else "  (unreliable)"),
+            )
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join(
+        "  ".join(
+            c.rjust(w) if i < 5 else c for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        )
+        for r in rows
+    )

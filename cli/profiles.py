@@ -144,3 +144,5 @@ def show_cmd(profile, iso, as_json, plot):
             )
     for key, src in p.source.items():
         click.echo(f"  source[{key}]: {src}")
+    for why in p.unreliable:
+        click.echo(f"  unreliable: {why}")

@@ -1,77 +1,169 @@
 """Noise calibration: estimate a sensor's noise parameters from its own raw files.
 
-Two methods, both on the CFA planes (R, Gr, Gb, B) cut into square tiles:
+Frames are read one at a time and reduced to statistics of small blocks of their
+CFA planes (R, Gr, Gb, B), so memory does not grow with the number of frames.
+Per ISO and channel, block variance = K · mean + σ_read² + 1/12 is fitted over
+signal bins (log-spaced), by weighted least squares with outlier bins dropped,
+in two passes: the second normalises each block by the first line, so a bin's
+spread of levels does not bias it, and drops blocks within 5 σ of the white
+level (clipping lowers the variance). Every figure gets a standard error from a
+bootstrap over image regions (4×4 per frame) or, for dark frames, over bands.
 
 * ``flat`` (photon transfer, EMVA 1288 style): flat-field frames, ideally with
   an illumination gradient or at several exposures, and optional dark frames.
-  Each tile gives its mean signal above black and its variance after removing
-  a fitted plane (illumination gradient) and the row offsets. Per ISO and
-  channel, variance = K · mean + σ_read² + 1/12 is fitted robustly (medians in
-  signal bins, weighted least squares, outliers dropped). Dark frames give
-  σ_read, the row-noise σ (variance of full-width row means) and the read-noise
-  shape λ (Tukey-lambda, probability-plot correlation maximum, as ELD).
-* ``patches`` (less accurate): ordinary photos. Only the smoothest tiles of each
-  signal bin are used: a low quantile of their variances, corrected for the
-  quantile's bias under pure noise, stands in for the noise variance.
+  A 32×32 tile's variance is taken after removing a fitted plane (illumination
+  gradient) and its rows' offsets; a bin's value is the median. Frames are
+  checked to be flat: a tile's variance must match its pixel noise measured by
+  the high-pass below, which scene structure does not reach.
+* ``patches``: ordinary photos, after Foi et al., "Practical Poissonian-Gaussian
+  noise modeling and fitting for single-image raw-data", IEEE TIP 17(10), 2008:
+  local means and finest-scale detail coefficients, grouped in level sets of the
+  mean, then a line fit. Here the detail is a separable 4th-order difference
+  ``[1 −4 6 −4 1]/√70`` along both axes (unit gain on white noise; it removes
+  cubic trends and row or column offsets), and the smooth parts of each level
+  set are its weak-texture 8×8 blocks, as in Liu, Tanaka & Okutomi, "Single-image
+  noise level estimation for blind denoising", IEEE TIP 22(12), 2013: the 5 %
+  quantile of the blocks' detail variance, divided by that quantile's value
+  under pure noise (simulated). Texture only adds variance, so the low tail is
+  the noise. Clipped blocks are excluded rather than modelled.
+
+Dark frames give the read σ, the row σ (variance of full-width row means), the
+per-channel bias and the read-noise shape λ (Tukey-lambda, largest
+probability-plot correlation, as ELD). Fits that cannot be trusted (frames that
+are not flat fields, too few signal levels, no shot noise, a negative read
+variance, a poor line fit, dark frames that are not dark) are listed in
+:attr:`IsoFit.problems`; the command refuses to write them.
 
 All values are in DN of the raw file; K in DN/e⁻.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 
-from rawsim.errors import ParameterError
+from rawsim.errors import ParameterError, RawsimError
 from rawsim.io.raw import RawImage
-from rawsim.noise import QUANTIZATION_VARIANCE, tukey_lambda_quantile, tukey_lambda_variance
+from rawsim.noise import QUANTIZATION_VARIANCE, tukey_lambda_variance
 
 METHODS = ("flat", "patches")
 CHANNELS = ("R", "Gr", "Gb", "B")
-#: Tile side in plane pixels (flat frames); 2×2-block details per tile side (photos).
+#: Tile side of the flat method and block side of the patch method (plane pixels).
 TILE = 32
-PATCH_BLOCKS = 8
-MAD_TO_SIGMA = 1.482602218505602
-#: Quantile of tile variances used by the patch method, and the bins of signal.
-PATCH_QUANTILE = 0.1
-BINS = 48
-#: Tiles whose brightest pixel reaches this fraction of the range are dropped.
+BLOCK = 8
+#: The high-pass of the patch method and the flatness check (unit white-noise gain).
+HIGH_PASS = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / math.sqrt(70.0)
+#: Quantile of block variances taken as the noise in a level set (patch method).
+PATCH_QUANTILE = 0.05
+#: Signal bins (log-spaced) and the fewest blocks a bin needs.
+BINS = 16
+MIN_BIN = {"flat": 3, "patches": 50}
+#: Bootstrap: regions per frame side, resamples.
+REGIONS = 4
+RESAMPLES = 32
+#: Blocks whose brightest pixel reaches this fraction of the range are dropped (first pass).
 SATURATION = 0.95
-#: Smallest K written to a profile (DN/e⁻): noise-free data gives K ≈ 0.
-MIN_GAIN = 1e-6
+#: A flat frame's median tile variance may exceed its high-pass noise by this factor.
+FLATNESS = 1.5
+#: A dark frame's mean may exceed black by this fraction of the range.
+DARK_LEVEL = 0.005
+#: Fewest usable signal bins, and the least ratio of the brightest to the darkest level.
+MIN_LEVELS = 4
+MIN_LEVEL_RATIO = 3.0
+#: Largest plausible full well (e⁻): K below range / this is no measured shot noise.
+MAX_FULL_WELL = 1e6
+#: Largest relative standard error of K that is written without --force.
+MAX_K_ERROR = 0.25
+#: Dark-frame residual samples kept per frame for the λ fit.
+LAMBDA_SAMPLES = 200_000
 LAMBDA_GRID = np.round(np.arange(-0.45, 0.61, 0.01), 2)
 
 
-@dataclass
-class TileStats:
-    """Per-tile statistics of one frame: arrays of shape (4, N) (channel, tile), DN.
+class CalibrationRefused(RawsimError):
+    """The frames do not support a trustworthy fit; ``problems`` says why."""
 
-    ``mean`` is above black; ``var`` the pixel variance without rows' offsets;
-    ``row_var`` the variance of the rows' offsets; ``valid`` excludes saturated tiles.
+    def __init__(self, problems: list[str]):
+        super().__init__("; ".join(problems))
+        self.problems = problems
+
+
+@dataclass(frozen=True)
+class Camera:
+    """What must agree between the frames of one calibration."""
+
+    make: str
+    model: str
+    cfa: str | None
+    ndim: int
+
+    def describe(self) -> str:
+        return f"{self.make} {self.model}".strip() or "unknown camera"
+
+
+@dataclass
+class FrameStats:
+    """One frame reduced to block statistics; arrays have shape (C, N), DN above black.
+
+    ``var`` is each block's noise variance estimate, ``row_var`` the variance of
+    its rows' offsets (flat method) and ``group`` (N,) its region for the
+    bootstrap. ``flatness`` is the median ratio of tile variance to high-pass
+    noise (flat method; ≈ 1 for a flat field).
     """
 
+    path: str
+    iso: float
+    camera: Camera
+    black: float
+    white: float
+    xyz_to_camera: np.ndarray | None
     mean: np.ndarray
     var: np.ndarray
-    row_var: np.ndarray
+    row_var: np.ndarray | None
     valid: np.ndarray
+    group: np.ndarray
+    flatness: float | None = None
+
+    @property
+    def span(self) -> float:
+        return self.white - self.black
+
+
+@dataclass
+class DarkStats:
+    """A dark frame per channel: bias, and read and row variance per horizontal band (C, B)."""
+
+    path: str
+    iso: float
+    camera: Camera
+    bias: np.ndarray
+    read_var: np.ndarray
+    row_var: np.ndarray
+    residual: np.ndarray  # a deterministic subsample of the pixels minus their row means
+    mean_above_black: float
 
 
 @dataclass
 class IsoFit:
-    """The fit at one ISO. Per-channel values are in R, Gr, Gb, B order."""
+    """The fit at one ISO. Per-channel values are in R, Gr, Gb, B order.
+
+    ``errors`` holds the standard error of K, read_sigma, row_sigma and lambda;
+    ``problems`` why the fit is not to be trusted (empty when it is).
+    """
 
     iso: float
     K: float
     read_sigma: float
     row_sigma: float | None
     lam: float | None
+    errors: dict = field(default_factory=dict)
     channels: dict = field(default_factory=dict)
     frames: int = 0
     darks: int = 0
-    points: dict = field(default_factory=dict)  # for the plot: channel → (means, vars)
+    problems: list = field(default_factory=list)
+    points: dict = field(default_factory=dict)  # for the plot: channel → (means, vars, errors)
 
     @property
     def tukey_sigma(self) -> float | None:
@@ -88,124 +180,351 @@ class IsoFit:
             "row_sigma": self.row_sigma,
             "lambda": self.lam,
             "tukey_sigma": self.tukey_sigma,
+            "uncertainty": self.errors,
             "channels": self.channels,
             "frames": self.frames,
             "dark_frames": self.darks,
+            "reliable": not self.problems,
+            "problems": self.problems,
         }
 
 
-def planes_of(raw: RawImage) -> torch.Tensor:
+# ---------------------------------------------------------------- frame statistics
+
+
+def planes_of(raw: RawImage) -> np.ndarray:
     """The raw's planes above black, float64: (4, H/2, W/2) R, Gr, Gb, B, or (3, H, W)."""
-    data = torch.from_numpy(raw.data.astype(np.float64))
-    black = torch.as_tensor(np.asarray(raw.black_level, dtype=np.float64))
+    data = raw.data.astype(np.float64)
+    black = np.asarray(raw.black_level, dtype=np.float64)
     if raw.cfa is None:
-        return (data - black).permute(2, 0, 1)
-    return (raw.cfa.pack(data[None, None]) - raw.cfa.pack(black[None, None]))[0]
+        return np.moveaxis(data - black, -1, 0)
+    h, w = data.shape[0] // 2 * 2, data.shape[1] // 2 * 2
+    black = np.broadcast_to(black, (2, 2))
+    return np.stack([data[i:h:2, j:w:2] - black[i, j] for i, j in raw.cfa.packed_sites])
 
 
-def _tiles(x: torch.Tensor, size: int) -> torch.Tensor:
-    """Whole ``size``×``size`` tiles of (C, H, W), row-major: (C, N, size, size)."""
+def high_pass(x: np.ndarray) -> np.ndarray:
+    """``HIGH_PASS`` along both of the last two axes, valid part only: (…, H−4, W−4)."""
+    k = HIGH_PASS
+    h, w = x.shape[-2:]
+    y = sum(k[i] * x[..., i : h - 4 + i, :] for i in range(5))
+    return sum(k[j] * y[..., :, j : w - 4 + j] for j in range(5))
+
+
+def _blocks(x: np.ndarray, size: int) -> np.ndarray:
+    """Whole ``size``×``size`` blocks of (C, H, W), row-major: (C, ny, nx, size, size)."""
     c, h, w = x.shape
     ny, nx = h // size, w // size
     if ny == 0 or nx == 0:
-        raise ParameterError(f"image too small for {size}×{size} tiles per channel")
-    x = x[:, : ny * size, : nx * size].reshape(c, ny, size, nx, size).permute(0, 1, 3, 2, 4)
-    return x.reshape(c, ny * nx, size, size)
+        raise ParameterError(f"image too small for {size}×{size} blocks per channel")
+    x = x[:, : ny * size, : nx * size].reshape(c, ny, size, nx, size)
+    return x.transpose(0, 1, 3, 2, 4)
 
 
-def tile_stats(planes: torch.Tensor, span: float, tile: int = TILE) -> TileStats:
-    """Statistics of ``tile``×``tile`` tiles of ``planes`` (C, H, W) above black.
+def _regions(ny: int, nx: int) -> np.ndarray:
+    """Region index (REGIONS × REGIONS grid) of each block of an ny × nx grid: (ny·nx,)."""
+    ry = np.arange(ny) * REGIONS // ny
+    rx = np.arange(nx) * REGIONS // nx
+    return (ry[:, None] * REGIONS + rx[None, :]).reshape(-1)
+
+
+def camera_of(raw: RawImage) -> Camera:
+    return Camera(raw.make, raw.model, raw.cfa.pattern if raw.cfa else None, raw.data.ndim)
+
+
+def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameStats:
+    """Block statistics of one flat frame (``flat``) or photo (``patches``)."""
+    if method not in METHODS:
+        raise ParameterError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    planes = planes_of(raw)
+    black = float(np.mean(raw.black_level))
+    span = float(raw.white_level) - black
+    floor = -np.asarray(raw.black_level, dtype=np.float64).min()  # raw DN 0, above black
+    if method == "flat":
+        x = _blocks(planes, TILE)
+        stats = _tile_stats(x)
+        peak, low = x.max(axis=(-2, -1)), x.min(axis=(-2, -1))
+        hp = (high_pass(x) ** 2).mean(axis=(-2, -1))
+        ratio = stats[1] / np.maximum(hp, 1e-12)
+        mean, var, row_var = stats
+    else:
+        d = _blocks(high_pass(planes), BLOCK)
+        support = _blocks(planes[:, 2:-2, 2:-2], BLOCK)
+        var = (d**2).mean(axis=(-2, -1))
+        mean = support.mean(axis=(-2, -1))
+        peak, low = _block_extremes(planes, d.shape[1], d.shape[2])
+        row_var, ratio = None, None
+    ny, nx = mean.shape[1:]
+    valid = (peak < SATURATION * span) & (low > floor)
+    flat = lambda a: a.reshape(a.shape[0], -1)  # noqa: E731
+    flatness = None
+    if ratio is not None:
+        ok = flat(valid)
+        flatness = float(np.median(flat(ratio)[ok])) if ok.any() else math.inf
+    return FrameStats(
+        path=str(raw.path),
+        iso=float(iso or raw.iso),
+        camera=camera_of(raw),
+        black=black,
+        white=float(raw.white_level),
+        xyz_to_camera=None if raw.xyz_to_camera is None else np.asarray(raw.xyz_to_camera),
+        mean=flat(mean),
+        var=flat(var),
+        row_var=None if row_var is None else flat(row_var),
+        valid=flat(valid),
+        group=_regions(ny, nx),
+        flatness=flatness,
+    )
+
+
+def _block_extremes(planes: np.ndarray, ny: int, nx: int) -> tuple[np.ndarray, np.ndarray]:
+    """Max and min of each patch block's high-pass support, (C, ny, nx) each.
+
+    Block (i, j) reads plane rows and columns [8i, 8i + 12): the 4×4 chunks
+    2i, 2i + 1 and 2i + 2 along each axis.
+    """
+    c = planes.shape[0]
+    chunks = planes[:, : 4 * (2 * ny + 1), : 4 * (2 * nx + 1)]
+    chunks = chunks.reshape(c, 2 * ny + 1, 4, 2 * nx + 1, 4)
+
+    def pool(a, f):
+        a = f(f(a[:, 0:-2:2], a[:, 1:-1:2]), a[:, 2::2])
+        return f(f(a[:, :, 0:-2:2], a[:, :, 1:-1:2]), a[:, :, 2::2])
+
+    return (
+        pool(chunks.max(axis=(2, 4)), np.maximum),
+        pool(chunks.min(axis=(2, 4)), np.minimum),
+    )
+
+
+def _tile_stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, variance without rows' offsets and row-offset variance of tiles (…, T, T).
 
     A least-squares plane is removed from each tile first (illumination
-    gradients); then the row means of the residual split its variance into the
-    rows' offsets (``row_var``) and the rest (``var``).
+    gradients); the row means of the residual then split its variance.
     """
-    x = _tiles(planes, tile)
-    mean = x.mean(dim=(-2, -1))
-    t = torch.arange(tile, dtype=x.dtype) - (tile - 1) / 2
+    tile = x.shape[-1]
+    mean = x.mean(axis=(-2, -1))
+    t = np.arange(tile, dtype=np.float64) - (tile - 1) / 2
     norm = float((t**2).sum()) * tile
-    slope_i = (x * t[:, None]).sum(dim=(-2, -1)) / norm
-    slope_j = (x * t[None, :]).sum(dim=(-2, -1)) / norm
+    slope_i = (x * t[:, None]).sum(axis=(-2, -1)) / norm
+    slope_j = (x * t[None, :]).sum(axis=(-2, -1)) / norm
     r = x - mean[..., None, None] - slope_i[..., None, None] * t[:, None]
     r = r - slope_j[..., None, None] * t[None, :]
-    total = (r**2).sum(dim=(-2, -1)) / (tile * tile - 3)
-    rows = r.mean(dim=-1)
-    rows_var = (rows**2).sum(dim=-1) / (tile - 2)
+    total = (r**2).sum(axis=(-2, -1)) / (tile * tile - 3)
+    rows = r.mean(axis=-1)
+    rows_var = (rows**2).sum(axis=-1) / (tile - 2)
     row_var = (rows_var - total / tile) / (1 - 1 / tile)  # unbiased; may be < 0
-    peak = x.amax(dim=(-2, -1))
-    valid = peak < SATURATION * span
-    return TileStats(mean.numpy(), (total - row_var).numpy(), row_var.numpy(), valid.numpy())
+    return mean, total - row_var, row_var
 
 
-def _line(m: np.ndarray, v: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
-    a = np.stack([m, np.ones_like(m)], 1) * np.sqrt(weights)[:, None]
-    sol, *_ = np.linalg.lstsq(a, v * np.sqrt(weights), rcond=None)
-    return float(sol[0]), float(sol[1])
+def dark_stats(raw: RawImage, iso: float | None = None, bands: int = 16) -> DarkStats:
+    """Bias, read and row variance per horizontal band, and a residual sample of a dark frame."""
+    planes = planes_of(raw)
+    c, h, w = planes.shape
+    bands = max(1, min(bands, h // 8))
+    edges = np.linspace(0, h, bands + 1).astype(int)
+    bias, read_var, row_var = (np.empty((c, bands)) for _ in range(3))
+    for b in range(bands):
+        x = planes[:, edges[b] : edges[b + 1]]
+        m = x.mean(axis=(-2, -1))
+        r = x - m[:, None, None]
+        rows = r.mean(axis=-1)
+        total = r.reshape(c, -1).var(axis=-1, ddof=1)
+        rv = (rows.var(axis=-1, ddof=1) - total / w) / (1 - 1 / w)
+        bias[:, b], read_var[:, b], row_var[:, b] = m, total - rv, rv
+    residual = (planes - planes.mean(axis=-1, keepdims=True)).reshape(-1)
+    rng = np.random.default_rng(0)
+    if residual.size > LAMBDA_SAMPLES:
+        residual = residual[rng.choice(residual.size, LAMBDA_SAMPLES, replace=False)]
+    return DarkStats(
+        path=str(raw.path),
+        iso=float(iso or raw.iso),
+        camera=camera_of(raw),
+        bias=bias,
+        read_var=read_var,
+        row_var=row_var,
+        residual=residual.copy(),
+        mean_above_black=float(planes.mean()),
+    )
 
 
-def fit_variance_line(
-    mean: np.ndarray,
-    var: np.ndarray,
-    quantile: float | None = None,
-    correction: float = 1.0,
-    rel_err: float = math.sqrt(2 / (TILE * TILE - 3)),
-) -> tuple[float, float, np.ndarray, np.ndarray]:
-    """Fit variance = slope · mean + offset over tiles: (slope, offset, bin means, bin vars).
+def same_camera(frames: list) -> None:
+    """Raise if the frames come from different cameras (make/model or CFA)."""
+    ref = frames[0]
+    for f in frames[1:]:
+        if (f.camera.make, f.camera.model) != (ref.camera.make, ref.camera.model):
+            raise ParameterError(
+                f"{f.path}: camera {f.camera.describe()} differs from {ref.path} "
+                f"({ref.camera.describe()}); calibrate one camera at a time"
+            )
+        if f.camera != ref.camera:
+            raise ParameterError(f"{f.path}: CFA layout differs from {ref.path}")
 
-    Tiles are grouped in signal bins; a bin's variance is its median (flat frames)
-    or its ``quantile`` divided by ``correction``, that quantile's value under pure
-    noise (patch method); ``rel_err`` is a tile variance's relative standard error.
-    Weighted least squares (weight ∝ count / variance²), then bins off
-    the line by more than 4 expected standard errors are dropped and the line refit.
-    """
-    order = np.argsort(mean)
-    mean, var = mean[order], var[order]
-    edges = np.linspace(mean[0], mean[-1] + 1e-9, BINS + 1)
-    which = np.clip(np.searchsorted(edges, mean, side="right") - 1, 0, BINS - 1)
-    bm, bv, bn = [], [], []
-    for b in range(BINS):
-        sel = which == b
-        n = int(sel.sum())
-        if n < 3:
-            continue
-        bm.append(float(np.median(mean[sel])))
-        if quantile is None:
-            bv.append(float(np.median(var[sel])))
-        else:
-            bv.append(float(np.quantile(var[sel], quantile)) / correction)
-        bn.append(n)
-    bm, bv, bn = np.array(bm), np.array(bv), np.array(bn, dtype=np.float64)
-    if len(bm) < 2 or bm[-1] - bm[0] <= 0:
-        raise ParameterError(
-            "the frames do not span a range of signal levels (need flats at several "
-            "brightnesses, an illumination gradient, or varied photos)"
-        )
-    keep = np.ones(len(bm), dtype=bool)
+
+# ---------------------------------------------------------------- line fits
+
+
+@functools.cache
+def pure_noise_quantile(q: float = PATCH_QUANTILE) -> float:
+    """The q-quantile of a patch block's detail variance over σ² under white Gaussian noise."""
+    rng = np.random.default_rng(0)
+    z = rng.standard_normal((16, 4 + 32 * BLOCK, 4 + 32 * BLOCK))
+    v = (_blocks(high_pass(z), BLOCK) ** 2).mean(axis=(-2, -1))
+    return float(np.quantile(v, q))
+
+
+def _bin_statistic(method: str) -> tuple[float, float]:
+    """(quantile, divisor) of a bin's variances that estimates its noise variance."""
+    if method == "flat":
+        return 0.5, 1.0
+    return PATCH_QUANTILE, pure_noise_quantile()
+
+
+@dataclass
+class Line:
+    """variance = slope · mean + offset, with the bins it was fitted on (NaN: empty or dropped)."""
+
+    slope: float
+    offset: float
+    bins: np.ndarray  # (BINS,) bin variance (DN²)
+    levels: np.ndarray  # (BINS,) bin mean level (DN)
+
+
+def _bin_edges(mean: np.ndarray) -> np.ndarray:
+    """A bin for levels ≤ 0 (dark frames), then BINS log-spaced bins over the positive levels."""
+    pos = mean[mean > 0]
+    if pos.size == 0:
+        return np.array([-np.inf, np.inf])
+    lo, hi = float(pos.min()), float(pos.max())
+    edges = np.geomspace(lo, hi * (1 + 1e-9), BINS + 1) if hi > lo else np.array([lo, hi + 1])
+    return np.concatenate([[-np.inf], edges])
+
+
+class _Bins:
+    """Blocks sorted by (bin, value) once, for weighted bin quantiles (bootstrap weights)."""
+
+    def __init__(self, mean: np.ndarray, value: np.ndarray, edges: np.ndarray, q: float):
+        self.nbins = len(edges) - 1
+        which = np.clip(np.searchsorted(edges, mean, side="right") - 1, 0, self.nbins - 1)
+        self.order = np.lexsort((value, which))
+        self.which, self.mean, self.value, self.q = which, mean, value[self.order], q
+        self.ends = np.searchsorted(which[self.order], np.arange(self.nbins + 1))
+
+    def __call__(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per bin: weighted mean level, weighted q-quantile of the values, total weight."""
+        n = self.nbins
+        total = np.bincount(self.which, weights, minlength=n)
+        level = np.bincount(self.which, weights * self.mean, minlength=n) / np.maximum(total, 1e-12)
+        cum = np.concatenate([[0.0], np.cumsum(weights[self.order])])
+        target = cum[self.ends[:-1]] + self.q * total
+        idx = np.clip(np.searchsorted(cum, target, side="left") - 1, 0, self.value.size - 1)
+        return level, self.value[idx], total
+
+
+def _line_from_bins(
+    levels: np.ndarray, values: np.ndarray, counts: np.ndarray, method: str
+) -> Line:
+    """Weighted least squares (weight ∝ count / variance²), dropping bins off the line by
+    more than 4 expected standard errors (+2 %) and refitting."""
+    ok = (counts >= MIN_BIN[method]) & np.isfinite(values)
+    values = np.where(ok, values, np.nan)
+    levels = np.where(counts > 0, levels, np.nan)
+    if ok.sum() < 2:
+        return Line(math.nan, math.nan, values, levels)
+    rel_err = math.sqrt(2 / (TILE * TILE - 3)) if method == "flat" else math.sqrt(2.7 / BLOCK**2)
+    keep = ok.copy()
     for _ in range(3):
-        w = bn[keep] / np.maximum(bv[keep], 1e-12) ** 2
-        slope, offset = _line(bm[keep], bv[keep], w)
-        model = np.maximum(slope * bm + offset, 1e-12)
-        err = model * rel_err / np.sqrt(bn)
-        new = np.abs(bv - model) <= 4 * err + 0.02 * model
+        w = counts[keep] / np.maximum(values[keep], 1e-12) ** 2
+        slope, offset = _weighted_line(levels[keep], values[keep], w)
+        model = np.maximum(slope * levels + offset, 1e-12)
+        err = model * rel_err / np.sqrt(np.maximum(counts, 1))
+        new = ok & (np.abs(values - model) <= 4 * err + 0.02 * model)
         if new.sum() < 2 or (new == keep).all():
             break
         keep = new
-    return slope, offset, bm[keep], bv[keep]
+    return Line(slope, offset, np.where(keep, values, np.nan), levels)
 
 
-def fit_lambda(residual: torch.Tensor, max_samples: int = 400_000, seed: int = 0) -> float:
+def _weighted_line(m: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    a = np.stack([m, np.ones_like(m)], 1) * np.sqrt(w)[:, None]
+    sol, *_ = np.linalg.lstsq(a, v * np.sqrt(w), rcond=None)
+    return float(sol[0]), float(sol[1])
+
+
+@dataclass
+class ChannelData:
+    """Blocks of one channel (or all channels) over the frames of one ISO."""
+
+    mean: np.ndarray
+    var: np.ndarray
+    group: np.ndarray  # bootstrap unit: frame × region
+
+
+def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, np.ndarray]:
+    """The line of ``data`` and its bootstrap: (line, (RESAMPLES, 2 + BINS) draws).
+
+    The first pass bins the raw variances. The second bins each block's
+    variance over the first line at its level, scaled back at the bin's level,
+    and drops blocks within 5 σ of the white level. The bootstrap resamples the
+    groups (weights on the second pass); each draw row holds slope, offset and
+    the bin values.
+    """
+    edges = _bin_edges(data.mean)
+    q, divisor = _bin_statistic(method)
+    ones = np.ones(data.mean.size)
+    level, value, count = _Bins(data.mean, data.var, edges, q)(ones)
+    first = _line_from_bins(level, value / divisor, count, method)
+    draws = np.full((RESAMPLES, 2 + len(edges) - 1), np.nan)
+    if not math.isfinite(first.slope):
+        return first, draws
+    model = np.maximum(first.slope * data.mean + first.offset, 1e-12)
+    keep = data.mean + 5 * np.sqrt(model) < span
+    bins = _Bins(data.mean[keep], data.var[keep] / model[keep], edges, q)
+    group = data.group[keep]
+
+    def second(weights: np.ndarray) -> Line:
+        level, ratio, count = bins(weights)
+        at = np.maximum(first.slope * level + first.offset, 1e-12)
+        return _line_from_bins(level, ratio / divisor * at, count, method)
+
+    line = second(np.ones(group.size))
+    groups, inverse = np.unique(group, return_inverse=True)
+    rng = np.random.default_rng(12345)
+    for r in range(RESAMPLES):
+        picks = np.bincount(rng.integers(0, groups.size, groups.size), minlength=groups.size)
+        b = second(picks[inverse].astype(np.float64))
+        draws[r] = [b.slope, b.offset, *b.bins]
+    return line, draws
+
+
+def _std(x: np.ndarray) -> float:
+    """Sample standard deviation of the finite values (NaN with fewer than 2)."""
+    x = x[np.isfinite(x)]
+    return float(np.std(x, ddof=1)) if x.size > 1 else math.nan
+
+
+def _column_std(draws: np.ndarray) -> np.ndarray:
+    """:func:`_std` of each column."""
+    return np.array([_std(column) for column in draws.T])
+
+
+def fit_lambda(residual: np.ndarray, max_samples: int = 400_000, seed: int = 0) -> float:
     """Tukey-lambda shape of a zero-mean sample: the λ of largest probability-plot correlation."""
-    x = residual.reshape(-1).to(torch.float64)
-    if x.numel() > max_samples:
-        idx = torch.randperm(x.numel(), generator=torch.Generator().manual_seed(seed))
-        x = x[idx[:max_samples]]
-    x, _ = torch.sort(x)
-    n = x.numel()
-    p = (torch.arange(1, n + 1, dtype=torch.float64) - 0.3175) / (n + 0.365)
+    import torch
+
+    from rawsim.noise import tukey_lambda_quantile  # torch: only when dark frames are given
+
+    x = np.asarray(residual, dtype=np.float64).reshape(-1)
+    if x.size > max_samples:
+        x = x[np.random.default_rng(seed).choice(x.size, max_samples, replace=False)]
+    x = np.sort(x)
+    n = x.size
+    p = torch.from_numpy((np.arange(1, n + 1) - 0.3175) / (n + 0.365))
     xc = (x - x.mean()) / x.std()
     best, best_r = 0.0, -2.0
     for lam in LAMBDA_GRID:
-        q = tukey_lambda_quantile(p, float(lam))
+        q = tukey_lambda_quantile(p, float(lam)).numpy()
         qc = (q - q.mean()) / q.std()
         r = float((xc * qc).mean())
         if r > best_r:
@@ -213,147 +532,186 @@ def fit_lambda(residual: torch.Tensor, max_samples: int = 400_000, seed: int = 0
     return best
 
 
-def dark_stats(planes: torch.Tensor) -> dict:
-    """Read variance, row variance, bias and residual of one dark frame's planes (C, H, W)."""
-    mean = planes.mean(dim=(-2, -1))
-    x = planes - mean[:, None, None]
-    w = x.shape[-1]
-    rows = x.mean(dim=-1)
-    total = x.var(dim=(-2, -1))
-    row_var = (rows.var(dim=-1) - total / w).clamp_min(0) / (1 - 1 / w)
-    residual = x - rows[..., None]
-    return {
-        "bias": mean.numpy(),
-        "read_var": (total - row_var).numpy(),
-        "row_var": row_var.numpy(),
-        "residual": residual,
-    }
+# ---------------------------------------------------------------- one ISO
 
 
 def calibrate_iso(
-    iso: float,
-    flats: list[RawImage],
-    darks: list[RawImage],
-    method: str = "flat",
+    iso: float, flats: list[FrameStats], darks: list[DarkStats], method: str = "flat"
 ) -> IsoFit:
-    """Fit one ISO from its frames (see the module docstring)."""
+    """Fit one ISO from its frames' statistics; problems are listed, not raised."""
     if method not in METHODS:
         raise ParameterError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    if not flats:
+        raise ParameterError(f"ISO {iso:g}: no flat-field frames (only dark frames)")
     if method == "flat" and len(flats) + len(darks) < 2:
         raise ParameterError(
             f"ISO {iso:g}: {len(flats) + len(darks)} frame(s); the flat-field method needs at "
             "least 2 (flats at different exposures, or a flat and a dark frame)"
         )
-    if not flats:
-        raise ParameterError(f"ISO {iso:g}: no flat-field frames (only dark frames)")
-    first = flats[0]
-    span = float(first.white_level) - float(np.mean(first.black_level))
-    tile = TILE
+    problems = []
+    span = flats[0].span
     if method == "flat":
-        stats = [tile_stats(planes_of(r), span, tile) for r in flats]
-    else:
-        stats = [patch_stats(planes_of(r), span) for r in flats]
-    dark_planes = [planes_of(r) for r in darks]
-    dark_tiles = [tile_stats(p, span, tile) for p in dark_planes]
-    dark = [dark_stats(p) for p in dark_planes]
-    nch = stats[0].mean.shape[0]
+        for f in flats:
+            if f.flatness > FLATNESS:
+                problems.append(
+                    f"{f.path} is not a flat field (its tiles vary {f.flatness:.3g}× more than "
+                    "its pixel noise: scene structure); shoot an evenly lit, defocused, "
+                    "featureless surface, or use --method patches for ordinary photos"
+                )
+    for d in darks:
+        if d.mean_above_black > DARK_LEVEL * span:
+            problems.append(
+                f"{d.path} is not a dark frame ({d.mean_above_black:.4g} DN above black, over "
+                f"{DARK_LEVEL:.1%} of the range); shoot with the lens cap on at the same ISO"
+            )
+    nch = flats[0].mean.shape[0]
     names = CHANNELS if nch == 4 else ("R", "G", "B")
-    if method == "flat":
-        fit_args = {"rel_err": math.sqrt(2 / (tile * tile - 3))}
-    else:
-        n = PATCH_BLOCKS**2
-        fit_args = {
-            "quantile": PATCH_QUANTILE,
-            "correction": _mad_quantile_ratio(PATCH_QUANTILE, n),
-            "rel_err": math.sqrt(2.7 / n),
-        }
+    per_channel = []
+    for c in range(nch):
+        m = [f.mean[c][f.valid[c]] for f in flats]
+        v = [f.var[c][f.valid[c]] for f in flats]
+        g = [f.group[f.valid[c]] + i * REGIONS**2 for i, f in enumerate(flats)]
+        if method == "flat":  # dark frames' tiles anchor the line at zero signal
+            for i, d in enumerate(darks):
+                m.append(np.zeros(d.read_var.shape[1]))
+                v.append(d.read_var[c])
+                g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
+        per_channel.append(ChannelData(*(np.concatenate(a) for a in (m, v, g))))
+    if min(d.mean.size for d in per_channel) < 8:
+        raise CalibrationRefused(
+            [f"ISO {iso:g}: too few unsaturated blocks to fit; expose the frames below white"]
+        )
+    pooled = ChannelData(
+        *(np.concatenate([getattr(d, k) for d in per_channel]) for k in ("mean", "var", "group"))
+    )
+    line, draws = fit_with_errors(pooled, method, span)
+    problems += _line_problems(line, draws, darks, span)
     channels, points = {}, {}
-    all_m, all_v = [], []
-    for c, name in enumerate(names):
-        m = np.concatenate([s.mean[c][s.valid[c]] for s in stats])
-        v = np.concatenate([s.var[c][s.valid[c]] for s in stats])
-        if dark:  # dark tiles anchor the line at zero signal
-            m = np.concatenate([m, *(s.mean[c] for s in dark_tiles)])
-            v = np.concatenate([v, *(s.var[c] for s in dark_tiles)])
-        if m.size < 8:
-            raise ParameterError(f"ISO {iso:g}: too few unsaturated tiles ({m.size}) to fit")
-        k, offset, bm, bv = fit_variance_line(m, v, **fit_args)
-        read_var = (
-            float(np.mean([d["read_var"][c] for d in dark])) if dark else offset
-        ) - QUANTIZATION_VARIANCE
-        channels[name] = {"K": k, "read_sigma": math.sqrt(max(read_var, 0.0))}
-        if dark:
-            channels[name]["bias"] = float(np.mean([d["bias"][c] for d in dark]))
-        points[name] = (bm, bv)
-        all_m.append(m)
-        all_v.append(v)
-    k, offset, _, _ = fit_variance_line(np.concatenate(all_m), np.concatenate(all_v), **fit_args)
-    if dark:
-        read_var = float(np.mean([d["read_var"].mean() for d in dark])) - QUANTIZATION_VARIANCE
-        row_var = float(np.mean([d["row_var"].mean() for d in dark]))
-        lam = fit_lambda(torch.cat([d["residual"].reshape(-1) for d in dark]))
+    for name, data in zip(names, per_channel, strict=True):
+        ch, ch_draws = fit_with_errors(data, method, span)
+        channels[name] = {
+            "K": ch.slope,
+            "K_error": _std(ch_draws[:, 0]),
+            "read_sigma": math.sqrt(max(ch.offset - QUANTIZATION_VARIANCE, 0.0)),
+        }
+        ok = np.isfinite(ch.bins)
+        points[name] = (ch.levels[ok], ch.bins[ok], _column_std(ch_draws[:, 2:])[ok])
+    errors = {"K": _std(draws[:, 0])}
+    if darks:
+        read_var = np.concatenate([d.read_var.mean(axis=0) for d in darks])
+        row_var = np.concatenate([d.row_var.mean(axis=0) for d in darks])
+        read_sigma = math.sqrt(max(read_var.mean() - QUANTIZATION_VARIANCE, 0.0))
+        row_sigma = math.sqrt(max(row_var.mean(), 0.0))
+        errors["read_sigma"] = _sqrt_error(
+            read_var.mean(), read_var.std(ddof=1) / math.sqrt(read_var.size)
+        )
+        errors["row_sigma"] = _sqrt_error(
+            row_var.mean(), row_var.std(ddof=1) / math.sqrt(row_var.size)
+        )
+        for name, c in zip(names, range(nch), strict=True):
+            channels[name]["bias"] = float(np.mean([d.bias[c].mean() for d in darks]))
+            channels[name]["read_sigma"] = math.sqrt(
+                max(np.mean([d.read_var[c].mean() for d in darks]) - QUANTIZATION_VARIANCE, 0.0)
+            )
+        residual = np.concatenate([d.residual for d in darks])
+        lam = fit_lambda(residual)
+        parts = np.array_split(residual, 4)
+        spread = _std(np.array([fit_lambda(p) for p in parts])) / 2
+        errors["lambda"] = max(spread, 0.01 / math.sqrt(12))  # at least the grid's step
     else:
-        read_var = offset - QUANTIZATION_VARIANCE
-        row_var = _row_var_from_tiles(stats, tile) if method == "flat" else None
-        lam = None
+        read_sigma = math.sqrt(max(line.offset - QUANTIZATION_VARIANCE, 0.0))
+        sig = np.sqrt(np.maximum(draws[:, 1] - QUANTIZATION_VARIANCE, 0.0))
+        errors["read_sigma"] = _std(sig)
+        row_sigma, lam = None, None
+        if method == "flat":
+            row_sigma, errors["row_sigma"] = _row_sigma_from_tiles(flats)
     return IsoFit(
         iso=iso,
-        K=k,
-        read_sigma=math.sqrt(max(read_var, 0.0)),
-        row_sigma=None if row_var is None else math.sqrt(row_var),
+        K=line.slope,
+        read_sigma=read_sigma,
+        row_sigma=row_sigma,
         lam=lam,
+        errors=errors,
         channels=channels,
         frames=len(flats),
         darks=len(darks),
+        problems=[f"ISO {iso:g}: {p}" for p in problems],
         points=points,
     )
 
 
-def _row_var_from_tiles(stats: list[TileStats], tile: int) -> float:
-    """Inverse-variance weighted mean of the tiles' row variances (weight ∝ (T / var)²)."""
-    rv = np.concatenate([s.row_var[s.valid] for s in stats])
-    w = 1 / np.maximum(np.concatenate([s.var[s.valid] for s in stats]) / tile, 1e-12) ** 2
-    return max(float((rv * w).sum() / w.sum()), 0.0)
+def _sqrt_error(var: float, var_error: float) -> float:
+    """Standard error of √var from that of var (delta method)."""
+    return var_error / (2 * math.sqrt(var)) if var > 0 else math.nan
 
 
-def patch_stats(planes: torch.Tensor, span: float, blocks: int = PATCH_BLOCKS) -> TileStats:
-    """Noise variance of each tile of a photo by a robust high-pass (patch method).
+def _line_problems(line: Line, draws: np.ndarray, darks: list, span: float) -> list[str]:
+    """Why a fitted line is not to be trusted (empty when it is)."""
+    if not math.isfinite(line.slope):
+        return ["the frames give fewer than 2 signal levels; " + _LEVELS_HINT]
+    ok = np.isfinite(line.bins)
+    lv = line.levels[ok]
+    problems = []
+    positive = lv[lv > 0]
+    spread = positive.max() / positive.min() if positive.size > 1 else 1.0
+    if ok.sum() < MIN_LEVELS or (spread < MIN_LEVEL_RATIO and not darks):
+        problems.append(
+            f"only {int(ok.sum())} usable signal levels ({lv.min():.4g}–{lv.max():.4g} DN); "
+            + _LEVELS_HINT
+        )
+        return problems
+    k_err = _std(draws[:, 0])
+    if not line.slope > span / MAX_FULL_WELL:
+        problems.append(
+            f"no shot noise measured (K = {line.slope:.3g} DN/e⁻; a sensor's K exceeds its "
+            f"range over 10⁶ e⁻, {span / MAX_FULL_WELL:.2g}): the frames look noise-free or "
+            "processed; give the camera's raw files"
+        )
+    elif math.isfinite(k_err) and k_err > MAX_K_ERROR * line.slope:
+        problems.append(
+            f"K = {line.slope:.4g} ± {k_err:.2g} DN/e⁻ is too uncertain; add frames or levels"
+        )
+    if not darks and line.offset - QUANTIZATION_VARIANCE < 0:
+        err = _std(draws[:, 1])
+        problems.append(
+            f"negative read variance ({line.offset - QUANTIZATION_VARIANCE:.3g} ± {err:.2g} "
+            "DN²): the darkest levels do not pin the offset; add dark frames (--dark) or "
+            "frames with deep shadows"
+        )
+    model = line.slope * line.levels[ok] + line.offset
+    spread_err = _column_std(draws[:, 2:])[ok]
+    err = np.maximum(np.nan_to_num(spread_err, nan=0.0), 0.01 * np.abs(model))
+    chi2 = float(np.mean(((line.bins[ok] - model) / err) ** 2))
+    rms = float(np.sqrt(np.mean(((line.bins[ok] - model) / np.abs(model)) ** 2)))
+    if chi2 > 9 and rms > 0.05:
+        problems.append(
+            f"variance does not follow a line in the signal ({rms:.0%} rms off it, "
+            f"χ²/bin {chi2:.3g}); the frames may be processed, or mix exposures and settings"
+        )
+    dropped = int((np.isfinite(line.levels) & ~ok).sum())
+    if dropped > ok.sum():
+        problems.append(
+            f"{dropped} of {dropped + int(ok.sum())} signal levels were off the fitted line"
+        )
+    return problems
 
-    The diagonal Haar detail ``(a − b − c + d) / 2`` of each 2×2 block of a plane
-    removes the local mean, linear gradients and row offsets; its variance is the
-    pixel variance. Per tile of ``blocks``×``blocks`` details, the variance is
-    estimated from the median absolute deviation, which ignores a few edges.
-    """
-    _, h, w = planes.shape
-    x = planes[:, : h // 2 * 2, : w // 2 * 2]
-    d = (x[:, 0::2, 0::2] - x[:, 0::2, 1::2] - x[:, 1::2, 0::2] + x[:, 1::2, 1::2]) / 2
-    d = _tiles(d, blocks).flatten(-2)
-    xt = _tiles(x, 2 * blocks).flatten(-2)
-    mad = (d - d.median(dim=-1, keepdim=True).values).abs().median(dim=-1).values
-    var = (MAD_TO_SIGMA * mad) ** 2
-    valid = xt.amax(dim=-1) < SATURATION * span
-    return TileStats(xt.mean(dim=-1).numpy(), var.numpy(), np.zeros(var.shape), valid.numpy())
+
+_LEVELS_HINT = (
+    "shoot flats at several exposures (e.g. 1/8, 1/4, 1/2 and 3/4 of white) or with an "
+    "illumination gradient"
+)
 
 
-def _mad_quantile_ratio(q: float, n: int, trials: int = 20_000) -> float:
-    """The q-quantile of the MAD variance estimate over σ² for n normal samples."""
-    g = torch.Generator().manual_seed(0)
-    z = torch.randn(trials, n, generator=g, dtype=torch.float64)
-    mad = (z - z.median(dim=-1, keepdim=True).values).abs().median(dim=-1).values
-    return float(torch.quantile((MAD_TO_SIGMA * mad) ** 2, q))
+def _row_sigma_from_tiles(flats: list[FrameStats]) -> tuple[float, float]:
+    """Inverse-variance weighted mean of the tiles' row variances → (row σ, its error)."""
+    rv = np.concatenate([f.row_var[f.valid] for f in flats])
+    w = 1 / np.maximum(np.concatenate([f.var[f.valid] for f in flats]) / TILE, 1e-12) ** 2
+    value = float((rv * w).sum() / w.sum())
+    err = math.sqrt(float((w**2 * (rv - value) ** 2).sum())) / float(w.sum())
+    return math.sqrt(max(value, 0.0)), _sqrt_error(value, err)
 
 
-def same_camera(raws: list[RawImage]) -> None:
-    """Raise if the raws come from different cameras (make/model or CFA)."""
-    ref = raws[0]
-    for r in raws[1:]:
-        if (r.make, r.model) != (ref.make, ref.model):
-            raise ParameterError(
-                f"{r.path}: camera {r.make} {r.model} differs from {ref.path} "
-                f"({ref.make} {ref.model}); calibrate one camera at a time"
-            )
-        if r.cfa != ref.cfa or r.data.ndim != ref.data.ndim:
-            raise ParameterError(f"{r.path}: CFA layout differs from {ref.path}")
+# ---------------------------------------------------------------- profile
 
 
 def _loglinear(ks: list[float], sigmas: list[float]) -> dict:
@@ -363,22 +721,25 @@ def _loglinear(ks: list[float], sigmas: list[float]) -> dict:
     return {"model": "loglinear", "slope": float(slope), "bias": float(bias)}
 
 
-def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> dict:
-    """A rawsim profile (JSON-ready) from per-ISO fits and one of the raws."""
+def build_profile(
+    fits: list[IsoFit], frame: FrameStats, name: str, method: str, forced: bool = False
+) -> dict:
+    """A rawsim profile (JSON-ready) from per-ISO fits and one of the frames.
+
+    With ``forced``, fits with problems are written and the profile lists them
+    under ``unreliable``; K ≤ 0 is then floored so the profile still loads.
+    """
     fits = sorted(fits, key=lambda f: f.iso)
     isos = [f.iso for f in fits]
-    warnings = []
-    for f in fits:
-        if not f.K > MIN_GAIN:
-            warnings.append(
-                f"ISO {f.iso:g}: fitted K {f.K:.3g} DN/e⁻ (no measurable shot noise); "
-                f"floored at {MIN_GAIN:g}"
-            )
-            f.K = MIN_GAIN * (1 + 1e-3 * len(warnings))  # keeps K increasing with ISO
-    ks = [f.K for f in fits]
+    unreliable = [p for f in fits for p in f.problems]
+    if unreliable and not forced:
+        raise CalibrationRefused(unreliable)
+    ks = []
+    for f in fits:  # floors only matter for forced fits; keeps K increasing with ISO
+        ks.append(max(f.K, (ks[-1] if ks else 0.0) * (1 + 1e-6) + 1e-6))
     how = (
-        f"rawsim calibrate ({'flat-field' if method == 'flat' else 'smooth-patch, less accurate'}"
-        f" method) on {sum(f.frames for f in fits)} frame(s)"
+        f"rawsim calibrate ({'flat-field' if method == 'flat' else 'single-image'} method) on "
+        f"{sum(f.frames for f in fits)} frame(s)"
         + (f" and {sum(f.darks for f in fits)} dark frame(s)" if any(f.darks for f in fits) else "")
         + f" of this camera at ISO {', '.join(f'{i:g}' for i in isos)}"
     )
@@ -388,9 +749,12 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
     elif all(b > a for a, b in zip(ks, ks[1:], strict=False)):
         gain = {"model": "table", "iso": isos, "k": ks}
     else:
-        raise ParameterError(
-            "fitted K does not increase with ISO "
-            + ", ".join(f"ISO {i:g}: {k:.4g}" for i, k in zip(isos, ks, strict=True))
+        raise CalibrationRefused(
+            [
+                "fitted K does not increase with ISO ("
+                + ", ".join(f"ISO {i:g}: {k:.4g}" for i, k in zip(isos, ks, strict=True))
+                + "); check the files' ISO metadata or give each ISO its own frames"
+            ]
         )
 
     def sigma_curve(values: list[float]) -> dict:
@@ -398,11 +762,9 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
             return {"model": "table", "iso": isos, "sigma": [max(v, 1e-6) for v in values]}
         return _loglinear(ks, values)
 
-    black = float(np.mean(raw.black_level))
-    white = float(raw.white_level)
+    white = frame.white
     bits = max(1, math.ceil(math.log2(white + 1)))
-    xyz = raw.xyz_to_camera
-    matrix_note = "the files' XYZ→camera matrix (LibRaw)"
+    xyz, matrix_note = frame.xyz_to_camera, "the files' XYZ→camera matrix (LibRaw)"
     if xyz is None:
         xyz, matrix_note = np.eye(3), "identity: the files carry no colour matrix"
     noise = {"gain": gain, "read_sigma": sigma_curve([f.read_sigma for f in fits])}
@@ -422,13 +784,13 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
         noise["channel_bias"] = [float(b) for b in bias]
         for key in ("tukey_sigma", "tukey_lambda", "row_sigma", "channel_bias"):
             source[f"noise.{key}"] = how + "; from the dark frames"
-    return {
+    profile = {
         "name": name,
-        "make": raw.make,
-        "model": raw.model,
-        "cfa_pattern": raw.cfa.pattern if raw.cfa is not None else "RGGB",
+        "make": frame.camera.make,
+        "model": frame.camera.model,
+        "cfa_pattern": frame.camera.cfa or "RGGB",
         "bit_depth": bits,
-        "black_level": black,
+        "black_level": frame.black,
         "white_level": white,
         "xyz_to_camera": [[float(v) for v in row] for row in np.asarray(xyz)],
         "iso_range": [isos[0], isos[-1]],
@@ -436,5 +798,7 @@ def build_profile(fits: list[IsoFit], raw: RawImage, name: str, method: str) -> 
         "noise": noise,
         "source": source,
         "calibration": [f.to_dict() for f in fits],
-        "warnings": warnings,
     }
+    if unreliable:
+        profile["unreliable"] = ["written with calibrate --force", *unreliable]
+    return profile

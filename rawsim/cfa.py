@@ -65,7 +65,7 @@ class CFA:
         return bytes(self.colors)
 
     @cached_property
-    def _packed_sites(self) -> tuple[tuple[int, int], ...]:
+    def packed_sites(self) -> tuple[tuple[int, int], ...]:
         """(row, col) of the R, Gr, Gb and B sites inside the tile."""
         sites = {(r, c): self.pattern[2 * r + c] for r in range(2) for c in range(2)}
         red = next(s for s, col in sites.items() if col == "R")
@@ -103,7 +103,7 @@ class CFA:
         dtype = dtype or torch.float32
         _check_even(height, width)
         tile = torch.zeros(4, 2, 2, device=device, dtype=dtype)
-        for plane, (r, c) in enumerate(self._packed_sites):
+        for plane, (r, c) in enumerate(self.packed_sites):
             tile[plane, r, c] = 1
         return tile.repeat(1, height // 2, width // 2)
 
@@ -145,14 +145,14 @@ class CFA:
 
         check_image(mosaic, "mosaic", channels=1)
         _check_even(*mosaic.shape[-2:])
-        return torch.cat([mosaic[:, :, r::2, c::2] for r, c in self._packed_sites], dim=1)
+        return torch.cat([mosaic[:, :, r::2, c::2] for r, c in self.packed_sites], dim=1)
 
     def unpack(self, planes: torch.Tensor) -> torch.Tensor:
         """Inverse of :meth:`pack`: (B, 4, H/2, W/2) → (B, 1, H, W)."""
         check_image(planes, "planes", channels=4)
         b, _, h, w = planes.shape
         out = planes.new_empty(b, 1, 2 * h, 2 * w)
-        for plane, (r, c) in enumerate(self._packed_sites):
+        for plane, (r, c) in enumerate(self.packed_sites):
             out[:, 0, r::2, c::2] = planes[:, plane]
         return out
 

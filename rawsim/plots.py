@@ -61,20 +61,55 @@ def plot_noise_profile(profile: SensorProfile, path: str | Path, models=None) ->
 
 
 def plot_calibration(fits, path: str | Path, title: str = "") -> Path:
-    """Variance versus mean (DN) per channel with the fitted line, one panel per ISO."""
+    """Variance versus mean (DN, log-log) per channel with the fitted line, one panel per ISO.
+
+    Points are the signal bins with their bootstrap standard errors; the legend
+    gives K and read σ ± their standard errors. Unreliable fits say so in the title.
+    """
     plt = _figure()
     n = len(fits)
     fig, axes = plt.subplots(1, n, figsize=(5 * n, 4.2), dpi=100, squeeze=False)
     for ax, fit in zip(axes[0], fits, strict=True):
-        top = 0.0
-        for name, (means, variances) in fit.points.items():
-            ax.plot(means, variances, "o", markersize=3, label=name)
-            top = max(top, float(np.max(means)) if len(means) else 0.0)
-        x = np.linspace(0, top or 1.0, 50)
+        lo, hi = np.inf, 0.0
+        for name, (means, variances, errors) in fit.points.items():
+            shown = means > 0
+            ax.errorbar(
+                means[shown],
+                variances[shown],
+                yerr=errors[shown],
+                fmt="o",
+                markersize=3,
+                capsize=2,
+                label=name,
+            )
+            if shown.any():
+                lo, hi = min(lo, float(means[shown].min())), max(hi, float(means[shown].max()))
+        x = np.geomspace(lo, hi, 50) if hi > lo else np.array([1.0, 10.0])
         offset = fit.read_sigma**2 + 1 / 12
-        ax.plot(x, fit.K * x + offset, "k-", label=f"K {fit.K:.4g}, σ_read {fit.read_sigma:.3g}")
-        ax.set(xlabel="mean above black (DN)", ylabel="variance (DN²)", title=f"ISO {fit.iso:g}")
-        ax.grid(True, alpha=0.3)
+        k_err = fit.errors.get("K", float("nan"))
+        r_err = fit.errors.get("read_sigma", float("nan"))
+        ax.plot(
+            x,
+            fit.K * x + offset,
+            "k-",
+            label=f"K {fit.K:.4g} ± {k_err:.2g}, σ_read {fit.read_sigma:.3g} ± {r_err:.2g}",
+        )
+        if k_err == k_err:
+            ax.fill_between(
+                x,
+                (fit.K - k_err) * x + offset,
+                (fit.K + k_err) * x + offset,
+                color="k",
+                alpha=0.15,
+                linewidth=0,
+            )
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        state = "" if not fit.problems else " — unreliable"
+        ax.set(
+            xlabel="mean above black (DN)", ylabel="variance (DN²)", title=f"ISO {fit.iso:g}{state}"
+        )
+        ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize=7)
     if title:
         fig.suptitle(title)

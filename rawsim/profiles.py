@@ -92,6 +92,8 @@ class SensorProfile:
     spectral: dict | None = None
     source: dict = field(default_factory=dict)
     path: str | None = None
+    #: Why the profile is not to be trusted (``rawsim calibrate --force``); empty if it is.
+    unreliable: tuple[str, ...] = ()
 
     def check_iso(self, iso: float) -> float:
         """Return ``iso`` if the profile allows it, else raise a clear error."""
@@ -124,6 +126,7 @@ class SensorProfile:
             "resolution": self.resolution,
             "source": dict(self.source),
             "path": self.path,
+            "unreliable": list(self.unreliable),
         }
 
 
@@ -426,7 +429,16 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         resolution=r.numbers("resolution", 2, None, positive=True),
         source=dict(source),
         path=None if r.origin.startswith("<") else r.origin,
+        unreliable=_strings(r, "unreliable"),
     )
+
+
+def _strings(r: _Reader, key: str) -> tuple[str, ...]:
+    """An optional list of strings (empty when absent)."""
+    value = r.raw(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        r.fail(key, f"expected a list of strings, got {value!r}")
+    return tuple(value)
 
 
 def _from_seed(r: _Reader) -> SensorProfile:

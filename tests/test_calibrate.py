@@ -9,13 +9,13 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from rawsim.calibrate import calibrate_iso, fit_lambda, same_camera
+from rawsim.calibrate import dark_stats, fit_lambda, frame_stats, same_camera
 from rawsim.errors import ParameterError
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
+from rawsim.io.png import write_png
 from rawsim.io.raw import read_raw
 from rawsim.noise import sample_tukey_lambda
-from rawsim.pipelines.unprocess import unprocess_tensor
 from rawsim.profiles import list_profiles, load_profile
 from rawsim.sensors import RGBSensor
 from rawsim_cli.main import cli
@@ -42,12 +42,17 @@ def _write(path: Path, mosaic: np.ndarray, iso: float, model: str = "EOS 70D") -
     return path
 
 
-def _frame(iso: float, level: float, seed: int, h: int = 512, w: int = 768) -> np.ndarray:
-    """A flat field with an illumination gradient (level = brightest fraction of range)."""
+def _frame(
+    iso: float, level: float, seed: int, h: int = 512, w: int = 768, gradient: bool = True
+) -> np.ndarray:
+    """A flat field, with an illumination gradient unless not ``gradient``.
+
+    ``level`` is the brightest fraction of the range.
+    """
     p = SENSOR.profile
     span = p.white_level - p.black_level
-    x = torch.linspace(0.0, 1.0, w)[None, :]
-    y = torch.linspace(0.0, 1.0, h)[:, None]
+    x = torch.linspace(0.0, 1.0, w)[None, :] if gradient else torch.ones(1, w)
+    y = torch.linspace(0.0, 1.0, h)[:, None] if gradient else torch.ones(h, 1)
     signal = level * span * (0.05 + 0.95 * x) * (0.7 + 0.3 * y)
     dn = (p.black_level + signal.expand(h, w))[None, None]
     out = SENSOR.simu_noise(dn, iso, "physics", seed)
@@ -88,6 +93,13 @@ def test_flat_field_calibration_recovers_the_model(frames, tmp_path):
         assert fit["read_sigma"] == pytest.approx(read_std, rel=0.05)
         assert fit["row_sigma"] == pytest.approx(levels.row_sigma, rel=0.10)
         assert fit["lambda"] == pytest.approx(levels.tukey_lambda, abs=0.05)
+        assert fit["reliable"] and set(fit["uncertainty"]) == {
+            "K",
+            "read_sigma",
+            "row_sigma",
+            "lambda",
+        }
+        assert abs(fit["K"] - levels.gain) < 4 * fit["uncertainty"]["K"] + 0.005 * levels.gain
         assert set(fit["channels"]) == {"R", "Gr", "Gb", "B"}
         for ch in fit["channels"].values():
             assert ch["K"] == pytest.approx(levels.gain, rel=0.05)
@@ -104,61 +116,106 @@ def test_flat_field_calibration_recovers_the_model(frames, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def camera_photos():
-    """The shared photos at camera resolution: 3× bicubic, i.e. lens-limited.
+def camera_photos(tmp_path_factory):
+    """The test photos at camera resolution: 4× bicubic, as 16-bit PNGs.
 
-    The 300–600 px sources are downsampled photos with texture at every pixel;
-    a 20 MP camera's raw is smoother per pixel, and so are these.
+    The 300–640 px sources are downsampled photos with texture at every pixel;
+    a camera's raw is lens-limited, smoother per pixel, and so are these.
     """
-    photos = []
-    for name in ["astronaut.png", "chelsea.png", "coffee.png"]:
-        decoded = read_image(DATA / "srgb" / name)
-        x = torch.from_numpy(decoded.pixels.astype(np.float32)).permute(2, 0, 1)[None]
-        x = torch.nn.functional.interpolate(x, scale_factor=3, mode="bicubic")
-        photos.append((x.round().clamp(0, decoded.code_max).to(torch.int32), decoded.code_max))
-    return photos
-
-
-@pytest.mark.parametrize("iso", [1600, 3200, 12800])
-def test_smooth_patch_method_on_simulated_photos(camera_photos, iso):
-    levels = SENSOR.noise_levels(iso, "physics")
-    raws = []
-    for i, (image, code_max) in enumerate(camera_photos):
-        noisy, _ = unprocess_tensor(
-            SENSOR,
-            image,
-            SENSOR.default_params(iso),
-            noise=levels,
-            key=i,
-            code_max=code_max,
+    root = tmp_path_factory.mktemp("photos")
+    for path in sorted((DATA / "srgb").iterdir()):
+        decoded = read_image(path)
+        x = torch.from_numpy(decoded.pixels.astype(np.float32) / decoded.code_max)
+        x = torch.nn.functional.interpolate(
+            x.permute(2, 0, 1)[None], scale_factor=4, mode="bicubic"
         )
-        raws.append(_raw_image(noisy[0, 0].numpy().astype(np.uint16), iso))
-    fit = calibrate_iso(iso, raws, [], method="patches")
-    assert fit.K == pytest.approx(levels.gain, rel=0.15)
+        samples = (x[0].permute(1, 2, 0).clamp(0, 1) * 65535).round().numpy().astype(np.uint16)
+        write_png(root / f"{path.stem}.png", samples)
+    return root
 
 
-def _raw_image(mosaic, iso):
-    from rawsim.io.raw import RawImage
+def _unprocess(photos: Path, out: Path, profile: str, iso: float, noise: str) -> dict:
+    """Unprocess ``photos`` into ``out``; the truth from a sidecar: (K, read σ without rows)."""
+    args = ["unprocess", str(photos), "-o", str(out), "-p", profile, "--iso", str(iso)]
+    r = CliRunner().invoke(cli, [*args, "--noise", noise, "--seed", "3", "-q"])
+    assert r.exit_code == 0, r.output
+    truth = json.loads(next(out.glob("*.json")).read_text())["noise"]
+    rows = truth.get("row_sigma_dn", 0.0)
+    return truth["gain_dn_per_electron"], math.sqrt(truth["read_std_dn"] ** 2 - rows**2)
 
-    p = SENSOR.profile
-    black = np.full((2, 2), p.black_level)
-    return RawImage(
-        mosaic, p.cfa, black, p.white_level, None, None, None, None, 1, iso, "Canon", "EOS 70D", "x"
+
+@pytest.mark.parametrize(
+    ("profile", "noise"), [("sony_a7s2", "physics"), ("canon_eos_70d", "poisson-gaussian")]
+)
+def test_single_image_method_recovers_the_noise_of_photos(camera_photos, tmp_path, profile, noise):
+    """The issue's target: K within 10 %, read σ within 25 %, ISO 200–12800, 4 photos."""
+    truth = {}
+    for iso in (200, 1600, 12800):
+        truth[iso] = _unprocess(camera_photos, tmp_path / f"iso{iso}", profile, iso, noise)
+    out = tmp_path / "cam.json"
+    r = CliRunner().invoke(
+        cli, ["calibrate", str(tmp_path), "--method", "patches", "-o", str(out), "--json"]
     )
+    assert r.exit_code == 0, r.output
+    fits = json.loads(r.stdout)
+    assert [f["iso"] for f in fits] == [200, 1600, 12800]
+    for fit in fits:
+        k, read = truth[fit["iso"]]
+        assert fit["K"] == pytest.approx(k, rel=0.10), fit
+        assert fit["read_sigma"] == pytest.approx(read, rel=0.25), fit
+        assert fit["reliable"] and 0 < fit["uncertainty"]["K"] < 0.05 * fit["K"]
+        assert 0 < fit["uncertainty"]["read_sigma"] < 0.25 * fit["read_sigma"]
+    assert load_profile(out).unreliable == ()
+
+
+def test_dense_photos_and_photos_as_flats_are_refused(tmp_path):
+    """The issue's failures: web-size photos (texture at every pixel) gave K +120–280 %
+    with patches and K = 80 with the flat method; both now refuse, and --force marks it."""
+    dngs = tmp_path / "dngs"
+    _unprocess(DATA / "srgb", dngs, "sony_a7s2", 800, "poisson-gaussian")
+    runner = CliRunner()
+    for method, why in (("flat", "is not a flat field"), ("patches", "too uncertain")):
+        out = tmp_path / f"{method}.json"
+        r = runner.invoke(cli, ["calibrate", str(dngs), "--method", method, "-o", str(out)])
+        assert r.exit_code == 1, r.output
+        assert why in r.output and "nothing written" in r.output and not out.exists()
+    out = tmp_path / "forced.json"
+    r = runner.invoke(cli, ["calibrate", str(dngs), "-o", str(out), "--force"])
+    assert r.exit_code == 0 and "warning: unreliable" in r.output
+    prof = load_profile(out)
+    assert prof.unreliable[0] == "written with calibrate --force"
+    assert any("not a flat field" in why for why in prof.unreliable)
+    shown = runner.invoke(cli, ["profiles", "show", str(out)])
+    assert "unreliable: " in shown.output
+
+
+def test_noise_free_frames_are_refused(camera_photos, tmp_path):
+    dngs = tmp_path / "dngs"
+    args = ["unprocess", str(camera_photos / "coffee.png"), "-o", str(dngs), "-p", "sony_a7s2"]
+    assert CliRunner().invoke(cli, [*args, "--iso", "800", "--noise", "none"]).exit_code == 0
+    r = CliRunner().invoke(
+        cli, ["calibrate", str(dngs), "--method", "patches", "-o", str(tmp_path / "p.json")]
+    )
+    assert r.exit_code == 1 and "no shot noise" in r.output, r.output
 
 
 @pytest.mark.parametrize("lam", [-0.15, 0.0, 0.14])
 def test_lambda_fit_finds_the_shape(lam):
     x = sample_tukey_lambda((300_000,), lam, torch.Generator().manual_seed(0), dtype=torch.float64)
-    assert fit_lambda(3.0 * x) == pytest.approx(lam, abs=0.03)
+    assert fit_lambda(3.0 * x.numpy()) == pytest.approx(lam, abs=0.03)
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in (DATA / "raw").iterdir()))
-def test_real_raws_calibrate_to_a_profile_and_plot(name, tmp_path):
+def test_real_raws_calibrate_or_say_why_not(name, tmp_path):
+    """One real raw each: a profile, or exit 1 with the reasons; --force always writes."""
     out, plot = tmp_path / "p.json", tmp_path / "p.png"
     raw = DATA / "raw" / name
     args = ["calibrate", str(raw), "--method", "patches", "--iso", "100"]
     r = CliRunner().invoke(cli, [*args, "-o", str(out), "--plot", str(plot)])
+    if r.exit_code == 1:
+        assert "rawsim: cannot calibrate: ISO 100: " in r.output and not out.exists()
+        r = CliRunner().invoke(cli, [*args, "-o", str(out), "--plot", str(plot), "--force"])
+        assert load_profile(out).unreliable
     assert r.exit_code == 0, r.output
     assert load_profile(out).noise.levels("poisson-gaussian", 100).gain > 0
     assert plot.read_bytes()[:4] == b"\x89PNG"
@@ -173,12 +230,51 @@ def test_bad_calibration_inputs(frames, tmp_path):
     r = runner.invoke(cli, ["calibrate", str(flat), str(other), "-o", str(tmp_path / "b.json")])
     assert r.exit_code == 2 and "EOS 700D" in r.output and "one camera" in r.output
     with pytest.raises(ParameterError, match="differs"):
-        same_camera([read_raw(flat), read_raw(other)])
+        same_camera([frame_stats(read_raw(flat), "flat"), dark_stats(read_raw(other))])
     r = runner.invoke(
         cli, ["calibrate", str(DATA / "srgb" / "coffee.png"), "-o", str(tmp_path / "c.json")]
     )
     assert r.exit_code == 2 and "coffee.png" in r.output
     assert not (tmp_path / "c.json").exists()
+    # Two evenly lit flats at one exposure and no dark frame: one level, nothing pins the line.
+    flat = frames / "flats" / "f400_0.3.dng"
+    dark = frames / "darks" / "d400_0.dng"
+    even = [
+        _write(tmp_path / f"even{i}.dng", _frame(400, 0.3, 7 + i, 256, 256, gradient=False), 400)
+        for i in range(2)
+    ]
+    r = runner.invoke(cli, ["calibrate", *map(str, even), "-o", str(tmp_path / "d.json")])
+    assert r.exit_code == 1 and "usable signal levels" in r.output, r.output
+    # A "dark" frame that is a flat; frames of two ISOs forced into one with --iso.
+    r = runner.invoke(
+        cli,
+        [
+            "calibrate",
+            str(frames / "flats" / "f400_0.85.dng"),
+            "--dark",
+            str(flat),
+            "-o",
+            str(tmp_path / "e.json"),
+        ],
+    )
+    assert r.exit_code == 1 and "is not a dark frame" in r.output, r.output
+    other = frames / "flats" / "f1600_0.3.dng"
+    r = runner.invoke(
+        cli,
+        [
+            "calibrate",
+            str(flat),
+            str(other),
+            "--dark",
+            str(dark),
+            "--iso",
+            "400",
+            "-o",
+            str(tmp_path / "f.json"),
+        ],
+    )
+    assert r.exit_code == 1 and "ISO 400, 1600 as one" in r.output, r.output
+    assert not any((tmp_path / n).exists() for n in ("d.json", "e.json", "f.json"))
 
 
 @pytest.mark.parametrize("name", list_profiles())
