@@ -46,7 +46,12 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 @click.option("--demosaic", type=click.Choice(DEMOSAICS), help="Demosaic method.")
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
-@click.option("--exposure", type=float, metavar="EV", help="Exposure in stops (default 0).")
+@click.option(
+    "--exposure",
+    metavar="EV|auto",
+    help="Exposure in stops (default 0), or auto: the 99th percentile to white, as "
+    "LibRaw's auto-brightness (at most +8 stops; the file's BaselineExposure is then moot).",
+)
 @click.option(
     "--baseline-exposure",
     type=click.Choice(["apply", "ignore"]),
@@ -102,8 +107,9 @@ def command(
     stages in the config (default: 'rawsim isp show'): black level, white
     balance, highlights, demosaic, colour matrix, exposure, tone, transfer,
     orientation, with optional dead-pixel, lens-shading, anti-aliasing,
-    denoise and YCbCr stages. No automatic brightening: at exposure 0 the
-    white level maps to 1.0.
+    denoise and YCbCr stages. No automatic brightening by default: at exposure
+    0 the white level maps to 1.0 (--exposure auto brightens as LibRaw does; a
+    render whose 99th percentile is below 1/8 of full scale gets a warning).
 
     Each file gives <stem>.<ext> and <stem>.process.json (camera data, warnings, the
     white balance and matrix used, and the effective config). Raws without

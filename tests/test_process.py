@@ -104,7 +104,7 @@ def test_isp_show_round_trips_through_config(tmp_path):
         ('[[stage]]\nname = "sharpen"', "unknown stage 'sharpen'; valid: black_level"),
         ('[[stage]]\nname = "demosaic"\nmethod = "ahd"', "valid: wcd, menon, malvar, bilinear"),
         ('[[stage]]\nname = "tone"\ncolour = 1', "unknown key 'colour'; valid: enabled, curve"),
-        ('[[stage]]\nname = "exposure"\nev = "bright"', "expected a number"),
+        ('[[stage]]\nname = "exposure"\nev = "bright"', "expected stops in [-20, 20] or auto"),
         (
             '[[stage]]\nname = "black_level"\n[[stage]]\nname = "color_matrix"\n[[stage]]\n'
             'name = "demosaic"',
@@ -508,3 +508,37 @@ def test_baseline_exposure_is_applied_unless_ignored():
     assert info["exposure_stops"] == 0.25 and info_ignored["exposure_stops"] == 0.0
     inside = ignored < 0.5
     assert torch.allclose(applied[inside], ignored[inside] * 2**0.25, rtol=1e-5, atol=1e-6)
+
+
+def test_exposure_auto_brightens_as_libraw_and_dark_renders_warn(tmp_path):
+    """A raw shot 4 stops under: the plain render (BaselineExposure ignored) warns and
+    names --exposure auto; auto brings the 99th percentile to white, as LibRaw's
+    auto-brightness does (same mean within 10 %), in the engine and the reference."""
+    outputs = {"dng": tmp_path / "c.dng", "json": tmp_path / "c.json"}
+    task = Task(DATA / "srgb" / "coffee.png", "coffee.png", outputs, 1)
+    unprocess_file(task, UnprocessOptions(load_profile("sony_a7s2"), iso=800, exposure_ev=-4.0))
+    runner = CliRunner()
+    base = ["process", str(tmp_path / "c.dng"), "--json", "-q", "--baseline-exposure", "ignore"]
+    r = runner.invoke(cli, [*base, "-o", str(tmp_path / "plain")])
+    assert r.exit_code == 0, r.output
+    (record,) = [json.loads(line) for line in r.stdout.splitlines()]
+    assert any("dark render" in w and "--exposure auto" in w for w in record["warnings"])
+    lin = ["--transfer", "linear", "--format", "tiff", "--bits", "16", "--exposure", "auto"]
+    r = runner.invoke(cli, [*base, *lin, "-o", str(tmp_path / "auto")])
+    (record,) = [json.loads(line) for line in r.stdout.splitlines()]
+    assert not any("dark render" in w for w in record["warnings"])
+    meta = json.loads((tmp_path / "auto" / "c.process.json").read_text())
+    assert 3.5 < meta["exposure_stops"] < 4.5
+    ours = oiio.ImageBuf(str(tmp_path / "auto" / "c.tif")).get_pixels(oiio.FLOAT)
+    with rawpy.imread(str(tmp_path / "c.dng")) as raw:
+        libraw = (
+            raw.postprocess(gamma=(1, 1), no_auto_bright=False, output_bps=16, use_camera_wb=True)
+            / 65535.0
+        )
+    assert ours.mean() / libraw.mean() == pytest.approx(1.0, abs=0.10)
+    raw = read_raw(tmp_path / "c.dng")
+    cfg = override(default_config(), exposure="auto")
+    _, info = render(raw, cfg)  # the torch reference resolves the same stops
+    assert info["exposure_stops"] == pytest.approx(meta["exposure_stops"], abs=1e-6)
+    with pytest.raises(ParameterError, match="or auto"):
+        override(default_config(), exposure="bright")

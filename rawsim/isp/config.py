@@ -74,6 +74,18 @@ def _number(lo=-math.inf, hi=math.inf, integer=False):
     return check
 
 
+def _ev(value):
+    """Exposure in stops in [−20, 20], or "auto"."""
+    if value == "auto":
+        return value
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ParameterError(f"expected stops in [-20, 20] or auto, got {value!r}") from None
+    return _number(-20, 20)(value)
+
+
 def _flag(value):
     if not isinstance(value, bool):
         raise ParameterError(f"expected true or false, got {value!r}")
@@ -157,7 +169,12 @@ STAGES: dict[str, dict[str, Param]] = {
         ),
     },
     "exposure": {
-        "ev": Param(0.0, _number(-20, 20), "stops; 0 maps the white level to 1"),
+        "ev": Param(
+            0.0,
+            _ev,
+            "stops (0 maps the white level to 1), or auto: the 99th percentile to 1 (LibRaw's "
+            "auto-brightness)",
+        ),
         "baseline": Param(
             "apply",
             _choice(("apply", "ignore")),
@@ -417,12 +434,52 @@ def auto_white_balance(raw) -> tuple[float, float, float]:
 ADJUST_MAXIMUM = 0.75
 
 
+#: ``ev = "auto"``: the share of pixels allowed to clip (LibRaw's ``auto_bright_thr``),
+#: and the most it brightens (stops).
+AUTO_CLIP = 0.01
+AUTO_MAX_STOPS = 8.0
+
+
 def exposure_stops(stage: dict, raw, info: dict) -> float:
-    """Stops of an ``exposure`` stage for this raw: its ``ev``, plus the file's DNG
-    BaselineExposure unless ``baseline = "ignore"``. Recorded in ``info``."""
-    stops = stage["ev"] + (raw.baseline_exposure if stage["baseline"] == "apply" else 0.0)
+    """Stops of an ``exposure`` stage for this raw, recorded in ``info``.
+
+    A number: it, plus the file's DNG BaselineExposure unless ``baseline =
+    "ignore"``. ``auto``: :func:`auto_exposure_stops` (the baseline is then moot).
+    """
+    if stage["ev"] == "auto":
+        stops = auto_exposure_stops(raw, info)
+    else:
+        stops = stage["ev"] + (raw.baseline_exposure if stage["baseline"] == "apply" else 0.0)
     info["exposure_stops"] = stops
     return stops
+
+
+def auto_exposure_stops(raw, info: dict) -> float:
+    """Stops that bring the image's 99th percentile to 1, as LibRaw's auto-brightness.
+
+    Measured on the half-resolution planes (R, mean of the greens, B) after
+    levels, the white balance and clipping at 1 and the colour matrix already
+    resolved in ``info`` (the stages before exposure); the brightest channel's
+    percentile counts. Never darkens (at most 1 is the clip), at most
+    ``AUTO_MAX_STOPS``.
+    """
+    data = np.asarray(raw.data, dtype=np.float32)
+    black = np.asarray(raw.black_level, dtype=np.float32)
+    span = float(info.get("white_level", raw.white_level)) - float(black.mean())
+    if raw.cfa is None:
+        rgb = (data - black) / span
+    else:
+        h, w = data.shape[0] // 2 * 2, data.shape[1] // 2 * 2
+        black = np.broadcast_to(black, (2, 2))
+        planes = [(data[i:h:2, j:w:2] - black[i, j]) / span for i, j in raw.cfa.packed_sites]
+        rgb = np.stack([planes[0], (planes[1] + planes[2]) / 2, planes[3]], axis=-1)
+    rgb = np.maximum(rgb, 0.0)
+    if rgb.shape[-1] == 3 and "white_balance" in info:
+        rgb = np.minimum(rgb * np.asarray(info["white_balance"], dtype=np.float32), 1.0)
+    if rgb.shape[-1] == 3 and "color_matrix" in info:
+        rgb = rgb @ np.asarray(info["color_matrix"], dtype=np.float32).T
+    top = float(np.percentile(rgb.reshape(-1, rgb.shape[-1]), 100 * (1 - AUTO_CLIP), axis=0).max())
+    return float(np.clip(-np.log2(top), 0.0, AUTO_MAX_STOPS)) if top > 0 else AUTO_MAX_STOPS
 
 
 def white_level(stage: dict, raw, info: dict) -> float:

@@ -216,6 +216,17 @@ def _output_table(tail: list[dict], fmt: str):
     x = np.linspace(0.0, 1.0, ep.LUT_SIZE)
     if fmt == "exr":
         return (ep.OUT_FLOAT, x.astype(np.float32), 1.0) if not tail else (None,) * 3
+    curve = _tail_curve(tail, x)
+    if curve is None:
+        return (None,) * 3
+    x, gamma = curve
+    mode = ep.OUT_GAMMA if gamma != 1.0 else ep.OUT_TABLE
+    return mode, x.astype(np.float32), gamma
+
+
+def _tail_curve(tail: list[dict], x: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Tone and transfer stages on linear values ``x`` in [0, 1]: (values, gamma) with a
+    power-law transfer left as its exponent (it must come last; None otherwise)."""
     gamma = 1.0
     for at, s in enumerate(tail):
         if s["name"] == "tone":
@@ -232,10 +243,9 @@ def _output_table(tail: list[dict], fmt: str):
             x = np.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
         elif spec.kind == "gamma":
             if at != len(tail) - 1:
-                return (None,) * 3
+                return None
             gamma = 1.0 / spec.gamma
-    mode = ep.OUT_GAMMA if gamma != 1.0 else ep.OUT_TABLE
-    return mode, x.astype(np.float32), gamma
+    return x, gamma
 
 
 def engine_render(
@@ -391,6 +401,28 @@ def describe(raw: RawImage, config: list[dict]) -> dict:
     return out
 
 
+#: A render whose 99th percentile is below this share of full scale (linear) is dark.
+DARK_RENDER = 1 / 8
+
+
+def _warn_if_dark(samples: np.ndarray, bits: int, config: list[dict], info: dict) -> None:
+    """Add a warning to ``info`` when the render's 99th percentile (brightest channel, on
+    every 4th row and column) is below ``DARK_RENDER`` of full scale in linear light,
+    i.e. below that level through the config's tone and transfer."""
+    tail = [s for s in config if s["enabled"] and s["name"] in _TAIL_STAGES]
+    curve = _tail_curve(tail, np.array([DARK_RENDER]))
+    if curve is None:
+        return
+    level = float(curve[0][0]) ** curve[1]
+    sub = samples[::4, ::4].reshape(-1, samples.shape[-1])
+    top = float(np.percentile(sub, 99, axis=0).max()) / (2.0**bits - 1)
+    if top < level:
+        info["warnings"].append(
+            f"dark render: its 99th percentile is below {DARK_RENDER:.3g} of full scale in "
+            "linear light; --exposure auto brightens it (as LibRaw's auto-brightness)"
+        )
+
+
 def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
@@ -401,6 +433,8 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     samples, info = render_samples(raw, config, options.fmt, options.bits, device)
     height, width = samples.shape[:2]
     enabled = {s["name"]: s for s in config if s["enabled"]}
+    if options.fmt != "exr" and enabled.get("exposure", {}).get("ev") != "auto":
+        _warn_if_dark(samples, options.bits, config, info)
     space = enabled["color_matrix"]["output_space"] if "color_matrix" in enabled else "camera"
     encoded = "transfer" in enabled and enabled["transfer"]["function"] == "srgb"
     srgb = space == "srgb" and "ycbcr" not in enabled and (options.fmt == "exr" or encoded)
