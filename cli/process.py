@@ -47,6 +47,19 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
 @click.option(
+    "--tone-exposure",
+    type=float,
+    metavar="STOPS",
+    help="Filmic curves (reinhard, aces, hable): stops of gain before the curve, 0–4 "
+    "(display white at 2^-STOPS of the sensor's white). Default 0.",
+)
+@click.option(
+    "--tone-white",
+    metavar="W|auto",
+    help="Filmic curves: white point in the curve's units, 0.25–12 (auto: reinhard 4, aces 7.24, "
+    "hable 11.2); larger compresses highlights more.",
+)
+@click.option(
     "--exposure",
     metavar="EV|auto",
     help="Exposure in stops (default 0), or auto: the 99th percentile to white, as "
@@ -88,6 +101,8 @@ def command(
     demosaic,
     highlights,
     tone,
+    tone_exposure,
+    tone_white,
     exposure,
     baseline_exposure,
     output_space,
@@ -134,6 +149,8 @@ def command(
         highlights=highlights,
         tone=tone,
         exposure=exposure,
+        tone_exposure=tone_exposure,
+        tone_white=tone_white,
         baseline_exposure=baseline_exposure,
         output_space=output_space,
         transfer=transfer,

@@ -117,6 +117,47 @@ def plot_calibration(fits, path: str | Path, title: str = "") -> Path:
     return _save(fig, plt, path)
 
 
+def plot_tone_curves(path: str | Path) -> Path:
+    """The tone curves (display value versus linear, log-x) at their defaults and with
+    the filmic curves' exposure and white: the README's figure."""
+    import torch
+
+    from rawsim.isp.tone import apply_tone_curve
+
+    plt = _figure()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), dpi=100)
+    x = torch.from_numpy(np.geomspace(1e-3, 4.0, 400))
+    settings = {
+        "defaults (exposure 0, own white)": [(c, 0.0, None) for c in TONE_CURVE_NAMES],
+        "exposure (white auto)": [(c, e, None) for c in ("hable",) for e in (0.0, 1.0, 2.0, 3.0)],
+        "white (exposure 1)": [(c, 1.0, w) for c in ("aces",) for w in (1.0, 2.0, 4.0, 12.0)],
+    }
+    for ax, (title, curves) in zip(axes, settings.items(), strict=True):
+        ax.plot(x, x.clamp(0, 1), ":", color="grey", label="none (clip at 1)")
+        for curve, exposure, white in curves:
+            y = apply_tone_curve(x, curve, exposure, white).clamp(max=1.0)
+            label = (
+                curve
+                if title.startswith("defaults")
+                else (
+                    f"{curve} exposure {exposure:g}"
+                    if white is None
+                    else f"{curve} white {white:g}"
+                )
+            )
+            ax.plot(x, y, label=label)
+        ax.set_xscale("log")
+        ax.set(xlabel="linear value (1 = the sensor's white)", ylabel="display value (linear)")
+        ax.set_title(title)
+        ax.grid(True, alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, plt, path)
+
+
+TONE_CURVE_NAMES = ("smoothstep", "reinhard", "aces", "hable")
+
+
 def _save(fig, plt, path) -> Path:
     path = Path(path)
     with atomic_output(path) as tmp:

@@ -105,3 +105,41 @@ def test_tone_gradcheck(curve):
     module = ToneCurve(curve)
     assert torch.equal(module(x), apply_tone_curve(x, curve))
     assert torch.equal(module.reverse(x), invert_tone_curve(x, curve))
+
+
+@pytest.mark.parametrize("curve", ["reinhard", "aces", "hable"])
+@pytest.mark.parametrize(("exposure", "white"), [(0.0, 0.5), (1.0, None), (2.0, 12.0)])
+def test_filmic_exposure_and_white(curve, exposure, white):
+    """Display white at 2^-exposure; a larger white lifts mid-tones; exact inverse."""
+    x = torch.linspace(-0.05, 1.5, 311, dtype=torch.float64)
+    y = apply_tone_curve(x, curve, exposure, white)
+    assert bool((y[1:] > y[:-1]).all())
+    at_white = apply_tone_curve(
+        torch.tensor(2.0**-exposure, dtype=torch.float64), curve, exposure, white
+    )
+    assert float(at_white) == pytest.approx(1.0, abs=1e-12)
+    ok = y < apply_tone_curve(torch.tensor(50.0, dtype=torch.float64), curve, exposure, white)
+    assert torch.allclose(invert_tone_curve(y[ok], curve, exposure, white), x[ok], atol=1e-9)
+    grey = torch.tensor(0.18, dtype=torch.float64)
+    soft = apply_tone_curve(grey, curve, 0.0, 1.0)
+    hard = apply_tone_curve(grey, curve, 0.0, 8.0)
+    assert float(hard) > float(soft)  # more shoulder: brighter mid-tones
+
+
+def test_filmic_parameters_are_checked():
+    with pytest.raises(ParameterError, match=r"\[0, 4\]"):
+        apply_tone_curve(torch.tensor(0.5), "aces", exposure=5.0)
+    with pytest.raises(ParameterError, match="takes no exposure"):
+        apply_tone_curve(torch.tensor(0.5), "smoothstep", exposure=1.0)
+    from rawsim.isp.config import default_config, override
+
+    with pytest.raises(ParameterError, match="shape the filmic curves"):
+        override(default_config(), tone_exposure=1.0)
+    with pytest.raises(ParameterError, match="--tone-white 'x'"):
+        override(default_config(), tone="aces", tone_white="x")
+
+
+def test_tone_curve_figure(tmp_path):
+    from rawsim.plots import plot_tone_curves
+
+    assert plot_tone_curves(tmp_path / "t.png").read_bytes()[:4] == b"\x89PNG"

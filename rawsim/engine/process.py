@@ -19,7 +19,8 @@ applies it), so borders agree too.
 
 Tone and transfer run through a lookup table of their composition on [0, 1]
 with linear interpolation (error < 1e-7, far below a 16-bit code): they are
-monotone with f(0) = 0 and f(1) = 1, so clipping before them is clipping after.
+monotone with f(0) = 0 and f(1) ≥ 1, so clipping before them is clipping after
+(a filmic curve's exposure, at most 4 stops, leaves 4096 entries below display white).
 A power-law transfer, whose slope is unbounded at 0, is evaluated exactly.
 """
 

@@ -74,6 +74,28 @@ def _number(lo=-math.inf, hi=math.inf, integer=False):
     return check
 
 
+def _auto_or(check):
+    """``check``, or "auto"; numbers may come as text (the CLI's flags)."""
+
+    def auto_or(value):
+        if value == "auto":
+            return value
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                raise ParameterError(f"expected a number or auto, got {value!r}") from None
+        return check(value)
+
+    return auto_or
+
+
+def tone_params(stage: dict) -> tuple[str, float, float | None]:
+    """(curve, exposure, white or None for the curve's own) of a ``tone`` stage."""
+    white = None if stage["white"] == "auto" else stage["white"]
+    return stage["curve"], stage["exposure"], white
+
+
 def _ev(value):
     """Exposure in stops in [−20, 20], or "auto"."""
     if value == "auto":
@@ -181,7 +203,18 @@ STAGES: dict[str, dict[str, Param]] = {
             "the DNG's BaselineExposure: apply (as Adobe's DNG SDK) or ignore (as LibRaw)",
         ),
     },
-    "tone": {"curve": Param("none", _choice(TONE_CURVES), "tone curve")},
+    "tone": {
+        "curve": Param("none", _choice(TONE_CURVES), "tone curve"),
+        "exposure": Param(
+            0.0, _number(0, 4), "filmic curves: stops of gain before the curve (1 reached at 2^-ev)"
+        ),
+        "white": Param(
+            "auto",
+            _auto_or(_number(0.25, 12)),
+            "filmic curves: white point in the curve's units (auto: reinhard 4, aces 7.24, "
+            "hable 11.2); larger compresses highlights more",
+        ),
+    },
     "transfer": {"function": Param("srgb", _transfer, "srgb, gamma:G or linear")},
     "ycbcr": {},
     "orientation": {},
@@ -233,6 +266,12 @@ def validate_config(config: Any, origin: str = "config") -> list[dict]:
                 entry[key] = p.check(stage.get(key, p.default))
             except ParameterError as err:
                 raise ParameterError(f"{where} ({name}).{key}: {err}") from None
+        shapes_tone = name == "tone" and (entry["exposure"] != 0 or entry["white"] != "auto")
+        if shapes_tone and entry["curve"] in ("none", "smoothstep"):
+            raise ParameterError(
+                f"{where} (tone): exposure and white shape the filmic curves (reinhard, aces, "
+                f"hable), not {entry['curve']!r}; choose one with --tone"
+            )
         out.append(entry)
     _check_order(out, origin)
     return out
@@ -310,6 +349,8 @@ def override(config: list[dict], **changes) -> list[dict]:
         "demosaic": ("demosaic", "method"),
         "highlights": ("highlights", "mode"),
         "tone": ("tone", "curve"),
+        "tone_exposure": ("tone", "exposure"),
+        "tone_white": ("tone", "white"),
         "exposure": ("exposure", "ev"),
         "output_space": ("color_matrix", "output_space"),
         "transfer": ("transfer", "function"),

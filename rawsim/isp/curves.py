@@ -24,8 +24,9 @@ _HA, _HB, _HC, _HD, _HE, _HF = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
 _HABLE_WHITE = 11.2
 
 
-def _reinhard(x):
-    return x * (1 + x / _REINHARD_WHITE**2) / (1 + x)
+def _reinhard(x, white=_REINHARD_WHITE):
+    """Extended Reinhard: reaches 1 at ``white``."""
+    return x * (1 + x / white**2) / (1 + x)
 
 
 def _aces(x):
@@ -43,3 +44,27 @@ def _aces_white() -> float:
 
 
 _ACES_WHITE = _aces_white()
+
+
+#: Each curve's default white point W, in its own units (where the curve is normalised).
+TONE_WHITE = {"reinhard": _REINHARD_WHITE, "aces": _ACES_WHITE, "hable": _HABLE_WHITE}
+
+
+def tone_shape(curve: str, white: float):
+    """The curve g of ``curve`` for white point ``white`` (Reinhard's g depends on it)."""
+    if curve == "reinhard":
+        return lambda x: _reinhard(x, white)
+    return {"aces": _aces, "hable": _hable}[curve]
+
+
+def filmic(x, curve: str, exposure: float = 0.0, white: float | None = None):
+    """A filmic curve on linear ``x`` ≥ 0: ``g(2^exposure · W · x) / g(W)``.
+
+    ``W`` (``white``, default :data:`TONE_WHITE`) is the white point in the curve's
+    own units: display 1 is reached at ``x = 2^-exposure``, and a larger W spends
+    more of [0, 1] on the shoulder (highlights compress, mid-tones lift). At
+    exposure 0, x = 1 (the sensor's white) maps to 1.
+    """
+    white = TONE_WHITE[curve] if white is None else white
+    g = tone_shape(curve, white)
+    return g(x * (2.0**exposure * white)) / g(white)

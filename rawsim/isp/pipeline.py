@@ -33,6 +33,7 @@ from rawsim.isp.config import (  # noqa: F401 - the config API, also reachable f
     load_config_text,
     override,
     parse_gains,
+    tone_params,
     validate_config,
     white_balance,
     white_level,
@@ -147,7 +148,7 @@ def build_isp(config: list[dict], raw) -> Isp:
         elif name == "exposure":
             module = Exposure(exposure_stops(s, raw, info))
         elif name == "tone":
-            module = ToneCurve(s["curve"])
+            module = ToneCurve(*tone_params(s))
         elif name == "transfer":
             module = Transfer(s["function"])
         elif name == "ycbcr":

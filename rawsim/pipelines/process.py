@@ -33,21 +33,17 @@ from rawsim.isp.config import (
     config_to_toml,
     default_config,
     exposure_stops,
+    tone_params,
     validate_config,
     white_balance,
     white_level,
 )
 from rawsim.isp.curves import (
-    _ACES_WHITE,
-    _HABLE_WHITE,
-    _REINHARD_WHITE,
     _SRGB_A,
     _SRGB_ENCODE_KNEE,
     _SRGB_GAMMA,
     _SRGB_SLOPE,
-    _aces,
-    _hable,
-    _reinhard,
+    filmic,
 )
 
 
@@ -177,6 +173,12 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
             ops.append((ep.OP_MATRIX, matrix.ravel()))
         elif name == "exposure":
             ops.append((ep.OP_EXPOSURE, [2.0 ** exposure_stops(s, raw, info)]))
+    if tail and tail[0]["name"] == "tone" and tail[0]["exposure"]:
+        # A filmic curve's gain runs before the table, which then keeps f(1) = 1.
+        post.append((ep.OP_EXPOSURE, [2.0 ** tail[0]["exposure"]]))
+        tail = [{**tail[0], "exposure": 0.0}, *tail[1:]]
+    elif any(s["name"] == "tone" and s["exposure"] for s in tail):
+        return None  # a filmic gain after the transfer: the reference's order
     out_mode, lut, gamma = _output_table(tail, fmt)
     if out_mode is None:
         return None
@@ -198,10 +200,6 @@ def _op_arrays(ops) -> tuple[np.ndarray, np.ndarray]:
     for k, (_, values) in enumerate(ops):
         numbers[k, : len(values)] = values
     return codes, numbers
-
-
-_TONE = {"reinhard": (_reinhard, _REINHARD_WHITE), "aces": (_aces, _ACES_WHITE)}
-_TONE["hable"] = (_hable, _HABLE_WHITE)
 
 
 def _output_table(tail: list[dict], fmt: str):
@@ -230,12 +228,11 @@ def _tail_curve(tail: list[dict], x: np.ndarray) -> tuple[np.ndarray, float] | N
     gamma = 1.0
     for at, s in enumerate(tail):
         if s["name"] == "tone":
-            curve = s["curve"]
+            curve, exposure, white = tone_params(s)
             if curve == "smoothstep":
                 x = x * x * (3 - 2 * x)
             elif curve != "none":
-                g, white = _TONE[curve]
-                x = g(x * white) / g(white)
+                x = filmic(x, curve, exposure, white)
             continue
         spec = TransferSpec.parse(s["function"])
         if spec.kind == "srgb":
