@@ -50,10 +50,10 @@ profile_opt = click.option(
 )
 shard_opt = click.option(
     "--shard",
-    metavar="K/N",
+    metavar="K/N|auto",
     default=None,
-    help="Process only the K-th of N shares of the inputs, K from 1 "
-    "(e.g. $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT).",
+    help="Process only the K-th of N shares of the inputs, K from 1. auto: this task's "
+    "share of a Slurm array (SLURM_ARRAY_TASK_ID, _MIN, _STEP, _COUNT).",
 )
 json_opt = click.option(
     "--json", "json_records", is_flag=True, help="Print one JSON record per file on stdout."

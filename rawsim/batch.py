@@ -17,7 +17,7 @@ import threading
 import time
 import traceback
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
@@ -163,10 +163,17 @@ def shown(path: str | Path) -> str:
     return text if text.isprintable() else repr(text)
 
 
-def parse_shard(text: str | None) -> tuple[int, int]:
-    """Parse ``"K/N"`` (1-based K) into (K, N); None means the whole run (1/1)."""
+def parse_shard(text: str | None, environ: Mapping[str, str] | None = None) -> tuple[int, int]:
+    """Parse ``"K/N"`` (1-based K) into (K, N); None means the whole run (1/1).
+
+    ``"auto"`` takes them from a Slurm array job's environment (``environ``,
+    default ``os.environ``): K = (SLURM_ARRAY_TASK_ID − SLURM_ARRAY_TASK_MIN) /
+    SLURM_ARRAY_TASK_STEP + 1 and N = SLURM_ARRAY_TASK_COUNT.
+    """
     if not text:
         return 1, 1
+    if text == "auto":
+        return slurm_shard(os.environ if environ is None else environ)
     try:
         k, n = (int(v) for v in text.split("/"))
     except ValueError:
@@ -174,6 +181,31 @@ def parse_shard(text: str | None) -> tuple[int, int]:
     if not 1 <= k <= n:
         raise ParameterError(f"shard K/N needs 1 ≤ K ≤ N, got {text!r}")
     return k, n
+
+
+def slurm_shard(environ: Mapping[str, str]) -> tuple[int, int]:
+    """(K, N) of this task of a Slurm array whose indices are a range MIN-MAX[:STEP]."""
+    names = ("SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_MIN", "SLURM_ARRAY_TASK_COUNT")
+    missing = [n for n in names if n not in environ]
+    if missing:
+        raise ParameterError(
+            f"--shard auto needs a Slurm array job ({', '.join(missing)} not set); "
+            "submit with sbatch --array, or give --shard K/N"
+        )
+    try:
+        task, low, count = (int(environ[n]) for n in names)
+        step = int(environ.get("SLURM_ARRAY_TASK_STEP", "1"))
+    except ValueError:
+        raise ParameterError(
+            "--shard auto: the SLURM_ARRAY_TASK_* variables are not integers"
+        ) from None
+    k, rest = divmod(task - low, max(step, 1))
+    if rest or not 0 <= k < count:
+        raise ParameterError(
+            f"--shard auto: task {task} is not the {count} indices from {low} by {step}; give "
+            "the array as a range (--array=MIN-MAX[:STEP]) or use --shard K/N"
+        )
+    return k + 1, count
 
 
 def plan(

@@ -131,6 +131,29 @@ def test_shards_partition_the_run(tmp_path):
             parse_shard(bad)
 
 
+def test_shard_auto_reads_a_slurm_array():
+    array = {"SLURM_ARRAY_TASK_MIN": "0", "SLURM_ARRAY_TASK_COUNT": "16"}
+    assert parse_shard("auto", {**array, "SLURM_ARRAY_TASK_ID": "0"}) == (1, 16)
+    assert parse_shard("auto", {**array, "SLURM_ARRAY_TASK_ID": "15"}) == (16, 16)
+    stepped = {"SLURM_ARRAY_TASK_MIN": "10", "SLURM_ARRAY_TASK_STEP": "5"}
+    stepped |= {"SLURM_ARRAY_TASK_COUNT": "3", "SLURM_ARRAY_TASK_ID": "20"}
+    assert parse_shard("auto", stepped) == (3, 3)
+    with pytest.raises(ParameterError, match="needs a Slurm array job"):
+        parse_shard("auto", {})
+    with pytest.raises(ParameterError, match="as a range"):  # --array=1,3,7 has no step
+        parse_shard(
+            "auto",
+            {
+                **array,
+                "SLURM_ARRAY_TASK_ID": "3",
+                "SLURM_ARRAY_TASK_MIN": "1",
+                "SLURM_ARRAY_TASK_COUNT": "3",
+                "SLURM_ARRAY_TASK_STEP": "2",
+            }
+            | {"SLURM_ARRAY_TASK_ID": "7"},
+        )
+
+
 def _fails_on_b(task, **_):
     if task.key == "b":
         raise UnsupportedInputError(f"{task.source}: broken")

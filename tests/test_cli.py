@@ -396,3 +396,34 @@ def test_profiles_print_readably_and_flags_errors_speak_in_flags(tmp_path):
     r = run("process", DATA / "raw" / "canon_eos60d_mlv.dng", "-o", tmp_path, "--wb", "foo")
     assert r.exit_code == 2 and "--wb 'foo': valid: camera, daylight, auto" in r.output
     assert "stage" not in r.output
+
+
+def test_slurm_array_shards_union_is_the_single_run(photos, tmp_path):
+    """Three real processes with a Slurm array's variables (indices 4, 6, 8: --array=4-8:2)
+    and --shard auto: each file is done once, and the union is the single run's bytes."""
+    import os
+    import subprocess
+    import sys
+
+    common = ["-p", "sony_a7s2", "--iso", "800", "--seed", "5", "-q"]
+    single = tmp_path / "single"
+    assert run("unprocess", photos, "-o", single, *common).exit_code == 0
+    shards = tmp_path / "shards"
+    cli_command = [sys.executable, "-c", "from rawsim_cli.main import main; main()"]
+    outputs = []
+    for task in (4, 6, 8):
+        env = {**os.environ, "SLURM_ARRAY_TASK_ID": str(task), "SLURM_ARRAY_TASK_MIN": "4"}
+        env |= {"SLURM_ARRAY_TASK_STEP": "2", "SLURM_ARRAY_TASK_COUNT": "3"}
+        before = set(digest(shards)) if shards.exists() else set()
+        args = ["unprocess", str(photos), "-o", str(shards), *common, "--shard", "auto"]
+        done = subprocess.run([*cli_command, *args], env=env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        outputs.append(set(digest(shards)) - before)
+    assert all(outputs) and sum(map(len, outputs)) == len(set().union(*outputs))
+    assert digest(shards) == digest(single)
+    r = CliRunner().invoke(
+        cli,
+        ["unprocess", str(photos), "-o", str(tmp_path / "x"), *common, "--shard", "auto"],
+        env={"SLURM_ARRAY_TASK_ID": None},
+    )
+    assert r.exit_code == 2 and "needs a Slurm array job" in r.output
