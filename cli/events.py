@@ -69,13 +69,43 @@ from rawsim_cli.options import output_options, usage_errors
     show_default=True,
     help="Shot-noise events per pixel per second (both polarities).",
 )
+@click.option(
+    "--refractory-s",
+    type=click.FloatRange(min=0),
+    default=0.0,
+    show_default=True,
+    help="Refractory period: crossings this soon after a pixel's event are absorbed.",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the randomness.")
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["npz", "h5", "txt"]),
+    default="npz",
+    show_default=True,
+    help="Event stream file: npz (arrays t, x, y, p and the count maps), h5 (v2e's "
+    "layout; needs h5py) or txt (ESIM/RPG: 't x y p' per line, seconds).",
+)
+@click.option(
+    "--voxel-bins",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Also write voxels.npy: per step, a voxel grid of this many time bins.",
+)
 @click.option(
     "--preview",
     is_flag=True,
     help="Also write preview/step_NNNN.png: red positive, blue negative events.",
 )
 @click.option("--overwrite", is_flag=True, help="Replace existing outputs.")
+@click.option(
+    "-j",
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Threads of the simulator (default: every core). Events do not depend on it.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON record of the run on stdout.")
 @usage_errors
 def command(
     frames,
@@ -87,36 +117,48 @@ def command(
     cutoff_hz,
     leak_rate_hz,
     shot_noise_rate_hz,
+    refractory_s,
     seed,
+    fmt,
+    voxel_bins,
     preview,
     overwrite,
+    jobs,
+    as_json,
 ):
-    """Simulate an event camera watching FRAMES and write its event count maps.
+    """Simulate an event camera watching FRAMES and write its event stream.
 
     FRAMES is a folder (its images in name order) or a list of image files, in
-    time order. 8/16-bit frames are sRGB-decoded to linear light; float frames
-    (EXR) are linear. Between consecutive frames each pixel fires
-    ⌊Δ log I / θ⌋ events per polarity (EventSensor, see the README).
+    time order, frame k at k/FPS seconds. 8/16-bit frames are sRGB-decoded to
+    linear light; float frames (EXR) are linear; RGB becomes Rec. 709 luminance.
 
-    OUT/events.npz holds `events`, int32 (T−1, 2, H, W) with channel 0 positive
-    and 1 negative, `frames` (the inputs in order) and `params` (JSON).
+    Each pixel remembers the log intensity of its last event; between frames
+    the log intensity is interpolated linearly, and each crossing of that
+    reference ± θ is an event (x, y, t, polarity) at the crossing time (ESIM's
+    model). Thresholds vary per pixel by N(0, --sigma-threshold) (fixed
+    pattern, as v2e); --refractory-s, --leak-rate-hz, --shot-noise-rate-hz and
+    --cutoff-hz add v2e's non-idealities. Randomness comes from a counter-based
+    generator keyed by --seed: the same events for any --jobs.
+
+    OUT/events.<format> holds the stream (see --format); events.npz also holds
+    the count maps `events` (steps, 2, H, W), channel 0 ON.
+    Existing outputs are skipped unless --overwrite.
 
     \b
     Example:
-      rawsim events clip/ -o clip_events --fps 240 --sigma-threshold 0 --preview
+      rawsim events clip/ -o clip_events --fps 240 --format h5 --refractory-s 1e-4
     """
     import numpy as np
-    import torch
 
     from rawsim.batch import discover
     from rawsim.errors import ParameterError
-    from rawsim.events import EventParams, EventSensor
+    from rawsim.event_stream import EventParams, EventStream, voxel_grid
     from rawsim.io.atomic import atomic_output
-    from rawsim.io.images import IMAGE_EXTENSIONS, read_image, to_samples, write_image
-    from rawsim.sensors import display_to_linear
+    from rawsim.io.events import SUFFIX, EventFile
+    from rawsim.io.images import IMAGE_EXTENSIONS, write_image
 
     out = Path(out_dir)
-    target = out / "events.npz"
+    target = out / f"events{SUFFIX[fmt]}"
     if target.exists() and not overwrite:  # the same policy as every command: skip
         click.echo(f"skip: {target} exists (use --overwrite to replace it)", err=True)
         return
@@ -129,49 +171,79 @@ def command(
     params = EventParams(
         threshold_pos, threshold_neg, sigma_threshold, cutoff_hz, leak_rate_hz, shot_noise_rate_hz
     )
-    sensor = EventSensor(params)
-    generator = torch.Generator().manual_seed(seed)
-    dt = 1.0 / fps
+    if jobs:
+        import numba
 
-    def load(path):
-        decoded = read_image(path)
-        x = torch.from_numpy(decoded.pixels.astype(np.float32)).permute(2, 0, 1)[None]
-        if not decoded.is_float:
-            x = display_to_linear(x / decoded.code_max)
-        return x
-
-    previous = load(paths[0])
-    steps = []
-    for path in paths[1:]:
-        frame = load(path)
-        if frame.shape != previous.shape:
-            raise ParameterError(
-                f"{path}: size {frame.shape[-1]}×{frame.shape[-2]} differs from {paths[0]} "
-                f"({previous.shape[-1]}×{previous.shape[-2]})"
-            )
-        steps.append(sensor(frame, previous, dt, generator)[0].to(torch.int32))
-        previous = frame
-    events = torch.stack(steps).numpy()
+        numba.set_num_threads(min(jobs, numba.config.NUMBA_NUM_THREADS))
+    frames_in = _log_frames(paths, params.eps)
+    first = next(frames_in)
+    stream = EventStream(params, first.shape, seed, refractory_s)
+    stream.start(first, 0.0)
+    meta = {"fps": fps, "seed": seed, "refractory_s": refractory_s, **params.to_dict()}
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"fps": fps, "seed": seed, **params.to_dict()}
-    with atomic_output(target) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(
-            fh,
-            events=events,
-            frames=np.array([str(p) for p in paths]),
-            params=np.array(json.dumps(meta)),
-        )
+    totals = np.zeros(2, dtype=np.int64)
+    voxels, previews = [], []
+    with EventFile(target, fmt, first.shape, meta) as sink:
+        sink.start(0.0)
+        for k, frame in enumerate(frames_in, start=1):
+            t0 = stream.time
+            batch = stream.step(frame, k / fps)
+            sink.add(batch, k / fps)
+            totals += batch.counts.reshape(2, -1).sum(axis=1)
+            if voxel_bins:
+                voxels.append(voxel_grid(batch, t0, 1.0 / fps, voxel_bins))
+            if preview:
+                previews.append(batch.counts)
+        sink.close([str(p) for p in paths])
+    written = [str(target)]
+    if voxel_bins:
+        with atomic_output(out / "voxels.npy") as tmp, open(tmp, "wb") as fh:
+            np.save(fh, np.stack(voxels))
+        written.append(str(out / "voxels.npy"))
     if preview:
         folder = out / "preview"
         folder.mkdir(exist_ok=True)
-        peak = max(int(events.max()), 1)
-        for t, step in enumerate(torch.from_numpy(events).float() / peak):
-            rgb = torch.stack([step[0], torch.zeros_like(step[0]), step[1]])
+        peak = max(max(int(c.max()) for c in previews), 1)
+        for t, counts in enumerate(previews):
+            level = np.round(counts * (255.0 / peak)).astype(np.uint8)
+            rgb = np.stack([level[0], np.zeros_like(level[0]), level[1]], axis=-1)
             with atomic_output(folder / f"step_{t + 1:04d}.png") as tmp:
-                write_image(tmp, to_samples(rgb, "png", 8), "png")
-    total = events.sum(axis=(0, 2, 3))
+                write_image(tmp, rgb, "png")
+    if as_json:
+        record = {
+            "frames": len(paths),
+            "outputs": written,
+            "events": {"on": int(totals[0]), "off": int(totals[1])},
+            "seed": seed,
+            "params": meta,
+            "warnings": [],
+        }
+        click.echo(json.dumps(record))
     click.echo(
-        f"rawsim: {len(paths)} frames → {target}: {int(total[0])} positive, "
-        f"{int(total[1])} negative events",
+        f"rawsim: {len(paths)} frames → {target}: {int(totals[0])} positive, "
+        f"{int(totals[1])} negative events",
         err=True,
     )
+
+
+def _log_frames(paths, eps):
+    """Each frame's log luminance (H, W) float64, decoded one ahead in a thread."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rawsim.errors import ParameterError
+    from rawsim.event_stream import log_luminance
+
+    with ThreadPoolExecutor(1, thread_name_prefix="rawsim-frames") as pool:
+        pending = pool.submit(log_luminance, paths[0], eps)
+        shape = None
+        for k in range(len(paths)):
+            frame = pending.result()
+            if k + 1 < len(paths):
+                pending = pool.submit(log_luminance, paths[k + 1], eps)
+            if shape is not None and frame.shape != shape:
+                raise ParameterError(
+                    f"{paths[k]}: size {frame.shape[1]}×{frame.shape[0]} differs from "
+                    f"{paths[0]} ({shape[1]}×{shape[0]})"
+                )
+            shape = frame.shape
+            yield frame

@@ -44,22 +44,17 @@ from rawsim.exact_math import (
     sin_reduced,
     stirling_tail,
 )
-
-MASK32 = 0xFFFFFFFF
-PHILOX_M0, PHILOX_M1 = 0xD2511F53, 0xCD9E8D57
-PHILOX_W0, PHILOX_W1 = 0x9E3779B9, 0xBB67AE85
-#: Counter word 2 of each kind of draw. Row noise indexes rows, the others sites.
-STREAMS = {"normal": 0, "tukey": 1, "poisson": 2, "row": 3}
-#: Below this mean, Poisson draws invert the CDF; from it up, PTRS.
-INVERSION_BELOW = 10.0
-#: PTRS accepts within a few iterations (mean ≈ 1.2); a bound keeps a loop finite.
-MAX_ITERATIONS = 64
-
-
-def split_key(seed: int) -> tuple[int, int]:
-    """A 64-bit seed → the two 32-bit Philox key words (low, high)."""
-    seed = int(seed) & 0xFFFFFFFFFFFFFFFF
-    return seed & MASK32, seed >> 32
+from rawsim.philox import (  # noqa: F401 - the generator's constants, also from here
+    INVERSION_BELOW,
+    MASK32,
+    MAX_ITERATIONS,
+    PHILOX_M0,
+    PHILOX_M1,
+    PHILOX_W0,
+    PHILOX_W1,
+    STREAMS,
+    split_key,
+)
 
 
 def _mulhilo(m: int, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

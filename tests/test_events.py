@@ -1,4 +1,5 @@
-"""Event sensor: hand-computed counts, noise-event rates, shapes and the CLI."""
+"""Event sensor and event streams: hand-computed counts and times, noise rates,
+seeding, formats and the CLI."""
 
 import json
 import math
@@ -10,6 +11,7 @@ import torch
 from click.testing import CliRunner
 
 from rawsim.errors import ParameterError
+from rawsim.event_stream import EventParams, EventStream, voxel_grid
 from rawsim.events import (
     EventSensor,
     events_to_timestamp_image,
@@ -127,3 +129,142 @@ def test_events_cli_on_a_short_sequence(tmp_path):
         cli, ["events", str(frames / "frame_000.png"), "-o", str(tmp_path / "x"), "--fps", "1"]
     )
     assert one.exit_code == 2 and "at least 2 frames" in one.output
+
+
+# ---- event streams --------------------------------------------------------------------
+
+
+def _stream(values, dt=0.01, **kw):
+    """One pixel row: log intensity 0, then ``values`` (one list per step)."""
+    exact = dict(sigma_threshold=0, eps=1e-12)
+    refractory = kw.pop("refractory_s", 0.0)
+    params = EventParams(**{**exact, **kw})
+    steps = [np.asarray(v, dtype=np.float64)[None] for v in values]
+    stream = EventStream(params, steps[0].shape, refractory_s=refractory)
+    stream.start(np.zeros_like(steps[0]), 0.0)
+    return [stream.step(s, (k + 1) * dt) for k, s in enumerate(steps)]
+
+
+def test_stream_first_step_is_the_count_model_with_exact_times():
+    vals = [0.45, 0.19, -0.65, -0.29, 0.0, 1.05]
+    (batch,) = _stream([vals], threshold_pos=0.2, threshold_neg=0.3)
+    cur, prev = _pair(vals)
+    counts = EventSensor(threshold_pos=0.2, threshold_neg=0.3, sigma_threshold=0, eps=1e-12)(
+        cur, prev, 0.01
+    )
+    assert np.array_equal(batch.counts, counts[0, :, 0:1].numpy().astype(np.int32))
+    # Pixel 0 crosses 0.2 and 0.4 of its 0.45 change: at 4/9 and 8/9 of the step.
+    first = batch.t[batch.x == 0]
+    assert np.allclose(first, [0.01 * 0.2 / 0.45, 0.01 * 0.4 / 0.45], rtol=0, atol=1e-15)
+    assert np.all(np.diff(batch.t) >= 0) and set(batch.p.tolist()) == {0, 1}
+    assert np.all(batch.p[batch.x == 2] == 0)
+
+
+def test_stream_remembers_what_the_count_model_drops():
+    """+0.1 per step, θ 0.15: the count model never fires; a real pixel fires in step 2."""
+    batches = _stream([[0.1], [0.2], [0.3]], threshold_pos=0.15)
+    assert [int(b.counts[0].sum()) for b in batches] == [0, 1, 1]
+    assert batches[1].t[0] == pytest.approx(0.015)  # 0.15 reached halfway through step 2
+    assert batches[2].t[0] == pytest.approx(0.03)  # and 0.30 at its end
+
+
+def test_refractory_period_absorbs_crossings():
+    """A change of 1.0 crosses θ 0.2 at 2, 4, 6, 8, 10 ms; a 3 ms refractory period keeps
+    2, 6 and 10 ms, and the reference still follows all five (no events afterwards)."""
+    batches = _stream([[1.0], [1.0]], threshold_pos=0.2, refractory_s=0.003)
+    assert np.allclose(batches[0].t, [0.002, 0.006, 0.010])
+    assert batches[1].t.size == 0
+
+
+def test_leak_fires_on_events_at_its_rate_in_a_still_scene():
+    still = [[0.0] * 50] * 11  # 1.1 s at dt 0.1
+    batches = _stream(still, dt=0.1, leak_rate_hz=2.0, threshold_pos=0.2)
+    on = sum(int(b.counts[0].sum()) for b in batches)
+    assert on == 2 * 50 and sum(int(b.counts[1].sum()) for b in batches) == 0
+
+
+def test_shot_noise_rate_and_threshold_mismatch_are_seeded():
+    params = EventParams(sigma_threshold=0.03, shot_noise_rate_hz=20.0)
+    shape = (200, 300)
+    runs = []
+    for seed in (1, 1, 2):
+        stream = EventStream(params, shape, seed=seed)
+        stream.start(np.zeros(shape), 0.0)
+        runs.append((stream.on.copy(), stream.step(np.zeros(shape), 0.01)))
+    (on_a, a), (on_b, b), (on_c, c) = runs
+    assert np.array_equal(on_a, on_b) and not np.array_equal(on_a, on_c)
+    assert on_a.mean() == pytest.approx(0.2, abs=0.001) and on_a.std() == pytest.approx(
+        0.03, rel=0.02
+    )
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.x, b.x) and not np.array_equal(a.t, c.t)
+    n = shape[0] * shape[1]
+    for polarity in (0, 1):  # rate·dt/2 each
+        assert (a.p == polarity).sum() / n == pytest.approx(0.1, rel=0.05)
+
+
+def test_stream_is_the_same_for_any_thread_count():
+    import numba
+
+    g = np.random.default_rng(3)
+    frames = [np.log(g.random((64, 96)) + 0.05) for _ in range(4)]
+    params = EventParams(sigma_threshold=0.03, leak_rate_hz=1.0, shot_noise_rate_hz=5.0)
+    results = []
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        stream = EventStream(params, frames[0].shape, seed=4, refractory_s=1e-3)
+        stream.start(frames[0], 0.0)
+        results.append([stream.step(f, (k + 1) / 100) for k, f in enumerate(frames[1:])])
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for a, b in zip(*results, strict=True):
+        for name in ("t", "x", "y", "p", "counts"):
+            assert np.array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_voxel_grid_keeps_every_event_once():
+    g = np.random.default_rng(0)
+    (batch,) = _stream([g.normal(0, 0.5, 40)], threshold_pos=0.1, threshold_neg=0.1)
+    grid = voxel_grid(batch, 0.0, 0.01, 5)
+    net = batch.counts[0] - batch.counts[1]
+    assert grid.shape == (5, 1, 40) and np.allclose(grid.sum(0), net, atol=1e-5)
+
+
+def test_events_cli_stream_formats_agree(tmp_path):
+    """npz, v2e's HDF5 and ESIM's text hold the same events; --jobs does not change them;
+    --json reports the run."""
+    import h5py
+
+    frames = tmp_path / "clip"
+    frames.mkdir()
+    g = np.random.default_rng(1)
+    base = g.integers(20, 230, (48, 64, 3)).astype(np.uint8)
+    for t in range(5):
+        oiio.ImageBuf(np.roll(base, 2 * t, axis=1)).write(str(frames / f"f{t}.png"))
+    common = [str(frames), "--fps", "1000", "--seed", "3", "--refractory-s", "1e-4"]
+    out = {}
+    for fmt, jobs in (("npz", "1"), ("h5", "2"), ("txt", "2"), ("npz", "2")):
+        folder = tmp_path / f"{fmt}{jobs}"
+        args = ["events", *common, "-o", str(folder), "--format", fmt, "--jobs", jobs, "--json"]
+        r = CliRunner().invoke(cli, args + (["--voxel-bins", "3"] if fmt == "npz" else []))
+        assert r.exit_code == 0, r.output
+        record = json.loads(r.stdout)
+        assert record["frames"] == 5 and record["outputs"][0].endswith(f"events.{fmt}")
+        out[fmt + jobs] = folder / f"events.{fmt}"
+    z = np.load(out["npz1"])
+    assert (tmp_path / "npz1" / "events.npz").read_bytes() == (
+        tmp_path / "npz2" / "events.npz"
+    ).read_bytes()
+    assert z["t"].size == record["events"]["on"] + record["events"]["off"] > 100
+    assert np.all(np.diff(z["t"]) >= 0) and z["events"].shape == (4, 2, 48, 64)
+    with h5py.File(out["h52"]) as f:
+        rows = f["events"][:]
+        assert rows.dtype == np.uint32 and rows.shape == (z["t"].size, 4)
+        assert np.array_equal(rows[:, 0], np.round(z["t"] * 1e6).astype(np.uint32))
+        assert np.array_equal(rows[:, 1:], np.stack([z["x"], z["y"], z["p"]], 1))
+        assert f["frame_ts"][:].tolist() == [0, 1000, 2000, 3000, 4000]
+        assert f["frame_idx"][-1] == rows.shape[0]
+    text = np.loadtxt(out["txt2"])
+    assert np.allclose(text[:, 0], z["t"], rtol=0, atol=1e-9)
+    assert np.array_equal(text[:, 1:].astype(int), np.stack([z["x"], z["y"], z["p"]], 1))
+    voxels = np.load(tmp_path / "npz1" / "voxels.npy")
+    assert voxels.shape == (4, 3, 48, 64)
+    assert np.allclose(voxels.sum(1), z["events"][:, 0] - z["events"][:, 1], atol=1e-4)

@@ -16,16 +16,6 @@ from numba import njit
 from numba.core import types
 from numba.extending import intrinsic, overload
 
-from rawsim.counter_rng import (
-    INVERSION_BELOW,
-    MAX_ITERATIONS,
-    PHILOX_M0,
-    PHILOX_M1,
-    PHILOX_W0,
-    PHILOX_W1,
-    STREAMS,
-    split_key,
-)
 from rawsim.exact_math import (
     HALF_PI,
     INV_LN2,
@@ -41,6 +31,16 @@ from rawsim.exact_math import (
     log_mantissa,
     sin_reduced,
     stirling_tail,
+)
+from rawsim.philox import (
+    INVERSION_BELOW,
+    MAX_ITERATIONS,
+    PHILOX_M0,
+    PHILOX_M1,
+    PHILOX_W0,
+    PHILOX_W1,
+    STREAMS,
+    split_key,
 )
 
 _MASK = np.uint64(0xFFFFFFFF)

@@ -1,0 +1,272 @@
+"""The event-stream simulator's compiled kernels (see :mod:`rawsim.events`).
+
+Per pixel and frame step, the effective log intensity runs linearly from the
+previous frame's value to this one's (``s`` from 0 to 1 over the step), while
+the leak lowers the pixel's reference at a constant rate. Their difference D
+is then linear in s, so the crossings of the thresholds, and their times, are
+exact: an ON event each time D reaches θ+ (the reference then steps up by θ+),
+an OFF event each time it reaches −θ−. Crossings within the refractory period
+after the pixel's last event are absorbed (the reference follows, no event).
+Shot noise adds at most one event per pixel and step, ON or OFF with
+probability rate·dt/2 each, at a uniform time; it leaves the reference alone.
+
+Two passes over the rows (``prange``): :func:`count_events` counts what each
+pixel emits (the count maps), :func:`emit_events` writes the events at offsets
+from those counts and advances the state. Both compute the same thing from the
+same state and counter-based draws, so they agree whatever the thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from rawsim.engine.counter_rng import normal, uniforms
+from rawsim.philox import STREAMS
+
+SHOT = np.uint64(STREAMS["shot"])
+THRESHOLD = np.uint64(STREAMS["threshold"])
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def threshold_normals(k0, k1, out):
+    """Standard normals for the thresholds, (H, W, 2): site 2·(i·W + j) + c."""
+    h, w, _ = out.shape
+    for i in prange(h):
+        for j in range(w):
+            for c in range(2):
+                out[i, j, c] = normal(np.uint64(2 * (i * w + j) + c), THRESHOLD, k0, k1)
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def log_luma(frame, lut, luma, eps, out):
+    """``log(Σ_c luma[c] · lut[c, frame[…, c]] + eps)`` per pixel of an integer frame
+    (H, W, C) with C = 1 or 3; ``lut`` (C, codes) maps codes to linear light."""
+    h, w, c = frame.shape
+    for i in prange(h):
+        for j in range(w):
+            if c == 1:
+                v = lut[0, frame[i, j, 0]]
+            else:
+                v = luma[0] * lut[0, frame[i, j, 0]]
+                v += luma[1] * lut[1, frame[i, j, 1]] + luma[2] * lut[2, frame[i, j, 2]]
+            out[i, j] = math.log(v + eps)
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def log_luma_float(frame, luma, eps, out):
+    """The same for linear float frames (H, W, C)."""
+    h, w, c = frame.shape
+    for i in prange(h):
+        for j in range(w):
+            if c == 1:
+                v = frame[i, j, 0]
+            else:
+                v = luma[0] * frame[i, j, 0] + luma[1] * frame[i, j, 1]
+                v += luma[2] * frame[i, j, 2]
+            out[i, j] = math.log(max(v, 0.0) + eps)
+
+
+@njit(inline="always")
+def _pixel(d0, m, on, off, last, refractory, t0, dt, u, p_half, ts, ps, at, write):
+    """Events of one pixel over one step: (emitted, ON among them, reference step, last
+    event time). ``d0`` = log intensity − reference at the step's start, ``m`` its change
+    over the step (leak included). Writes times and polarities from ``at`` if ``write``."""
+    if m > 0.0:
+        crossings = math.floor((d0 + m) / on) if d0 + m >= on else 0.0
+        level, sign, polarity = on, 1.0, 1
+    else:
+        crossings = math.floor((-d0 - m) / off) if -d0 - m >= off else 0.0
+        level, sign, polarity = off, -1.0, 0
+    n = 0
+    k = 1.0
+    while k <= crossings:
+        t = t0 + dt * (sign * k * level - d0) / m
+        if t - last >= refractory:
+            if write:
+                ts[at + n] = t
+                ps[at + n] = polarity
+            n += 1
+            last = t
+        k += 1.0
+    n_on = n if polarity == 1 else 0
+    noise = -1
+    if u[0] < p_half:
+        noise = 1
+    elif u[0] > 1.0 - p_half:
+        noise = 0
+    if noise >= 0:
+        if write:
+            ts[at + n] = t0 + dt * u[1]
+            ps[at + n] = noise
+        n += 1
+        n_on += noise
+    return n, n_on, sign * crossings * level, last
+
+
+@njit(inline="always")
+def _draws(index, step, k0, k1, p_half):
+    if p_half > 0.0:
+        return uniforms(index, SHOT, k0, k1, np.uint64(step))
+    return 0.5, 0.0
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def count_events(
+    l0, l1, ref, on, off, last, leak, refractory, t0, dt, p_half, k0, k1, step, counts, rows
+):
+    """Pass 1: events per pixel, (2, H, W) ON/OFF into ``counts``, per row into ``rows``."""
+    h, w = l0.shape
+    ts = np.empty(0)
+    ps = np.empty(0, dtype=np.int8)
+    for i in prange(h):
+        total = 0
+        u = np.empty(2)
+        for j in range(w):
+            u[0], u[1] = _draws(np.uint64(i * w + j), step, k0, k1, p_half)
+            d0 = l0[i, j] - ref[i, j]
+            m = l1[i, j] - l0[i, j] + leak * on[i, j] * dt
+            n, n_on, _, _ = _pixel(
+                d0,
+                m,
+                on[i, j],
+                off[i, j],
+                last[i, j],
+                refractory,
+                t0,
+                dt,
+                u,
+                p_half,
+                ts,
+                ps,
+                0,
+                False,
+            )
+            counts[0, i, j] = n_on
+            counts[1, i, j] = n - n_on
+            total += n
+        rows[i] = total
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def emit_events(
+    l0,
+    l1,
+    ref,
+    on,
+    off,
+    last,
+    leak,
+    refractory,
+    t0,
+    dt,
+    p_half,
+    k0,
+    k1,
+    step,
+    offsets,
+    ts,
+    xs,
+    ys,
+    ps,
+):
+    """Pass 2: write each pixel's events from ``offsets[row]`` on, advance the state."""
+    h, w = l0.shape
+    for i in prange(h):
+        at = offsets[i]
+        u = np.empty(2)
+        for j in range(w):
+            u[0], u[1] = _draws(np.uint64(i * w + j), step, k0, k1, p_half)
+            d0 = l0[i, j] - ref[i, j]
+            m = l1[i, j] - l0[i, j] + leak * on[i, j] * dt
+            n, _, moved, newest = _pixel(
+                d0,
+                m,
+                on[i, j],
+                off[i, j],
+                last[i, j],
+                refractory,
+                t0,
+                dt,
+                u,
+                p_half,
+                ts,
+                ps,
+                at,
+                True,
+            )
+            for e in range(n):
+                xs[at + e] = j
+                ys[at + e] = i
+            at += n
+            ref[i, j] += moved - leak * on[i, j] * dt
+            last[i, j] = newest
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def time_order(t, t0, dt, buckets):
+    """The stable order of a step's event times ``t`` in [t0, t0 + dt]: a counting sort
+    into ``buckets`` equal time slots, then an insertion sort inside each slot (ties
+    keep their row-major pixel order). (n,) int64."""
+    n = t.size
+    key = np.empty(n, dtype=np.int64)
+    start = np.zeros(buckets + 1, dtype=np.int64)
+    for e in range(n):
+        k = int((t[e] - t0) / dt * buckets)
+        k = min(max(k, 0), buckets - 1)
+        key[e] = k
+        start[k + 1] += 1
+    for k in range(buckets):
+        start[k + 1] += start[k]
+    order = np.empty(n, dtype=np.int64)
+    fill = start[:-1].copy()
+    for e in range(n):
+        order[fill[key[e]]] = e
+        fill[key[e]] += 1
+    for k in range(buckets):
+        for a in range(start[k] + 1, start[k + 1]):
+            e = order[a]
+            b = a - 1
+            while b >= start[k] and t[order[b]] > t[e]:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = e
+    return order
+
+
+@njit(inline="always")
+def _digits(value, out, at, width):
+    """Write non-negative ``value`` in decimal at ``out[at:]`` (at least ``width`` digits,
+    zero-padded); returns the position after it."""
+    n = 1
+    v = value // 10
+    while v > 0:
+        n += 1
+        v //= 10
+    n = max(n, width)
+    for k in range(n - 1, -1, -1):
+        out[at + k] = 48 + value % 10
+        value //= 10
+    return at + n
+
+
+@njit(cache=True, nogil=True)
+def text_lines(ns, x, y, p, out):
+    """Events as ``t x y p`` lines (t in seconds with 9 decimals, from integer
+    nanoseconds ``ns`` ≥ 0) into the uint8 buffer ``out``; returns the bytes used."""
+    at = 0
+    for e in range(ns.size):
+        at = _digits(ns[e] // 1_000_000_000, out, at, 1)
+        out[at] = 46  # "."
+        at = _digits(ns[e] % 1_000_000_000, out, at + 1, 9)
+        out[at] = 32
+        at = _digits(np.int64(x[e]), out, at + 1, 1)
+        out[at] = 32
+        at = _digits(np.int64(y[e]), out, at + 1, 1)
+        out[at] = 32
+        out[at + 1] = 48 + p[e]
+        out[at + 2] = 10
+        at += 3
+    return at
