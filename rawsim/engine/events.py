@@ -40,10 +40,13 @@ def threshold_normals(k0, k1, out):
                 out[i, j, c] = normal(np.uint64(2 * (i * w + j) + c), THRESHOLD, k0, k1)
 
 
-@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def log_luma(frame, lut, luma, eps, out):
     """``log(Σ_c luma[c] · lut[c, frame[…, c]] + eps)`` per pixel of an integer frame
-    (H, W, C) with C = 1 or 3; ``lut`` (C, codes) maps codes to linear light."""
+    (H, W, C) with C = 1 or 3; ``lut`` (C, codes) maps codes to linear light.
+
+    Serial and without the GIL: it runs in the frame-reading thread beside the
+    parallel kernels, and numba's thread pool takes one parallel launch at a time."""
     h, w, c = frame.shape
     for i in prange(h):
         for j in range(w):
@@ -55,7 +58,7 @@ def log_luma(frame, lut, luma, eps, out):
             out[i, j] = math.log(v + eps)
 
 
-@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def log_luma_float(frame, luma, eps, out):
     """The same for linear float frames (H, W, C)."""
     h, w, c = frame.shape
