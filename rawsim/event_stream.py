@@ -125,14 +125,16 @@ class EventStream:
     def start(self, log_frame: np.ndarray, t: float) -> None:
         """The first frame (log intensity, (H, W) float64) at time ``t`` (s)."""
         self._check(log_frame)
-        self.raw = log_frame.copy()
-        self.level = log_frame.copy()
+        self.raw = self.level = log_frame  # read only: the frames are not changed
         self.ref = log_frame.copy()
         self.last = np.full(self.shape, -np.inf)
         self.time, self.steps = float(t), 0
 
     def step(self, log_frame: np.ndarray, t: float) -> EventBatch:
-        """Events from the previous frame to ``log_frame`` at time ``t`` (> the previous)."""
+        """Events from the previous frame to ``log_frame`` at time ``t`` (> the previous).
+
+        ``log_frame`` is kept until the next step, not copied: do not change it.
+        """
         from rawsim.engine import events as ee
 
         if self.ref is None:
@@ -146,7 +148,7 @@ class EventStream:
         if p.cutoff_hz > 0:
             tau = 1.0 / (2 * math.pi * p.cutoff_hz)
             gain = 1 - tau / (tau + dt)
-        level = self.level + gain * (log_frame - self.raw)
+        level = log_frame if gain == 1.0 else self.level + gain * (log_frame - self.raw)
         p_half = p.shot_noise_rate_hz * dt / 2
         if p_half > 0.5:
             raise ParameterError(f"shot-noise probability per step {2 * p_half:g} > 1: lower it")
@@ -162,7 +164,7 @@ class EventStream:
         pol = np.empty(n, np.int8)
         ee.emit_events(*args, offsets[:-1], t_, x, y, pol)
         order = ee.time_order(t_, self.time, dt, max(1, n // 2))  # ties: row-major
-        self.raw, self.level = log_frame.copy(), level
+        self.raw, self.level = log_frame, level
         self.time, self.steps = float(t), self.steps + 1
         return EventBatch(t_[order], x[order], y[order], pol[order], counts)
 
