@@ -172,9 +172,9 @@ def command(
         threshold_pos, threshold_neg, sigma_threshold, cutoff_hz, leak_rate_hz, shot_noise_rate_hz
     )
     if jobs:
-        import numba
+        from rawsim.engine import set_threads
 
-        numba.set_num_threads(min(jobs, numba.config.NUMBA_NUM_THREADS))
+        set_threads(jobs)
     frames_in = _log_frames(paths, params.eps)
     first = next(frames_in)
     stream = EventStream(params, first.shape, seed, refractory_s)

@@ -23,8 +23,11 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from rawsim.engine import configure
 from rawsim.engine.counter_rng import normal, uniforms
 from rawsim.philox import STREAMS
+
+configure()  # a fork-safe threading layer, as every kernel module
 
 SHOT = np.uint64(STREAMS["shot"])
 THRESHOLD = np.uint64(STREAMS["threshold"])
@@ -116,36 +119,34 @@ def _draws(index, step, k0, k1, p_half):
     return 0.5, 0.0
 
 
+@njit(inline="always")
+def _site(i, j, state, leak, refractory, t0, dt, p_half, k0, k1, step, u, ts, ps, at, write):
+    """:func:`_pixel` for pixel (i, j) of ``state`` = (l0, l1, ref, on, off, last): its
+    shot-noise draws (site i·W + j, iteration ``step``), start difference and change."""
+    l0, l1, ref, on, off, last = state
+    u[0], u[1] = _draws(np.uint64(i * l0.shape[1] + j), step, k0, k1, p_half)
+    d0 = l0[i, j] - ref[i, j]
+    m = l1[i, j] - l0[i, j] + leak * on[i, j] * dt
+    return _pixel(
+        d0, m, on[i, j], off[i, j], last[i, j], refractory, t0, dt, u, p_half, ts, ps, at, write
+    )
+
+
 @njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def count_events(
     l0, l1, ref, on, off, last, leak, refractory, t0, dt, p_half, k0, k1, step, counts, rows
 ):
     """Pass 1: events per pixel, (2, H, W) ON/OFF into ``counts``, per row into ``rows``."""
     h, w = l0.shape
+    state = (l0, l1, ref, on, off, last)
     ts = np.empty(0)
     ps = np.empty(0, dtype=np.int8)
     for i in prange(h):
         total = 0
         u = np.empty(2)
         for j in range(w):
-            u[0], u[1] = _draws(np.uint64(i * w + j), step, k0, k1, p_half)
-            d0 = l0[i, j] - ref[i, j]
-            m = l1[i, j] - l0[i, j] + leak * on[i, j] * dt
-            n, n_on, _, _ = _pixel(
-                d0,
-                m,
-                on[i, j],
-                off[i, j],
-                last[i, j],
-                refractory,
-                t0,
-                dt,
-                u,
-                p_half,
-                ts,
-                ps,
-                0,
-                False,
+            n, n_on, _, _ = _site(
+                i, j, state, leak, refractory, t0, dt, p_half, k0, k1, step, u, ts, ps, 0, False
             )
             counts[0, i, j] = n_on
             counts[1, i, j] = n - n_on
@@ -177,28 +178,13 @@ def emit_events(
 ):
     """Pass 2: write each pixel's events from ``offsets[row]`` on, advance the state."""
     h, w = l0.shape
+    state = (l0, l1, ref, on, off, last)
     for i in prange(h):
         at = offsets[i]
         u = np.empty(2)
         for j in range(w):
-            u[0], u[1] = _draws(np.uint64(i * w + j), step, k0, k1, p_half)
-            d0 = l0[i, j] - ref[i, j]
-            m = l1[i, j] - l0[i, j] + leak * on[i, j] * dt
-            n, _, moved, newest = _pixel(
-                d0,
-                m,
-                on[i, j],
-                off[i, j],
-                last[i, j],
-                refractory,
-                t0,
-                dt,
-                u,
-                p_half,
-                ts,
-                ps,
-                at,
-                True,
+            n, _, moved, newest = _site(
+                i, j, state, leak, refractory, t0, dt, p_half, k0, k1, step, u, ts, ps, at, True
             )
             for e in range(n):
                 xs[at + e] = j

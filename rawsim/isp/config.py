@@ -74,8 +74,9 @@ def _number(lo=-math.inf, hi=math.inf, integer=False):
     return check
 
 
-def _auto_or(check):
-    """``check``, or "auto"; numbers may come as text (the CLI's flags)."""
+def _auto_or(check, what: str = "a number"):
+    """``check``, or "auto"; numbers may come as text (the CLI's flags). ``what`` names
+    the numbers in the error for other text."""
 
     def auto_or(value):
         if value == "auto":
@@ -84,7 +85,7 @@ def _auto_or(check):
             try:
                 value = float(value)
             except ValueError:
-                raise ParameterError(f"expected a number or auto, got {value!r}") from None
+                raise ParameterError(f"expected {what} or auto, got {value!r}") from None
         return check(value)
 
     return auto_or
@@ -94,18 +95,6 @@ def tone_params(stage: dict) -> tuple[str, float, float | None]:
     """(curve, exposure, white or None for the curve's own) of a ``tone`` stage."""
     white = None if stage["white"] == "auto" else stage["white"]
     return stage["curve"], stage["exposure"], white
-
-
-def _ev(value):
-    """Exposure in stops in [−20, 20], or "auto"."""
-    if value == "auto":
-        return value
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            raise ParameterError(f"expected stops in [-20, 20] or auto, got {value!r}") from None
-    return _number(-20, 20)(value)
 
 
 def _flag(value):
@@ -193,7 +182,7 @@ STAGES: dict[str, dict[str, Param]] = {
     "exposure": {
         "ev": Param(
             0.0,
-            _ev,
+            _auto_or(_number(-20, 20), "stops in [-20, 20]"),
             "stops (0 maps the white level to 1), or auto: the 99th percentile to 1 (LibRaw's "
             "auto-brightness)",
         ),
