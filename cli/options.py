@@ -55,6 +55,21 @@ shard_opt = click.option(
     help="Process only the K-th of N shares of the inputs, K from 1. auto: this task's "
     "share of a Slurm array (SLURM_ARRAY_TASK_ID, _MIN, _STEP, _COUNT).",
 )
+executor_opt = click.option(
+    "--executor",
+    type=click.Choice(["local", "ray"]),
+    default="local",
+    show_default=True,
+    help="local: --jobs worker processes here; ray: tasks on a Ray cluster (pip install "
+    "'rawsim[ray]'), with the same outputs, messages and exit status.",
+)
+address_opt = click.option(
+    "--address",
+    metavar="ADDR",
+    default=None,
+    help="With --executor ray: the cluster, as ray.init takes it (auto: the one this "
+    "machine belongs to; HOST:PORT; ray://HOST:PORT). Default: a new local cluster.",
+)
 json_opt = click.option(
     "--json", "json_records", is_flag=True, help="Print one JSON record per file on stdout."
 )
@@ -68,14 +83,17 @@ def files_in_out(func):
         "out_dir",
         required=True,
         type=click.Path(file_okay=False),
-        help="Output folder; the input folder tree is mirrored under it.",
+        help="Output folder or URL (s3://bucket/prefix, …); the input folder tree is "
+        "mirrored under it.",
     )(func)
     return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))(func)
 
 
 def batch_options(func):
-    """The options of every file command: --jobs, --device, --overwrite, --shard, --json."""
-    for option in reversed((jobs_opt, device_opt, overwrite_opt, shard_opt, json_opt)):
+    """The options of every file command: --jobs, --executor, --address, --device,
+    --overwrite, --shard, --json."""
+    options = (jobs_opt, executor_opt, address_opt, device_opt, overwrite_opt, shard_opt, json_opt)
+    for option in reversed(options):
         func = option(func)
     return func
 

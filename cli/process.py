@@ -110,6 +110,8 @@ def command(
     fmt,
     bits,
     jobs,
+    executor,
+    address,
     device,
     overwrite,
     shard,
@@ -174,4 +176,6 @@ def command(
         jobs,
         overwrite,
         json_records,
+        executor,
+        address,
     )

@@ -22,6 +22,8 @@ def run_files(
     jobs: int,
     overwrite: bool,
     json_records: bool,
+    executor: str = "local",
+    address: str | None = None,
 ) -> None:
     """Discover ``inputs``, plan their outputs, run ``job`` on each and report; exits."""
     from rawsim import batch
@@ -32,6 +34,14 @@ def run_files(
             raise click.UsageError(missing[0].message, ctx)
         hint = f" (found only {_kinds(ignored)})" if ignored else ""
         raise click.UsageError(f"no {what} found in {', '.join(inputs)}{hint}", ctx)
+    if executor == "ray" and jobs > 1:
+        raise click.UsageError(
+            "--jobs is for local workers; with --executor ray the "
+            "cluster's CPUs set how many files run at once",
+            ctx,
+        )
+    if address and executor != "ray":
+        raise click.UsageError("--address needs --executor ray", ctx)
     _check_writable(ctx, out_dir)
     if ignored:
         verbose = (ctx.obj or {}).get("verbose")
@@ -51,6 +61,8 @@ def run_files(
         jobs=jobs,
         overwrite=overwrite,
         debug=bool(ctx.obj and ctx.obj.get("debug")),
+        executor=executor,
+        address=address,
         options=options,
     )
     run_batch(ctx, tasks, results, missing + pre_failed, json_records)
@@ -71,7 +83,13 @@ def _check_writable(ctx: click.Context, out_dir) -> None:
     import tempfile
     from pathlib import Path
 
+    from rawsim.io import remote
+
+    out_dir = remote.localize(out_dir)
     try:
+        if remote.is_url(out_dir):
+            remote.check_writable(out_dir)
+            return
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out_dir) as probe:  # removed on close
             probe.write(b"rawsim")

@@ -122,6 +122,8 @@ def command(
     vignetting,
     wb_inverse,
     jobs,
+    executor,
+    address,
     device,
     overwrite,
     shard,
@@ -199,4 +201,6 @@ def command(
         jobs,
         overwrite,
         json_records,
+        executor,
+        address,
     )

@@ -115,11 +115,12 @@ def unprocess(
         else:
             noisy.append(sim.noisy.float())
             clean.append(sim.clean.float())
-        metadata.append(_metadata(sensor, options, int(seeds[i]), sim))
+        metadata.append(capture_metadata(sensor, options, int(seeds[i]), sim))
     return torch.cat(noisy), torch.cat(clean), metadata
 
 
-def _metadata(sensor: ProfileSensor, options: UnprocessOptions, seed: int, sim) -> dict:
+def capture_metadata(sensor: ProfileSensor, options: UnprocessOptions, seed: int, sim) -> dict:
+    """What a simulated capture drew and used: seed, ISO, CFA, levels, parameters, noise."""
     p = sensor.profile
     mono = options.sensor == "mono"
     return {

@@ -21,10 +21,11 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import NamedTuple
 
 from rawsim.errors import ParameterError, RawsimError
+from rawsim.io import remote
 from rawsim.io.atomic import remove_stale_temporaries
 from rawsim.seeds import derive_seed
 
@@ -126,11 +127,23 @@ class Discovered(NamedTuple):
 def discover(inputs: Sequence[str | Path], extensions: Iterable[str]) -> Discovered:
     """Find input files. Folders are searched recursively for ``extensions``; hidden
     files (and rawsim's temporaries) are left out, and files given by name are taken
-    whatever their extension."""
+    whatever their extension. Inputs may be fsspec URLs (:mod:`rawsim.io.remote`):
+    their files are found as URLs (``str``), local ones as ``Path``."""
     exts = tuple(e.lower() for e in extensions)
-    found: dict[Path, str] = {}
+    found: dict[Path | str, str] = {}
     missing, ignored = [], []
-    for item in inputs:
+    for item in map(remote.localize, inputs):
+        if remote.is_url(item):
+            try:
+                taken, skipped = remote.find(item, exts)
+            except FileNotFoundError:
+                message = f"{shown(item)}: no such file or folder (check the URL)"
+                missing.append(Result(Task(item, item, {}, 0), "failed", message))
+                continue
+            for url, key in taken:
+                found.setdefault(url, key)
+            ignored.extend(skipped)
+            continue
         path = Path(item)
         if path.is_dir():
             for p in sorted(path.rglob("*")):
@@ -217,7 +230,8 @@ def plan(
 ) -> tuple[list[Task], list[Result]]:
     """Map inputs to tasks, mirroring each key's folders under ``out_dir``.
 
-    ``suffixes`` maps output kinds to suffixes (``{"dng": ".dng"}``). The shard keeps
+    ``suffixes`` maps output kinds to suffixes (``{"dng": ".dng"}``); ``out_dir`` may
+    be a URL, and then the outputs are URLs (``str``). The shard keeps
     every N-th file of the sorted list, so shards of one run never overlap and
     together cover it. Returns the tasks and failed results for inputs whose outputs
     would overwrite an input, leave ``out_dir``, or take a name an earlier input's
@@ -225,27 +239,35 @@ def plan(
     other fails, asking for a rename).
     """
     k, n = shard
-    out_dir = Path(out_dir)
-    root = out_dir.resolve()
+    out_dir = remote.localize(out_dir)
+    at_url = remote.is_url(out_dir)
+    if not at_url:
+        out_dir = Path(out_dir)
+        root = out_dir.resolve()
     tasks, bad = [], {}
     for path, key in found:
-        rel = Path(key)
-        stem = out_dir / rel.parent / output_stem(rel.name)
-        outputs = {kind: stem.with_name(stem.name + sfx) for kind, sfx in suffixes.items()}
+        rel = PurePosixPath(key)
+        stem = output_stem(rel.name)
+        if at_url:
+            folder = rel.parent.as_posix()
+            outputs = {k: remote.join(out_dir, folder, stem + s) for k, s in suffixes.items()}
+        else:
+            outputs = {k: out_dir / rel.parent / (stem + s) for k, s in suffixes.items()}
         task = Task(path, key, outputs, derive_seed(seed, key))
         tasks.append(task)
-        if any(not p.resolve().is_relative_to(root) for p in outputs.values()):
+        names = [PurePosixPath(str(p)).name for p in outputs.values()]
+        if not at_url and any(not p.resolve().is_relative_to(root) for p in outputs.values()):
             bad[key] = f"its outputs would be outside {shown(out_dir)}: rename it"
-        elif any(len(os.fsencode(p.name)) > NAME_MAX for p in outputs.values()):
-            longest = max(outputs.values(), key=lambda p: len(os.fsencode(p.name)))
+        elif any(len(os.fsencode(name)) > NAME_MAX for name in names):
+            longest = max(names, key=lambda name: len(os.fsencode(name)))
             bad[key] = (
-                f"output name {shown(longest.name)} would be longer than the {NAME_MAX} bytes "
+                f"output name {shown(longest)} would be longer than the {NAME_MAX} bytes "
                 "file systems allow: shorten the input's name"
             )
-    owner: dict[Path, Task] = {}
-    inputs = {t.source.resolve() for t in tasks}
+    owner: dict[Path | str, Task] = {}
+    inputs = {_canonical(t.source) for t in tasks}
     for t in tasks:  # in key order: the first input to claim an output name keeps it
-        for p in map(Path.resolve, t.outputs.values()):
+        for p in map(_canonical, t.outputs.values()):
             if p in inputs:
                 bad.setdefault(t.key, f"refusing to write {shown(p)}: it is an input")
             first = owner.setdefault(p, t)
@@ -258,6 +280,11 @@ def plan(
     mine = [t for i, t in enumerate(tasks) if i % n == k - 1]
     failed = [Result(t, "failed", f"{shown(t.source)}: {bad[t.key]}") for t in mine if t.key in bad]
     return [t for t in mine if t.key not in bad], failed
+
+
+def _canonical(location: Path | str) -> Path | str:
+    """A file's location in one spelling: local paths resolved, URLs as given."""
+    return location if remote.is_url(location) else Path(location).resolve()
 
 
 def output_stem(name: str) -> str:
@@ -274,8 +301,8 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
     ``--overwrite``). A job that fails or is interrupted leaves none of the outputs
     it had begun to write."""
     try:
-        existing = {p for p in task.outputs.values() if p.exists()}
-    except OSError as err:
+        existing = {p for p in task.outputs.values() if remote.exists(p)}
+    except Exception as err:  # OSError, or a remote file system's own errors
         return Result(task, "failed", f"{shown(task.source)}: cannot check its outputs: {err}")
     if not overwrite and existing:
         if len(existing) == len(task.outputs):
@@ -290,12 +317,14 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
     start = time.perf_counter()
     global _in_job
     _in_job = True
+    local = task  # the task with local paths (a remote input is downloaded first)
     try:
-        record = job(task, **kwargs)
+        with remote.staged(task) as local:
+            record = job(local, **kwargs)
     except BaseException as err:
         for p in task.outputs.values():  # the outputs this job had written so far
             if p not in existing:
-                p.unlink(missing_ok=True)
+                remote.remove(p)
         if isinstance(err, Interrupted):
             if _worker:  # terminated by the parent: the temporary files are gone, leave now
                 os._exit(128 + signal.SIGTERM)
@@ -303,7 +332,10 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
         if not isinstance(err, Exception):
             raise
         detail = traceback.format_exc() if debug else ""
-        return Result(task, "failed", _failure(err, task), detail=detail)
+        message = _failure(err, task)
+        if local.source != task.source:  # name the input as the user gave it
+            message = message.replace(str(local.source), str(task.source))
+        return Result(task, "failed", message, detail=detail)
     finally:
         _in_job = False
     return Result(task, "done", record=record, seconds=time.perf_counter() - start)
@@ -319,7 +351,7 @@ def _failure(err: Exception, task: Task) -> str:
     if isinstance(err, OSError) and (
         err.errno == errno.ENOSPC or ("requested and" in text and "written" in text)
     ):
-        folder = next(iter(task.outputs.values())).parent
+        folder = os.path.dirname(str(next(iter(task.outputs.values()))))
         return f"{shown(task.source)}: disk full writing into {shown(folder)} (free some space)"
     return f"{shown(task.source)}: {type(err).__name__}: {_one_line(err, None)}"
 
@@ -371,6 +403,11 @@ def _init_worker(threads: int) -> None:
     warnings.filterwarnings("ignore", "rawpy is being used in a process created by multi")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
+    set_threads(threads)
+
+
+def set_threads(threads: int) -> None:
+    """Use ``threads`` CPU threads in torch, the engine, PNG writing and decoders."""
     import torch
 
     from rawsim import engine
@@ -391,19 +428,35 @@ def run(
     jobs: int = 1,
     overwrite: bool = False,
     debug: bool = False,
+    executor: str = "local",
+    address: str | None = None,
     **kwargs,
 ) -> Iterator[Result]:
     """Run ``job`` on every task, yielding results as they finish.
 
     With ``jobs`` > 1, tasks run in that many worker processes, each with an equal
-    share of the CPU threads. Results do not depend on ``jobs``. Temporary files
-    that killed runs left in the output folders are removed first.
+    share of the CPU threads. ``executor="ray"`` runs them as tasks of a Ray cluster
+    instead (:mod:`rawsim.ray_executor`; ``address`` as ``ray.init`` takes it, None
+    for a new local cluster). Results do not depend on ``jobs`` or the executor.
+    Temporary files that killed runs left in the local output folders are removed
+    first.
     """
     if jobs < 1:
         raise ParameterError(f"--jobs must be ≥ 1, got {jobs}")
-    folders = {p.parent for t in tasks for p in t.outputs.values()}
+    folders = {p.parent for t in tasks for p in t.outputs.values() if not remote.is_url(p)}
     for folder in folders:
         remove_stale_temporaries(folder)  # what killed runs left
+    if executor == "ray":
+        from rawsim import ray_executor
+
+        try:
+            yield from ray_executor.run(tasks, job, address, overwrite, debug, kwargs)
+        finally:
+            for folder in folders:  # those of workers killed mid-write
+                remove_stale_temporaries(folder)
+        return
+    if executor != "local":
+        raise ParameterError(f"executor must be local or ray, got {executor!r}")
     if jobs == 1 or len(tasks) <= 1:
         for t in tasks:
             yield _run_one(job, t, overwrite, debug, kwargs)

@@ -206,6 +206,17 @@ def _capture_time(spec) -> str | None:
     return None
 
 
+def even_rgb(pixels: np.ndarray) -> np.ndarray:
+    """Decoded samples (H, W) or (H, W, C) → the (H', W', 3) array unprocessing takes:
+    the first three channels (grey, with or without alpha, repeated), cropped to an
+    even H' and W' (whole CFA cells)."""
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    rgb = pixels[:, :, :3] if pixels.shape[2] >= 3 else np.repeat(pixels[:, :, :1], 3, axis=2)
+    height, width = rgb.shape[:2]
+    return np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
+
+
 def read_image(path: str | Path) -> DecodedImage:
     """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
 
@@ -230,14 +241,11 @@ def read_image(path: str | Path) -> DecodedImage:
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     names = tuple(spec.channelnames) or tuple(f"ch{i}" for i in range(spec.nchannels))
-    if spec.nchannels >= 3:
-        rgb, dropped = pixels[:, :, :3], names[3:]
-    else:  # grey, or grey + alpha
-        rgb, dropped = np.repeat(pixels[:, :, :1], 3, axis=2), names[1:]
-    height, width = rgb.shape[:2]
+    dropped = names[3:] if spec.nchannels >= 3 else names[1:]
+    height, width = pixels.shape[:2]
     if height < 2 or width < 2:
         raise UnsupportedInputError(f"{path}: image is too small ({width}×{height})")
-    rgb = np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
+    rgb = even_rgb(pixels)
     if code_max is None:
         rgb = rgb.astype(np.float32, copy=False)
         if not np.isfinite(rgb).all():
