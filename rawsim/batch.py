@@ -332,9 +332,9 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
         if not isinstance(err, Exception):
             raise
         detail = traceback.format_exc() if debug else ""
-        message = _failure(err, task)
+        message = _failure(err, local)
         if local.source != task.source:  # name the input as the user gave it
-            message = message.replace(str(local.source), str(task.source))
+            message = message.replace(str(local.source), shown(task.source))
         return Result(task, "failed", message, detail=detail)
     finally:
         _in_job = False

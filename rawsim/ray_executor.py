@@ -26,6 +26,8 @@ from rawsim.batch import Result, Task, _run_one, set_threads, shown
 from rawsim.errors import ParameterError
 from rawsim.io import remote
 
+_log = logging.getLogger(__name__)
+
 #: Times a file is retried after its worker died.
 RETRIES = 1
 #: Cost of a file beyond its bytes (decoding, set-up, writing its sidecar): bytes.
@@ -104,13 +106,20 @@ def run(
     if started:
         if not debug:  # Ray's own notices (a local cluster started, token set-up)
             logging.getLogger("ray").setLevel(logging.ERROR)
-        ray.init(
-            address=address,
-            include_dashboard=False,
-            log_to_driver=debug,
-            logging_level="ERROR",
-            configure_logging=False,
-        )
+        try:
+            ray.init(
+                address=address,
+                include_dashboard=False,
+                log_to_driver=debug,
+                logging_level="ERROR",
+                configure_logging=False,
+            )
+        except (ConnectionError, RuntimeError) as err:
+            raise ParameterError(
+                f"cannot connect to the Ray cluster at {address}: "
+                f"{str(err).splitlines()[0]} (check the address; a cluster with token "
+                "authentication also needs RAY_AUTH_MODE=token and its token)"
+            ) from None
     cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
     remote_bundle = ray.remote(num_cpus=1, max_retries=0)(_run_bundle)
     shared = ray.put((job, overwrite, debug, kwargs))
@@ -152,6 +161,12 @@ def run(
                             f"times ({reason}: killed, or out of memory?)",
                         )
                         left = left[1:]
+                    else:
+                        _log.warning(
+                            "%s: its Ray worker died (%s); retrying it",
+                            shown(first.source),
+                            type(err).__name__,
+                        )
                     if left:
                         submit(left)
                     continue

@@ -29,6 +29,8 @@ from rawsim.errors import ParameterError
 if TYPE_CHECKING:
     from rawsim.batch import Task
 
+#: Object stores: no folders, and a missing bucket is an error, not something to make.
+_OBJECT_STORES = {"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "oss"}
 #: What to install for the file systems of the common schemes.
 _PACKAGES = {"s3": "rawsim[s3]", "s3a": "rawsim[s3]", "gs": "gcsfs", "gcs": "gcsfs"}
 
@@ -109,8 +111,10 @@ def check_writable(url: str) -> None:
     """Write and delete a probe object under ``url``; raises OSError if that fails."""
     fs, root = filesystem(url)
     probe = f"{root.rstrip('/')}/.rawsim-probe-{secrets.token_hex(4)}"
+    protocols = {fs.protocol} if isinstance(fs.protocol, str) else set(fs.protocol)
     try:
-        fs.makedirs(root, exist_ok=True)
+        if not protocols & _OBJECT_STORES:  # (making a "folder" there makes a bucket)
+            fs.makedirs(root, exist_ok=True)
         fs.pipe_file(probe, b"rawsim")
         fs.rm_file(probe)
     except Exception as err:  # the file system's own errors too (credentials, no bucket)
@@ -139,7 +143,8 @@ def staged(task: Task) -> Iterator[Task]:
             for k, p in task.outputs.items()
         }
         yield replace(task, source=source, outputs=local)
-        for kind, target in task.outputs.items():
+        # the sidecar last: an output set with its sidecar is complete
+        for kind, target in sorted(task.outputs.items(), key=lambda kv: kv[0] == "json"):
             if is_url(target) and local[kind].exists():
                 fs, path = filesystem(target)
                 fs.put_file(os.fspath(local[kind]), path)

@@ -1,0 +1,277 @@
+"""Beyond one machine: a real local Ray cluster (two worker CPUs, started with
+``ray start``), and a real S3 endpoint (moto's server) reached over HTTP by s3fs.
+
+The cluster's workers get the S3 endpoint and credentials from the environment
+``ray start`` ran in, as the nodes of a real cluster would have their own.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import boto3
+import numpy as np
+import pytest
+import tifffile
+from click.testing import CliRunner
+
+from rawsim_cli.main import cli
+from tests.conftest import DATA
+
+COMMON = ["-p", "sony_a7s2", "--iso", "1600", "--seed", "9", "--clean", "-q"]
+BUCKET = "rawsim-test"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {
+        p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def s3():
+    """A local S3 endpoint (moto's server mode) with one bucket; its URL and
+    credentials in the environment, as a user's would be."""
+    from moto.server import ThreadedMotoServer
+
+    port = _free_port()
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port)
+    server.start()
+    env = {
+        "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}",
+        "AWS_ACCESS_KEY_ID": "rawsim",
+        "AWS_SECRET_ACCESS_KEY": "rawsim-secret",
+        "AWS_DEFAULT_REGION": "us-east-1",
+    }
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    client = boto3.client("s3")
+    client.create_bucket(Bucket=BUCKET)
+    yield client
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def cluster(s3):
+    """A two-CPU Ray head node started as users start one; its address."""
+    port = _free_port()
+    exe = Path(sys.executable).with_name("ray")
+    os.environ["RAY_AUTH_MODE"] = "token"  # Ray's default for new clusters: clients need it
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    start = [str(exe), "start", "--head", f"--port={port}", "--num-cpus=2"]
+    start += ["--include-dashboard=false", "--object-store-memory=100000000"]
+    said = subprocess.run(start, check=True, env=env, capture_output=True, text=True)
+    address = re.search(r"ray start --address='([^']+)'", said.stdout + said.stderr)
+    assert address, said.stdout + said.stderr
+    yield address[1]  # HOST:PORT, as `ray start` tells users to join it
+    subprocess.run([str(exe), "stop", "--force"], env=env, capture_output=True)
+    os.environ.pop("RAY_AUTH_MODE")
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory) -> Path:
+    """16 small photos in two folders, and one file that is not an image."""
+    root = tmp_path_factory.mktemp("cluster") / "in"
+    for folder in ("a", "b"):
+        (root / folder).mkdir(parents=True)
+        for i, name in enumerate(("chelsea.png", "rocket.jpg", "coffee.png", "astronaut.png")):
+            for copy in range(2):
+                shutil.copy(DATA / "srgb" / name, root / folder / f"{copy}{i}_{name}")
+    (root / "b" / "broken.jpg").write_bytes(b"not a jpeg")
+    return root
+
+
+@pytest.fixture(scope="module")
+def local_run(photos, tmp_path_factory):
+    """The reference: a local --jobs 1 run; (outputs folder, exit code, stderr)."""
+    out = tmp_path_factory.mktemp("local") / "out"
+    r = CliRunner().invoke(cli, ["unprocess", str(photos), "-o", str(out), *COMMON])
+    return out, r.exit_code, r.output
+
+
+def rawsim(*args, **kwargs) -> subprocess.CompletedProcess:
+    command = [sys.executable, "-c", "from rawsim_cli.main import main; main()", *map(str, args)]
+    return subprocess.run(command, capture_output=True, text=True, **kwargs)
+
+
+def test_ray_run_is_byte_identical_to_a_local_run(photos, local_run, cluster, tmp_path):
+    out, code, said = local_run
+    assert code == 1 and said.count("error:") == 1 and "broken.jpg" in said
+    r = rawsim(
+        "unprocess", photos, "-o", tmp_path, *COMMON, "--executor", "ray", "--address", cluster
+    )
+    assert r.returncode == 1
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+    assert errors == [line for line in said.splitlines() if line.startswith("error:")]
+    assert "16 done, 0 skipped, 1 failed" in r.stderr
+    assert digest(tmp_path) == digest(out)
+    again = rawsim(
+        "unprocess", photos, "-o", tmp_path, *COMMON, "--executor", "ray", "--address", cluster
+    )
+    assert "0 done, 16 skipped, 1 failed" in again.stderr
+
+
+def _bundle_workers() -> list[int]:
+    """Processes of Ray workers running rawsim's bundle task (Ray names them so)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and b"ray::_run_bundle" in (entry / "cmdline").read_bytes():
+                pids.append(int(entry.name))
+        except OSError:
+            continue
+    return pids
+
+
+def test_a_killed_ray_worker_is_retried_and_the_outputs_are_complete(
+    photos, local_run, cluster, tmp_path
+):
+    out, _, _ = local_run
+    args = ["unprocess", photos, "-o", tmp_path, *COMMON[:-1], "--executor", "ray"]
+    command = [sys.executable, "-c", "from rawsim_cli.main import main; main()"]
+    proc = subprocess.Popen(
+        [*command, *map(str, args), "--address", cluster],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    killed, deadline = None, time.monotonic() + 120
+    while killed is None and proc.poll() is None and time.monotonic() < deadline:
+        pids = _bundle_workers()
+        if pids and any(tmp_path.rglob("*.dng")):  # mid-job: some files are done
+            killed = pids[0]
+            os.kill(killed, signal.SIGKILL)
+        time.sleep(0.01)
+    stderr = proc.communicate(timeout=300)[1]
+    assert killed is not None, "no worker was seen running a bundle"
+    assert proc.returncode == 1, stderr  # the broken file only
+    assert "Ray worker died" in stderr and "retrying it" in stderr
+    assert "16 done, 0 skipped, 1 failed" in stderr
+    assert digest(tmp_path) == digest(out)  # complete, no stray temporaries
+
+
+def test_ray_executor_needs_ray_flags_right(photos, tmp_path):
+    r = CliRunner().invoke(
+        cli, ["unprocess", str(photos), "-o", str(tmp_path), *COMMON, "--address", "auto"]
+    )
+    assert r.exit_code == 2 and "--address needs --executor ray" in r.output
+    r = CliRunner().invoke(
+        cli,
+        ["unprocess", str(photos), "-o", str(tmp_path), *COMMON, "--executor", "ray", "-j", "2"],
+    )
+    assert r.exit_code == 2 and "--jobs is for local workers" in r.output
+
+
+def _upload(client, folder: Path, prefix: str) -> None:
+    for p in sorted(folder.rglob("*")):
+        if p.is_file():
+            client.upload_file(str(p), BUCKET, f"{prefix}/{p.relative_to(folder).as_posix()}")
+
+
+def _objects(client, prefix: str) -> dict[str, str]:
+    listing = client.list_objects_v2(Bucket=BUCKET, Prefix=prefix + "/").get("Contents", [])
+    return {
+        o["Key"][len(prefix) + 1 :]: hashlib.sha256(
+            client.get_object(Bucket=BUCKET, Key=o["Key"])["Body"].read()
+        ).hexdigest()
+        for o in listing
+    }
+
+
+def test_s3_inputs_and_outputs_give_the_local_bytes(photos, local_run, s3, tmp_path):
+    out, _, said = local_run
+    _upload(s3, photos, "photos")
+    url_in, url_out = f"s3://{BUCKET}/photos", f"s3://{BUCKET}/raw"
+    r = rawsim("unprocess", url_in, "-o", url_out, *COMMON, "-j", "2")
+    assert r.returncode == 1 and "16 done, 0 skipped, 1 failed" in r.stderr
+    assert f"error: {url_in}/b/broken.jpg: not a readable image" in r.stderr
+    assert _objects(s3, "raw") == digest(out)
+    again = rawsim("unprocess", url_in, "-o", url_out, *COMMON)
+    assert "0 done, 16 skipped, 1 failed" in again.stderr
+    # a remote file to a local folder, and a local folder to a remote one: the bytes of
+    # the same command with local paths (a file given by name is keyed by its name)
+    local, remote_file = tmp_path / "local", tmp_path / "remote-file"
+    assert (
+        rawsim("unprocess", f"{url_in}/a/00_chelsea.png", "-o", remote_file, *COMMON).returncode
+        == 0
+    )
+    assert (
+        rawsim("unprocess", photos / "a" / "00_chelsea.png", "-o", local, *COMMON).returncode == 0
+    )
+    assert digest(remote_file) == digest(local) and len(digest(local)) == 3
+    assert (
+        rawsim("unprocess", photos / "a", "-o", f"s3://{BUCKET}/from-local", *COMMON).returncode
+        == 0
+    )
+    assert rawsim("unprocess", photos / "a", "-o", tmp_path / "a", *COMMON).returncode == 0
+    assert _objects(s3, "from-local") == digest(tmp_path / "a")
+
+
+def test_s3_with_the_ray_executor(photos, local_run, s3, cluster):
+    out, _, _ = local_run
+    _upload(s3, photos, "photos-ray")
+    url_in, url_out = f"s3://{BUCKET}/photos-ray", f"s3://{BUCKET}/raw-ray"
+    r = rawsim(
+        "unprocess", url_in, "-o", url_out, *COMMON, "--executor", "ray", "--address", cluster
+    )
+    assert r.returncode == 1 and "16 done, 0 skipped, 1 failed" in r.stderr
+    assert _objects(s3, "raw-ray") == digest(out)
+
+
+def test_bad_urls_say_what_is_wrong(s3, tmp_path):
+    r = rawsim("unprocess", f"s3://{BUCKET}/nothing-here", "-o", tmp_path, *COMMON)
+    assert r.returncode == 2 and "no such file or folder (check the URL)" in r.stderr
+    r = rawsim("unprocess", DATA / "srgb" / "chelsea.png", "-o", "s3://no-such-bucket/x", *COMMON)
+    assert r.returncode == 2 and "cannot write to s3://no-such-bucket/x" in r.stderr
+    r = rawsim("unprocess", "nosuchscheme://a/b.png", "-o", tmp_path, *COMMON)
+    assert r.returncode == 2 and "install an fsspec file system for nosuchscheme://" in r.stderr
+
+
+def test_ray_data_pairs_are_the_cli_samples(photos, local_run, cluster):
+    """RawPairs in Dataset.map_batches gives, row by row, the DNGs' samples."""
+    import ray  # here: Ray reads RAY_AUTH_MODE (set by the cluster fixture) on import
+
+    from rawsim.ray_data import RawPairs
+
+    out, _, _ = local_run
+    ray.init(address=cluster, logging_level="ERROR")
+    try:
+        folder = str(photos / "a")
+        images = ray.data.read_images(folder, include_paths=True, mode="RGB")
+        options = dict(profile="sony_a7s2", root=str(photos), iso=1600, seed=9)
+        pairs = images.map_batches(
+            RawPairs,
+            fn_constructor_kwargs=options,
+            batch_size=3,
+            compute=ray.data.ActorPoolStrategy(size=1),
+        )
+        rows = pairs.take_all()
+    finally:
+        ray.shutdown()
+    assert len(rows) == 8
+    for row in rows:
+        stem = out / Path(row["key"]).with_suffix("")
+        assert np.array_equal(row["noisy"], tifffile.imread(f"{stem}.dng"))
+        assert np.array_equal(row["clean"], tifffile.imread(f"{stem}.clean.dng"))
+        assert row["iso"] == 1600
