@@ -116,6 +116,11 @@ def rawsim(*args, **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run(command, capture_output=True, text=True, **kwargs)
 
 
+def here(*args):
+    """The command in this process (the fixtures' environment holds the S3 endpoint)."""
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
 def test_ray_run_is_byte_identical_to_a_local_run(photos, local_run, cluster, tmp_path):
     out, code, said = local_run
     assert code == 1 and said.count("error:") == 1 and "broken.jpg" in said
@@ -203,28 +208,24 @@ def test_s3_inputs_and_outputs_give_the_local_bytes(photos, local_run, s3, tmp_p
     out, _, said = local_run
     _upload(s3, photos, "photos")
     url_in, url_out = f"s3://{BUCKET}/photos", f"s3://{BUCKET}/raw"
-    r = rawsim("unprocess", url_in, "-o", url_out, *COMMON, "-j", "2")
-    assert r.returncode == 1 and "16 done, 0 skipped, 1 failed" in r.stderr
-    assert f"error: {url_in}/b/broken.jpg: not a readable image" in r.stderr
+    r = here("unprocess", url_in, "-o", url_out, *COMMON, "-j", "2")
+    assert r.exit_code == 1 and "16 done, 0 skipped, 1 failed" in r.output
+    assert f"error: {url_in}/b/broken.jpg: not a readable image" in r.output
     assert _objects(s3, "raw") == digest(out)
-    again = rawsim("unprocess", url_in, "-o", url_out, *COMMON)
-    assert "0 done, 16 skipped, 1 failed" in again.stderr
+    again = here("unprocess", url_in, "-o", url_out, *COMMON)
+    assert "0 done, 16 skipped, 1 failed" in again.output
     # a remote file to a local folder, and a local folder to a remote one: the bytes of
     # the same command with local paths (a file given by name is keyed by its name)
     local, remote_file = tmp_path / "local", tmp_path / "remote-file"
     assert (
-        rawsim("unprocess", f"{url_in}/a/00_chelsea.png", "-o", remote_file, *COMMON).returncode
-        == 0
+        here("unprocess", f"{url_in}/a/00_chelsea.png", "-o", remote_file, *COMMON).exit_code == 0
     )
-    assert (
-        rawsim("unprocess", photos / "a" / "00_chelsea.png", "-o", local, *COMMON).returncode == 0
-    )
+    assert here("unprocess", photos / "a" / "00_chelsea.png", "-o", local, *COMMON).exit_code == 0
     assert digest(remote_file) == digest(local) and len(digest(local)) == 3
     assert (
-        rawsim("unprocess", photos / "a", "-o", f"s3://{BUCKET}/from-local", *COMMON).returncode
-        == 0
+        here("unprocess", photos / "a", "-o", f"s3://{BUCKET}/from-local", *COMMON).exit_code == 0
     )
-    assert rawsim("unprocess", photos / "a", "-o", tmp_path / "a", *COMMON).returncode == 0
+    assert here("unprocess", photos / "a", "-o", tmp_path / "a", *COMMON).exit_code == 0
     assert _objects(s3, "from-local") == digest(tmp_path / "a")
 
 
@@ -240,12 +241,12 @@ def test_s3_with_the_ray_executor(photos, local_run, s3, cluster):
 
 
 def test_bad_urls_say_what_is_wrong(s3, tmp_path):
-    r = rawsim("unprocess", f"s3://{BUCKET}/nothing-here", "-o", tmp_path, *COMMON)
-    assert r.returncode == 2 and "no such file or folder (check the URL)" in r.stderr
-    r = rawsim("unprocess", DATA / "srgb" / "chelsea.png", "-o", "s3://no-such-bucket/x", *COMMON)
-    assert r.returncode == 2 and "cannot write to s3://no-such-bucket/x" in r.stderr
-    r = rawsim("unprocess", "nosuchscheme://a/b.png", "-o", tmp_path, *COMMON)
-    assert r.returncode == 2 and "install an fsspec file system for nosuchscheme://" in r.stderr
+    r = here("unprocess", f"s3://{BUCKET}/nothing-here", "-o", tmp_path, *COMMON)
+    assert r.exit_code == 2 and "no such file or folder (check the URL)" in r.output
+    r = here("unprocess", DATA / "srgb" / "chelsea.png", "-o", "s3://no-such-bucket/x", *COMMON)
+    assert r.exit_code == 2 and "cannot write to s3://no-such-bucket/x" in r.output
+    r = here("unprocess", "nosuchscheme://a/b.png", "-o", tmp_path, *COMMON)
+    assert r.exit_code == 2 and "install an fsspec file system for nosuchscheme://" in r.output
 
 
 def test_ray_data_pairs_are_the_cli_samples(photos, local_run, cluster):
