@@ -276,3 +276,28 @@ def test_ray_data_pairs_are_the_cli_samples(photos, local_run, cluster):
         assert np.array_equal(row["noisy"], tifffile.imread(f"{stem}.dng"))
         assert np.array_equal(row["clean"], tifffile.imread(f"{stem}.clean.dng"))
         assert row["iso"] == 1600
+
+
+def test_process_on_ray_and_from_s3_gives_the_local_renders(s3, cluster, tmp_path):
+    """Camera raws (a DNG, a QuickTake, a Kodak KDC) rendered on Ray and from S3: the
+    bytes of a local run."""
+    raws = tmp_path / "raws"
+    raws.mkdir()
+    for name in ("canon_eos60d_mlv.dng", "apple_quicktake150.qtk", "kodak_dc50_grbg.kdc"):
+        shutil.copy(DATA / "raw" / name, raws / name)
+    args = ["--format", "tiff", "--bits", "16", "-q"]
+    assert here("process", raws, "-o", tmp_path / "local", *args).exit_code == 0
+    where = ["--executor", "ray", "--address", cluster]
+    r = rawsim("process", raws, "-o", tmp_path / "ray", *args, *where)
+    assert r.returncode == 0, r.stderr
+    assert digest(tmp_path / "ray") == digest(tmp_path / "local")
+    _upload(s3, raws, "raws")
+    r = here("process", f"s3://{BUCKET}/raws", "-o", f"s3://{BUCKET}/renders", *args)
+    assert r.exit_code == 0, r.output
+    assert _objects(s3, "renders") == digest(tmp_path / "local")
+
+
+def test_ray_executor_without_ray_says_how_to_install(photos, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
+    r = here("unprocess", photos, "-o", tmp_path, *COMMON, "--executor", "ray")
+    assert r.exit_code == 2 and "pip install 'rawsim[ray]'" in r.output
