@@ -135,6 +135,8 @@ class EventStream:
 
         ``log_frame`` is kept until the next step, not copied: do not change it.
         """
+        import numba
+
         from rawsim.engine import events as ee
 
         if self.ref is None:
@@ -163,10 +165,14 @@ class EventStream:
         t_, x, y = np.empty(n), np.empty(n, np.uint16), np.empty(n, np.uint16)
         pol = np.empty(n, np.int8)
         ee.emit_events(*args, offsets[:-1], t_, x, y, pol)
-        order = ee.time_order(t_, self.time, dt, max(1, n // 2))  # ties: row-major
+        out = EventBatch(
+            np.empty(n), np.empty_like(x), np.empty_like(y), np.empty_like(pol), counts
+        )
+        buckets, chunks = max(1, n // 2), numba.get_num_threads()
+        ee.time_order(t_, x, y, pol, self.time, dt, buckets, chunks, out.t, out.x, out.y, out.p)
         self.raw, self.level = log_frame, level
         self.time, self.steps = float(t), self.steps + 1
-        return EventBatch(t_[order], x[order], y[order], pol[order], counts)
+        return out
 
     def _check(self, log_frame: np.ndarray) -> None:
         if log_frame.shape != self.shape:

@@ -220,6 +220,29 @@ def test_stream_is_the_same_for_any_thread_count():
             assert np.array_equal(getattr(a, name), getattr(b, name))
 
 
+def test_time_order_is_a_stable_sort_for_any_thread_count():
+    """The parallel counting sort equals numpy's stable argsort (ties in input order),
+    with many ties and clustered times, on 1 thread and on all."""
+    import numba
+
+    from rawsim.engine.events import time_order
+
+    g = np.random.default_rng(8)
+    n = 50_000
+    t = np.round(0.5 + 0.01 * g.beta(0.3, 3.0, n), 6)  # clustered, many equal values
+    x, y = g.integers(0, 640, n).astype(np.uint16), g.integers(0, 480, n).astype(np.uint16)
+    p = g.integers(0, 2, n).astype(np.int8)
+    order = np.argsort(t, kind="stable")
+    for threads in (1, numba.config.NUMBA_NUM_THREADS):
+        numba.set_num_threads(threads)
+        for buckets in (1, 7, n // 2):
+            out = [np.empty_like(a) for a in (t, x, y, p)]
+            time_order(t, x, y, p, 0.5, 0.01, buckets, threads, *out)
+            for got, a in zip(out, (t, x, y, p), strict=True):
+                assert np.array_equal(got, a[order])
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
 def test_voxel_grid_keeps_every_event_once():
     g = np.random.default_rng(0)
     (batch,) = _stream([g.normal(0, 0.5, 40)], threshold_pos=0.1, threshold_neg=0.1)

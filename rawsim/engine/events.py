@@ -194,35 +194,49 @@ def emit_events(
             last[i, j] = newest
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def time_order(t, t0, dt, buckets):
-    """The stable order of a step's event times ``t`` in [t0, t0 + dt]: a counting sort
-    into ``buckets`` equal time slots, then an insertion sort inside each slot (ties
-    keep their row-major pixel order). (n,) int64."""
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def time_order(t, x, y, p, t0, dt, buckets, chunks, t_out, x_out, y_out, p_out):
+    """A step's events (in row-major pixel order) written into the ``*_out`` arrays in
+    time order, ties keeping their row-major order.
+
+    A stable counting sort into ``buckets`` equal slots of [t0, t0 + dt]: ``chunks``
+    runs of events (one per thread) are counted and scattered in parallel (each
+    chunk's entries of a slot after the earlier chunks'), then each slot is
+    insertion-sorted (slots hold about two events). A stable sort has one result,
+    whatever the chunks or threads.
+    """
     n = t.size
-    key = np.empty(n, dtype=np.int64)
-    start = np.zeros(buckets + 1, dtype=np.int64)
-    for e in range(n):
-        k = int((t[e] - t0) / dt * buckets)
-        k = min(max(k, 0), buckets - 1)
-        key[e] = k
-        start[k + 1] += 1
-    for k in range(buckets):
-        start[k + 1] += start[k]
-    order = np.empty(n, dtype=np.int64)
-    fill = start[:-1].copy()
-    for e in range(n):
-        order[fill[key[e]]] = e
-        fill[key[e]] += 1
-    for k in range(buckets):
-        for a in range(start[k] + 1, start[k + 1]):
-            e = order[a]
+    size = (n + chunks - 1) // chunks
+    key = np.empty(n, dtype=np.int32)
+    counts = np.zeros((chunks, buckets), dtype=np.int64)
+    for c in prange(chunks):
+        for e in range(c * size, min(n, (c + 1) * size)):
+            k = min(max(int((t[e] - t0) / dt * buckets), 0), buckets - 1)
+            key[e] = k
+            counts[c, k] += 1
+    slot = np.empty(buckets + 1, dtype=np.int64)
+    at = 0
+    for k in range(buckets):  # counts become each chunk's first position in each slot
+        slot[k] = at
+        for c in range(chunks):
+            m = counts[c, k]
+            counts[c, k] = at
+            at += m
+    slot[buckets] = at
+    for c in prange(chunks):
+        for e in range(c * size, min(n, (c + 1) * size)):
+            d = counts[c, key[e]]
+            counts[c, key[e]] = d + 1
+            t_out[d], x_out[d], y_out[d], p_out[d] = t[e], x[e], y[e], p[e]
+    for k in prange(buckets):
+        for a in range(slot[k] + 1, slot[k + 1]):
+            te, xe, ye, pe = t_out[a], x_out[a], y_out[a], p_out[a]
             b = a - 1
-            while b >= start[k] and t[order[b]] > t[e]:
-                order[b + 1] = order[b]
+            while b >= slot[k] and t_out[b] > te:
+                t_out[b + 1], x_out[b + 1], y_out[b + 1] = t_out[b], x_out[b], y_out[b]
+                p_out[b + 1] = p_out[b]
                 b -= 1
-            order[b + 1] = e
-    return order
+            t_out[b + 1], x_out[b + 1], y_out[b + 1], p_out[b + 1] = te, xe, ye, pe
 
 
 @njit(inline="always")
