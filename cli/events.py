@@ -105,6 +105,14 @@ from rawsim_cli.options import output_options, usage_errors
     default=None,
     help="Threads of the simulator (default: every core). Events do not depend on it.",
 )
+@click.option(
+    "--device",
+    type=click.Choice(["auto", "cpu", "cuda"]),
+    default="cpu",
+    show_default=True,
+    help="cpu: the compiled engine; cuda: the torch reference on the GPU; auto: cuda if "
+    "there is one. The same events, bit for bit, on each.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON record of the run on stdout.")
 @usage_errors
 def command(
@@ -124,6 +132,7 @@ def command(
     preview,
     overwrite,
     jobs,
+    device,
     as_json,
 ):
     """Simulate an event camera watching FRAMES and write its event stream.
@@ -175,9 +184,14 @@ def command(
         from rawsim.engine import set_threads
 
         set_threads(jobs)
+    where = None  # the compiled engine
+    if device != "cpu":
+        from rawsim.device import resolve_device
+
+        where = None if resolve_device(device).type == "cpu" else "cuda"
     frames_in = _log_frames(paths, params.eps)
     first = next(frames_in)
-    stream = EventStream(params, first.shape, seed, refractory_s)
+    stream = EventStream(params, first.shape, seed, refractory_s, device=where)
     stream.start(first, 0.0)
     meta = {"fps": fps, "seed": seed, "refractory_s": refractory_s, **params.to_dict()}
     out.mkdir(parents=True, exist_ok=True)

@@ -96,6 +96,10 @@ class EventStream:
     With no mismatch, leak, refractory period or noise, a step from a fresh
     pixel gives :class:`rawsim.events.EventSensor`'s counts exactly; later steps keep the
     remainders that it drops.
+
+    ``device`` None runs the compiled engine (:mod:`rawsim.engine.events`); a torch
+    device (``"cuda"``, ``"cpu"``) runs the torch reference there
+    (:func:`rawsim.events.stream_step`). Both give the same events, bit for bit.
     """
 
     def __init__(
@@ -104,20 +108,34 @@ class EventStream:
         shape: tuple[int, int],
         seed: int = 0,
         refractory_s: float = 0.0,
+        device: str | None = None,
     ) -> None:
-        from rawsim.engine import events as ee
-        from rawsim.engine.counter_rng import np_key
+        from rawsim.philox import split_key
 
         if not (refractory_s >= 0 and math.isfinite(refractory_s)):
             raise ParameterError(f"refractory_s must be a finite number ≥ 0, got {refractory_s}")
         self.params, self.refractory = params, float(refractory_s)
-        self.key = np_key(seed)
+        self.device = device
         h, w = shape
-        jitter = np.empty((h, w, 2))
-        ee.threshold_normals(*self.key, jitter)
+        if device is None:  # the compiled engine
+            from rawsim.engine import events as ee
+            from rawsim.engine.counter_rng import np_key
+
+            self.key = np_key(seed)
+            jitter = np.empty((h, w, 2))
+            ee.threshold_normals(*self.key, jitter)
+            maximum = np.maximum
+        else:  # the torch reference, on that device
+            import torch
+
+            from rawsim.events import threshold_normals
+
+            self.key = split_key(seed)
+            jitter = threshold_normals((h, w), self.key, device)
+            maximum = lambda a, b: torch.clamp(a, min=b)  # noqa: E731
         sigma = params.sigma_threshold
-        self.on = np.maximum(params.threshold_pos + sigma * jitter[..., 0], 0.01)
-        self.off = np.maximum(params.threshold_neg + sigma * jitter[..., 1], 0.01)
+        self.on = maximum(params.threshold_pos + sigma * jitter[..., 0], 0.01)
+        self.off = maximum(params.threshold_neg + sigma * jitter[..., 1], 0.01)
         self.shape = (h, w)
         self.level = self.raw = self.ref = self.last = None
         self.time, self.steps = 0.0, 0
@@ -125,9 +143,15 @@ class EventStream:
     def start(self, log_frame: np.ndarray, t: float) -> None:
         """The first frame (log intensity, (H, W) float64) at time ``t`` (s)."""
         self._check(log_frame)
+        log_frame = self._here(log_frame)
         self.raw = self.level = log_frame  # read only: the frames are not changed
-        self.ref = log_frame.copy()
-        self.last = np.full(self.shape, -np.inf)
+        self.ref = log_frame.clone() if self.device else log_frame.copy()
+        if self.device:
+            import torch
+
+            self.last = torch.full_like(self.ref, -math.inf)
+        else:
+            self.last = np.full(self.shape, -np.inf)
         self.time, self.steps = float(t), 0
 
     def step(self, log_frame: np.ndarray, t: float) -> EventBatch:
@@ -135,13 +159,10 @@ class EventStream:
 
         ``log_frame`` is kept until the next step, not copied: do not change it.
         """
-        import numba
-
-        from rawsim.engine import events as ee
-
         if self.ref is None:
             raise ParameterError("EventStream.step before start: give the first frame to start")
         self._check(log_frame)
+        log_frame = self._here(log_frame)
         dt = float(t) - self.time
         if not dt > 0:
             raise ParameterError(f"frame times must increase, got {t} after {self.time}")
@@ -154,8 +175,19 @@ class EventStream:
         p_half = p.shot_noise_rate_hz * dt / 2
         if p_half > 0.5:
             raise ParameterError(f"shot-noise probability per step {2 * p_half:g} > 1: lower it")
-        args = (self.level, level, self.ref, self.on, self.off, self.last, p.leak_rate_hz)
-        args += (self.refractory, self.time, dt, p_half, *self.key, self.steps)
+        run = (p.leak_rate_hz, self.refractory, self.time, dt, p_half)
+        out = (self._step_engine if self.device is None else self._step_torch)(level, run)
+        self.raw, self.level = log_frame, level
+        self.time, self.steps = float(t), self.steps + 1
+        return out
+
+    def _step_engine(self, level: np.ndarray, run: tuple) -> EventBatch:
+        import numba
+
+        from rawsim.engine import events as ee
+
+        args = (self.level, level, self.ref, self.on, self.off, self.last, *run[:2])
+        args += (*run[2:], *self.key, self.steps)
         h, w = self.shape
         counts = np.empty((2, h, w), dtype=np.int32)
         rows = np.empty(h, dtype=np.int64)
@@ -169,10 +201,25 @@ class EventStream:
             np.empty(n), np.empty_like(x), np.empty_like(y), np.empty_like(pol), counts
         )
         buckets, chunks = max(1, n // 2), numba.get_num_threads()
-        ee.time_order(t_, x, y, pol, self.time, dt, buckets, chunks, out.t, out.x, out.y, out.p)
-        self.raw, self.level = log_frame, level
-        self.time, self.steps = float(t), self.steps + 1
+        t0, dt = run[2], run[3]
+        ee.time_order(t_, x, y, pol, t0, dt, buckets, chunks, out.t, out.x, out.y, out.p)
         return out
+
+    def _step_torch(self, level, run: tuple) -> EventBatch:
+        from rawsim.events import stream_step
+
+        state = {"l0": self.level, "ref": self.ref, "on": self.on, "off": self.off}
+        state["last"] = self.last
+        t, x, y, p, counts = stream_step(state, level, *run, self.key, self.steps)
+        return EventBatch(*(v.cpu().numpy() for v in (t, x, y, p, counts)))
+
+    def _here(self, log_frame):
+        """A frame where the state lives: a tensor on the torch device, or as given."""
+        if self.device is None:
+            return log_frame
+        import torch
+
+        return torch.as_tensor(log_frame, dtype=torch.float64).to(self.device)
 
     def _check(self, log_frame: np.ndarray) -> None:
         if log_frame.shape != self.shape:

@@ -156,3 +156,74 @@ def events_to_timestamp_image(events: torch.Tensor) -> torch.Tensor:
     latest = ((events > 0).to(events.dtype) * steps).amax(dim=1)
     peak = latest.amax(dim=(-2, -1), keepdim=True)
     return torch.where(peak > 0, latest / peak.clamp(min=1), latest)
+
+
+def threshold_normals(shape: tuple[int, int], key, device) -> torch.Tensor:
+    """The torch reference of :func:`rawsim.engine.events.threshold_normals`: standard
+    normals (H, W, 2) float64, site 2·(i·W + j) + c of the ``threshold`` stream."""
+    from rawsim.counter_rng import normal
+
+    h, w = shape
+    sites = torch.arange(2 * h * w, dtype=torch.int64, device=device)
+    return normal(sites, key, "threshold").view(h, w, 2)
+
+
+def stream_step(state: dict, l1: torch.Tensor, leak, refractory, t0, dt, p_half, key, step):
+    """The torch reference of one :class:`~rawsim.event_stream.EventStream` step (the
+    compiled :func:`rawsim.engine.events.count_events` / ``emit_events`` /
+    ``time_order``), for any device, the same bits.
+
+    ``state`` holds (H, W) float64 tensors ``l0`` (the previous level), ``ref``,
+    ``on``, ``off`` and ``last``; ``ref`` and ``last`` are updated in place.
+    Returns (t, x, y, p, counts): the events in time order (ties in row-major pixel
+    order, each pixel's crossings before its shot-noise event) and (2, H, W) counts.
+    """
+    from rawsim.counter_rng import uniforms
+
+    l0, ref, on, off, last = (state[k] for k in ("l0", "ref", "on", "off", "last"))
+    h, w = l0.shape
+    d0 = l0 - ref
+    m = l1 - l0 + leak * on * dt
+    up = m > 0.0
+    level = torch.where(up, on, off)
+    beyond = torch.where(up, d0 + m, -d0 - m)
+    crossings = torch.where(beyond >= level, torch.floor(beyond / level), 0.0)
+    sign = torch.where(up, 1.0, -1.0)
+    flat = [v.reshape(-1) for v in (d0, m, level, sign, crossings, last)]
+    d0f, mf, levelf, signf, crossf, lastf = flat
+    times, pixels, order = [], [], []
+    live = torch.nonzero(crossf >= 1.0).squeeze(1)
+    k = 1.0
+    while live.numel():  # the k-th crossing of every pixel that has one
+        t = t0 + dt * (signf[live] * k * levelf[live] - d0f[live]) / mf[live]
+        fired = t - lastf[live] >= refractory
+        times.append(t[fired])
+        pixels.append(live[fired])
+        order.append(torch.full_like(live[fired], int(k)))
+        lastf[live[fired]] = t[fired]
+        k += 1.0
+        live = live[crossf[live] >= k]
+    polarity = [up.reshape(-1)[p].to(torch.int8) for p in pixels]
+    if p_half > 0.0:
+        sites = torch.arange(h * w, dtype=torch.int64, device=l0.device)
+        u0, u1 = uniforms(sites, "shot", key, step)
+        noise = torch.nonzero((u0 < p_half) | (u0 > 1.0 - p_half)).squeeze(1)
+        times.append(t0 + dt * u1[noise])
+        pixels.append(noise)
+        order.append(torch.full_like(noise, int(k)))
+        polarity.append((u0[noise] < p_half).to(torch.int8))
+    ref += sign * crossings * level - leak * on * dt
+    last.copy_(lastf.view(h, w))
+    t, pixel = torch.cat(times), torch.cat(pixels)
+    rank = torch.cat(order)
+    p = torch.cat(polarity) if polarity else torch.empty(0, dtype=torch.int8, device=l0.device)
+    by_pixel = torch.argsort(pixel * (int(k) + 1) + rank)  # row-major, then per pixel
+    by_time = torch.sort(t[by_pixel], stable=True).indices
+    index = by_pixel[by_time]
+    pixel, p = pixel[index], p[index]
+    counts = torch.stack([torch.bincount(pixel[p == v], minlength=h * w) for v in (1, 0)]).to(
+        torch.int32
+    )
+    x = (pixel % w).to(torch.uint16) if pixel.numel() else pixel.to(torch.uint16)
+    y = (pixel // w).to(torch.uint16) if pixel.numel() else pixel.to(torch.uint16)
+    return t[index], x, y, p, counts.view(2, h, w)

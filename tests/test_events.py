@@ -220,6 +220,34 @@ def test_stream_is_the_same_for_any_thread_count():
             assert np.array_equal(getattr(a, name), getattr(b, name))
 
 
+@pytest.mark.parametrize(
+    "params, refractory",
+    [
+        (EventParams(sigma_threshold=0.03, leak_rate_hz=1.0, shot_noise_rate_hz=5.0), 1e-3),
+        (EventParams(sigma_threshold=0.0), 0.0),
+        (EventParams(cutoff_hz=30.0, sigma_threshold=0.05, threshold_neg=0.3), 0.0),
+    ],
+    ids=["noisy", "exact", "cutoff"],
+)
+def test_torch_reference_gives_the_engines_events_bit_for_bit(params, refractory):
+    """The torch stream step (what --device cuda runs) against the compiled kernels, on
+    the CPU: every event, time, polarity and count identical."""
+    g = np.random.default_rng(3)
+    frames = [np.log(g.random((48, 80)) + 0.05) for _ in range(5)]
+    runs = []
+    for device in (None, "cpu"):
+        stream = EventStream(
+            params, frames[0].shape, seed=4, refractory_s=refractory, device=device
+        )
+        stream.start(frames[0], 0.0)
+        runs.append([stream.step(f, (k + 1) / 100) for k, f in enumerate(frames[1:])])
+    assert sum(b.t.size for b in runs[0]) > 10_000
+    for a, b in zip(*runs, strict=True):
+        for name in ("t", "x", "y", "p", "counts"):
+            got, want = getattr(b, name), getattr(a, name)
+            assert got.dtype == want.dtype and np.array_equal(got, want), name
+
+
 def test_time_order_is_a_stable_sort_for_any_thread_count():
     """The parallel counting sort equals numpy's stable argsort (ties in input order),
     with many ties and clustered times, on 1 thread and on all."""
@@ -291,3 +319,24 @@ def test_events_cli_stream_formats_agree(tmp_path):
     voxels = np.load(tmp_path / "npz1" / "voxels.npy")
     assert voxels.shape == (4, 3, 48, 64)
     assert np.allclose(voxels.sum(1), z["events"][:, 0] - z["events"][:, 1], atol=1e-4)
+
+
+def test_events_cli_device(tmp_path):
+    """--device auto on a machine without a GPU is the engine's file; --device cuda there
+    says there is none."""
+    import torch
+
+    frames = tmp_path / "clip"
+    frames.mkdir()
+    base = np.random.default_rng(2).integers(20, 230, (32, 48, 3)).astype(np.uint8)
+    for t in range(3):
+        oiio.ImageBuf(np.roll(base, 3 * t, axis=0)).write(str(frames / f"f{t}.png"))
+    common = ["events", str(frames), "--fps", "500", "--seed", "1", "--shot-noise-rate-hz", "9"]
+    for device in ("cpu", "auto"):
+        r = CliRunner().invoke(cli, [*common, "-o", str(tmp_path / device), "--device", device])
+        assert r.exit_code == 0, r.output
+    if not torch.cuda.is_available():
+        a, b = (np.load(tmp_path / d / "events.npz") for d in ("cpu", "auto"))
+        assert all(np.array_equal(a[k], b[k]) for k in a.files)
+        r = CliRunner().invoke(cli, [*common, "-o", str(tmp_path / "gpu"), "--device", "cuda"])
+        assert r.exit_code == 2 and "no CUDA device is available" in r.output
