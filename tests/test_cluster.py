@@ -176,6 +176,30 @@ def test_a_killed_ray_worker_is_retried_and_the_outputs_are_complete(
     assert digest(tmp_path) == digest(out)  # complete, no stray temporaries
 
 
+def test_ctrl_c_stops_a_ray_run_and_a_rerun_completes_it(photos, local_run, cluster, tmp_path):
+    """SIGINT mid-run: exit 130 within seconds, the summary says what is unfinished, no
+    partial output; the same command again finishes with the local run's bytes."""
+    out, _, _ = local_run
+    args = ["unprocess", photos, "-o", tmp_path, *COMMON[:-1], "--executor", "ray"]
+    command = [sys.executable, "-c", "from rawsim_cli.main import main; main()"]
+    proc = subprocess.Popen(
+        [*command, *map(str, args), "--address", cluster], stderr=subprocess.PIPE, text=True
+    )
+    deadline = time.monotonic() + 120
+    while not any(tmp_path.rglob("*.dng")) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    stopped = time.monotonic()
+    stderr = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 130 and time.monotonic() - stopped < 10
+    assert "interrupted by SIGINT" in stderr and "not finished" in stderr
+    for dng in tmp_path.rglob("*.dng"):  # every output set that exists is complete
+        assert dng.with_suffix(".json").exists() or dng.name.endswith(".clean.dng")
+    r = rawsim(*args, "--address", cluster)
+    assert r.returncode == 1 and "1 failed" in r.stderr  # the broken file
+    assert digest(tmp_path) == digest(out)
+
+
 def test_ray_executor_needs_ray_flags_right(photos, tmp_path):
     r = CliRunner().invoke(
         cli, ["unprocess", str(photos), "-o", str(tmp_path), *COMMON, "--address", "auto"]
