@@ -165,9 +165,6 @@ def command(
     if (iso is None) == (not iso_range):
         raise click.UsageError("give exactly one of --iso N or --iso-range MIN MAX", ctx)
     prof = load_profile(profile)
-    for value in (iso,) if iso is not None else iso_range:
-        prof.check_iso(value)
-        prof.noise.levels(noise, value)  # e.g. a profile without physics parameters
     if iso is None and iso_range[0] > iso_range[1]:
         raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
     resolve_device(device)
@@ -188,6 +185,7 @@ def command(
         seed=seed,
         sensor=sensor_kind,
     )
+    options.check_isos()
     run_files(
         ctx,
         inputs,

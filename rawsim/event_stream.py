@@ -186,8 +186,8 @@ class EventStream:
 
         from rawsim.engine import events as ee
 
-        args = (self.level, level, self.ref, self.on, self.off, self.last, *run[:2])
-        args += (*run[2:], *self.key, self.steps)
+        args = (self.level, level, self.ref, self.on, self.off, self.last, *run)
+        args += (*self.key, self.steps)
         h, w = self.shape
         counts = np.empty((2, h, w), dtype=np.int32)
         rows = np.empty(h, dtype=np.int64)
@@ -201,7 +201,7 @@ class EventStream:
             np.empty(n), np.empty_like(x), np.empty_like(y), np.empty_like(pol), counts
         )
         buckets, chunks = max(1, n // 2), numba.get_num_threads()
-        t0, dt = run[2], run[3]
+        _, _, t0, dt, _ = run
         ee.time_order(t_, x, y, pol, t0, dt, buckets, chunks, out.t, out.x, out.y, out.p)
         return out
 

@@ -94,9 +94,6 @@ class RawPairs:
         prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
         if (iso is None) == (iso_range is None):
             raise ParameterError("give exactly one of iso or iso_range")
-        for value in (iso,) if iso is not None else iso_range:
-            prof.check_iso(value)
-            prof.noise.levels(noise, value)
         self.options = UnprocessOptions(
             profile=prof,
             iso=iso,
@@ -112,6 +109,7 @@ class RawPairs:
             seed=seed,
             sensor=sensor,
         )
+        self.options.check_isos()
         self.sensor = self.options.make_sensor()
         self.root, self.seed = root, seed
 

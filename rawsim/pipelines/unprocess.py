@@ -244,6 +244,14 @@ class UnprocessOptions:
         check_choice("sensor", self.sensor, SENSOR_KINDS)
         return (MonoSensor if self.sensor == "mono" else RGBSensor)(self.profile)
 
+    def check_isos(self) -> None:
+        """Before any file is read: the ISO, or both ends of the ISO range, must lie in
+        the profile's range, with parameters of the noise model there (a profile may
+        lack the physics model's). Raises :class:`ParameterError`."""
+        for value in (self.iso,) if self.iso is not None else self.iso_range:
+            self.profile.check_iso(value)
+            self.profile.noise.levels(self.noise, value)
+
     def output_suffixes(self) -> dict[str, str]:
         """Output kinds of every file → file-name suffixes."""
         out = {"json": ".json"}
