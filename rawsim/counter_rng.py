@@ -18,6 +18,8 @@ Distributions, each from :mod:`rawsim.exact_math` so the bits match:
 
 * uniform: ``(n + ½) · 2⁻⁵²`` from 52 bits of two words, in (0, 1) exactly;
 * normal: Box–Muller, both branches, from one block (two uniforms) per two sites;
+* Tukey-lambda: inverse transform of one uniform per site (two sites per block),
+  the quantile read from a per-λ table of cubics (:func:`tukey_table`);
 * Poisson: exact; inversion by sequential search below λ = 10, Hörmann's
   transformed rejection with squeeze (PTRS, "The transformed rejection method
   for generating Poisson random variables", 1993) from 10 up, with retries on
@@ -35,8 +37,13 @@ from rawsim.exact_math import (
     LOG_FACTORIAL,
     LOGISTIC_LAMBDA,
     SQRT_HALF,
+    TUKEY_FRACTION_BITS,
+    TUKEY_OCTAVES,
+    TUKEY_SEGMENTS,
     UNIFORM_STEP,
     cos_reduced,
+    cubic,
+    cubic_through_thirds,
     exp_reduce,
     exp_reduced,
     log_combine,
@@ -155,15 +162,49 @@ def normal(index: torch.Tensor, key, stream: str = "normal") -> torch.Tensor:
     return ieee_sqrt(-2.0 * exact_log(u1)) * exact_cos_sin_2pi(u2, odd)
 
 
-def tukey_lambda(index: torch.Tensor, key, lam: float) -> torch.Tensor:
-    """Standard Tukey-lambda draws ``(u^λ − (1 − u)^λ) / λ`` (the logistic
-    ``ln u − ln(1 − u)`` for |λ| below ``LOGISTIC_LAMBDA``), by inverse transform of
-    one uniform per site."""
-    u, _ = uniforms(index, "tukey", key)
+def tukey_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
+    """The standard Tukey-lambda quantile ``(u^λ − (1 − u)^λ) / λ`` of u in (0, 1)
+    (float64; the logistic ``ln u − ln(1 − u)`` for |λ| below ``LOGISTIC_LAMBDA``)."""
     lo, hi = exact_log(u), exact_log(1.0 - u)
     if abs(lam) < LOGISTIC_LAMBDA:
         return lo - hi
     return (exact_exp(lo * lam) - exact_exp(hi * lam)) / lam
+
+
+def tukey_table(lam: float, device=None) -> torch.Tensor:
+    """(TUKEY_OCTAVES · TUKEY_SEGMENTS, 4) float64 coefficients of the cubic through
+    :func:`tukey_quantile` at the thirds of each segment of v in [2⁻⁵³, ½): octave j
+    is [2⁻ʲ⁻², 2⁻ʲ⁻¹) in equal segments (:data:`rawsim.exact_math.TUKEY_OCTAVES`)."""
+    octave = torch.ldexp(
+        torch.ones(TUKEY_OCTAVES, dtype=torch.float64, device=device),
+        -2 - torch.arange(TUKEY_OCTAVES, device=device),
+    )[:, None]
+    h = octave / TUKEY_SEGMENTS
+    start = octave + torch.arange(TUKEY_SEGMENTS, device=device, dtype=torch.float64) * h
+    f = [tukey_quantile(start + step, lam) for step in (0.0, h / 3.0, (2.0 * h) / 3.0, h)]
+    return torch.stack(cubic_through_thirds(*f), -1).reshape(-1, 4)
+
+
+def tukey_from_table(u: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
+    """The Tukey-lambda quantile of uniforms ``u`` (float64, (0, 1)) from
+    :func:`tukey_table`: the segment from the bits of v = min(u, 1 − u), the cubic at
+    the remaining mantissa bits, negated above ½ (Q(u) = −Q(1 − u); 1 − u is exact)."""
+    upper = u > 0.5
+    b = torch.where(upper, 1.0 - u, u).view(torch.int64)
+    row = (1021 - b.bitwise_right_shift(52)) * TUKEY_SEGMENTS + b.bitwise_right_shift(
+        TUKEY_FRACTION_BITS
+    ).bitwise_and(TUKEY_SEGMENTS - 1)
+    t = b.bitwise_and((1 << TUKEY_FRACTION_BITS) - 1).double() * 2.0**-TUKEY_FRACTION_BITS
+    c = table[row]
+    q = cubic(t, c[..., 0], c[..., 1], c[..., 2], c[..., 3])
+    return torch.where(upper, -q, q)
+
+
+def tukey_lambda(index: torch.Tensor, key, table: torch.Tensor) -> torch.Tensor:
+    """Standard Tukey-lambda draws by inverse transform, through ``table``
+    (:func:`tukey_table` of λ): the sites 2i and 2i + 1 take the two uniforms of block i."""
+    u1, u2 = uniforms(index.bitwise_right_shift(1), "tukey", key)
+    return tukey_from_table(torch.where(index.bitwise_and(1).bool(), u2, u1), table)
 
 
 def _log_factorial(k: torch.Tensor) -> torch.Tensor:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import torch
 
-from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda
+from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda, tukey_table
 from rawsim.errors import ParameterError, check_choice
 from rawsim.exact_math import LOGISTIC_LAMBDA
 
@@ -449,6 +449,7 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Te
         noise[small] = shot if physics else shot + levels.read_sigma * z[small]
     if not physics:
         return noise
-    noise = noise + levels.read_sigma * tukey_lambda(sites, key, levels.tukey_lambda)
+    table = tukey_table(levels.tukey_lambda, signal.device)
+    noise = noise + levels.read_sigma * tukey_lambda(sites, key, table)
     noise = noise + levels.row_sigma * normal(rows, key, "row")[:, None]
     return noise if bias is None else noise + bias

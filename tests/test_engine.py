@@ -14,7 +14,7 @@ from scipy import stats
 from rawsim import counter_rng as ref
 from rawsim.cfa import CFA
 from rawsim.engine import counter_rng as eng
-from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_vector
+from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_table, noise_vector
 from rawsim.io.images import read_image
 from rawsim.noise import NOISE_MODELS, site_bias
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
@@ -45,7 +45,7 @@ def test_philox_known_answers_in_both_backends(counter, key, expected):
 
 
 @njit
-def _engine_draws(lam, k0, k1, tukey):
+def _engine_draws(lam, k0, k1, tukey, logistic):
     n = lam.shape[0]
     out = np.empty((5, n))
     for i in range(n):
@@ -53,7 +53,7 @@ def _engine_draws(lam, k0, k1, tukey):
         out[0, i] = eng.normal(site, eng.NORMAL, k0, k1)
         out[1, i] = eng.normal(site, eng.ROW, k0, k1)
         out[2, i] = eng.tukey_lambda(site, k0, k1, tukey)
-        out[3, i] = eng.tukey_lambda(site, k0, k1, 0.0)  # the logistic limit
+        out[3, i] = eng.tukey_lambda(site, k0, k1, logistic)
         out[4, i] = eng.poisson(lam[i], site, k0, k1)
     return out
 
@@ -62,12 +62,13 @@ def test_draws_are_bit_equal_in_both_backends():
     n = 60_000
     lam = np.concatenate([np.geomspace(1e-3, 300, n - 4), [0.0, 9.999, 10.0, 99.9]])
     sites = torch.arange(n, dtype=torch.int64) * 7919 + 2**40
-    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), 0.14)
+    tables = eng.tukey_table(0.14), eng.tukey_table(0.0)  # λ → 0: the logistic limit
+    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), *tables)
     expected = [
         ref.normal(sites, KEY),
         ref.normal(sites, KEY, "row"),
-        ref.tukey_lambda(sites, KEY, 0.14),
-        ref.tukey_lambda(sites, KEY, 0.0),
+        ref.tukey_lambda(sites, KEY, ref.tukey_table(0.14)),
+        ref.tukey_lambda(sites, KEY, ref.tukey_table(0.0)),
         ref.poisson(torch.from_numpy(lam), sites, KEY),
     ]
     for row, want in zip(got, expected, strict=True):
@@ -80,6 +81,39 @@ def test_normal_rows_are_bit_equal_for_any_start_and_length(first, n):
     eng.normal_row(np.uint64(first), *eng.np_key(0x1234_5678_9ABC_DEF0), out)
     sites = torch.arange(first, first + n, dtype=torch.int64)
     assert np.array_equal(out, ref.normal(sites, KEY).numpy())
+
+
+@pytest.mark.parametrize("lam", [-0.5, -0.05, 0.0, 0.14, 1.0])
+def test_tukey_tables_are_bit_equal_and_match_the_exact_quantile(lam):
+    """The per-λ table of cubics is the same in both backends, and its quantiles are
+    within 1e-11 (relative) of the exact formula, from the centre to the extreme
+    uniforms 2⁻⁵³ and 1 − 2⁻⁵³."""
+    table = eng.tukey_table(lam)
+    assert np.array_equal(table, ref.tukey_table(lam).numpy())
+    n = np.random.default_rng(3).integers(0, 2**52, 300_000)
+    u = torch.from_numpy(np.concatenate([(n + 0.5) * 2.0**-52, [2**-53, 1 - 2**-53, 0.25]]))
+    exact = ref.tukey_quantile(u, lam)
+    got = ref.tukey_from_table(u, torch.from_numpy(table))
+    assert torch.all((got - exact).abs() <= 1e-11 * exact.abs().clamp_min(1.0))
+    assert np.array_equal(_engine_tukey(u.numpy(), table), got.numpy())
+
+
+@njit
+def _engine_tukey(u, table):
+    return np.array([eng.tukey_from_table(v, table) for v in u])
+
+
+@pytest.mark.parametrize("first,n", [(0, 31), (7, 30), (2**33 + 5, 17), (1, 1)])
+def test_tukey_rows_are_bit_equal_and_tukey_distributed(first, n):
+    table = eng.tukey_table(-0.1)
+    out = np.empty(n)
+    eng.tukey_lambda_row(np.uint64(first), *eng.np_key(0x1234_5678_9ABC_DEF0), table, out)
+    sites = torch.arange(first, first + n, dtype=torch.int64)
+    assert np.array_equal(out, ref.tukey_lambda(sites, KEY, torch.from_numpy(table)).numpy())
+    big = np.empty(200_000)
+    eng.tukey_lambda_row(np.uint64(first), *eng.np_key(17), table, big)
+    for half in (big[0::2], big[1::2]):  # both uniforms of a block
+        assert stats.kstest(half, "tukeylambda", args=(-0.1,)).pvalue > 1e-4
 
 
 def test_normals_are_standard_and_pairs_independent():
@@ -170,6 +204,7 @@ def test_noise_is_bit_equal_for_any_strip_split(pattern, model):
             30,
             MODEL_CODES[model],
             p,
+            noise_table(levels),
             *eng.np_key(99),
             bias,
             float(profile.white_level),

@@ -25,6 +25,7 @@ from rawsim.engine.counter_rng import (
     normal_row,
     poisson_sites,
     tukey_lambda_row,
+    tukey_table,
 )
 from rawsim.noise import EXACT_POISSON_BELOW
 
@@ -36,7 +37,7 @@ _JIT = {"cache": True, "error_model": "numpy"}
 #: Noise model codes of the kernels.
 MODEL_CODES = {"none": 0, "gaussian": 1, "poisson-gaussian": 2, "physics": 3}
 #: Layout of the float64 noise-parameter vector (see :func:`noise_vector`).
-N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_LAMBDA, N_ROW = range(8)
+N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_ROW = range(7)
 
 
 def noise_vector(levels, black: float) -> np.ndarray:
@@ -49,18 +50,26 @@ def noise_vector(levels, black: float) -> np.ndarray:
             levels.shot_alpha,
             levels.shot_beta,
             levels.iso_gain,
-            levels.tukey_lambda,
             levels.row_sigma,
         ],
         dtype=np.float64,
     )
 
 
+def noise_table(levels) -> np.ndarray:
+    """The physics model's Tukey-lambda quantile table (:func:`tukey_table` of the
+    levels' λ); an empty (0, 4) array for the other models."""
+    if levels.model != "physics":
+        return np.zeros((0, 4))
+    return tukey_table(levels.tukey_lambda)
+
+
 @njit(**_JIT)
-def noise_row(dn, y, width, model, p, k0, k1, bias_tile, white, out):
+def noise_row(dn, y, width, model, p, tukey, k0, k1, bias_tile, white, out):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
-    into codes ``out`` (w,): the compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`,
-    bit for bit (the reference's ``noise_field``: same operations, same order).
+    into codes ``out`` (w,), with ``tukey`` the model's :func:`noise_table`: the
+    compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the
+    reference's ``noise_field``: same operations, same order).
 
     Model 0 (``none``) gives the clean codes. The draws and the arithmetic run as
     whole-row loops without branches, which LLVM vectorises; only the exact
@@ -81,7 +90,7 @@ def noise_row(dn, y, width, model, p, k0, k1, bias_tile, white, out):
         else:
             _shot_noise(dn, first, model == 3, p, k0, k1, z, noise)
         if model == 3:
-            _physics_read_noise(y, first, p, k0, k1, bias_tile[y % 2], noise)
+            _physics_read_noise(y, first, p, tukey, k0, k1, bias_tile[y % 2], noise)
     for x in range(w):
         out[x] = min(max(np.rint(dn[x] + noise[x]), 0.0), white)
 
@@ -114,11 +123,11 @@ def _shot_noise(dn, first, physics, p, k0, k1, z, noise):
 
 
 @njit(**_JIT)
-def _physics_read_noise(y, first, p, k0, k1, bias, noise):
+def _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise):
     """The physics model's Tukey-lambda read noise, row noise and channel bias
     (``bias``: the row's two sites of the CFA tile), added to ``noise``."""
     t = np.empty(noise.size)
-    tukey_lambda_row(first, k0, k1, p[N_LAMBDA], t)
+    tukey_lambda_row(first, k0, k1, tukey, t)
     read = p[N_READ]
     row_noise = p[N_ROW] * normal(np.uint64(y), ROW, k0, k1)
     even, odd = bias[0], bias[1]
@@ -128,13 +137,12 @@ def _physics_read_noise(y, first, p, k0, k1, bias, noise):
 
 
 @njit(**_JIT)
-def add_noise_rows(dn, top, width, model, p, k0, k1, bias_tile, white, out):
+def add_noise_rows(dn, top, width, model, p, tukey, k0, k1, bias_tile, white, out):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
     image ``width`` wide, into ``out`` (h, w); for the equality tests."""
     for y in range(dn.shape[0]):
-        noise_row(
-            dn[y].astype(np.float64), top + y, width, model, p, k0, k1, bias_tile, white, out[y]
-        )
+        row = dn[y].astype(np.float64)
+        noise_row(row, top + y, width, model, p, tukey, k0, k1, bias_tile, white, out[y])
 
 
 @njit(**_JIT)
@@ -201,6 +209,7 @@ def unprocess_kernel(
     levels,
     model,
     p,
+    tukey,
     k0,
     k1,
     bias_tile,
@@ -220,7 +229,7 @@ def unprocess_kernel(
         colors: (2, 2) colour index of each site of the CFA tile.
         vignetting: (strength, k1, k2, k3); no shading when strength is 0.
         levels: (black, white) DN.
-        model, p, k0, k1, bias_tile: the noise (see :func:`noise_row`).
+        model, p, tukey, k0, k1, bias_tile: the noise (see :func:`noise_row`).
         noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
@@ -243,5 +252,5 @@ def unprocess_kernel(
         for x in range(w):
             dn[x] = black + dn[x] * span
         if want_clean:
-            noise_row(dn, y, w, 0, p, k0, k1, bias_tile, white, clean[y])
-        noise_row(dn, y, w, model, p, k0, k1, bias_tile, white, noisy[y])
+            noise_row(dn, y, w, 0, p, tukey, k0, k1, bias_tile, white, clean[y])
+        noise_row(dn, y, w, model, p, tukey, k0, k1, bias_tile, white, noisy[y])
