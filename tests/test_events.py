@@ -340,3 +340,26 @@ def test_events_cli_device(tmp_path):
         assert all(np.array_equal(a[k], b[k]) for k in a.files)
         r = CliRunner().invoke(cli, [*common, "-o", str(tmp_path / "gpu"), "--device", "cuda"])
         assert r.exit_code == 2 and "no CUDA device is available" in r.output
+
+
+def test_stream_writers_over_many_blocks():
+    """The parallel writers' bytes, over several blocks of events, are the formats'
+    definitions: ESIM's text lines (9 decimals of the rounded nanoseconds) and v2e's
+    uint32 rows (rounded microseconds), in order."""
+    from rawsim.engine import events as ee
+
+    g = np.random.default_rng(5)
+    n = 150_001
+    t = np.sort(g.uniform(0, 20, n))
+    t[:4] = [0.0, 1e-9, 2.5e-7, 12.5]
+    x, y = (g.integers(0, 65536, n).astype(np.uint16) for _ in range(2))
+    p = g.integers(0, 2, n).astype(np.int8)
+    out = np.empty(n * ee.LINE_BYTES, np.uint8)
+    text = bytes(out[: ee.text_lines(t, x, y, p, out)]).decode()
+    ns = np.round(t * 1e9).astype(np.int64)
+    want = [f"{a // 10**9}.{a % 10**9:09d} {b} {c} {d}\n" for a, b, c, d in zip(ns, x, y, p)]
+    assert text == "".join(want)
+    rows = np.empty((n, 4), np.uint32)
+    ee.v2e_rows(t, x, y, p, rows)
+    assert np.array_equal(rows[:, 0], np.round(t * 1e6).astype(np.uint32))
+    assert np.array_equal(rows[:, 1:], np.stack([x, y, p], 1))

@@ -241,35 +241,75 @@ def time_order(t, x, y, p, t0, dt, buckets, chunks, t_out, x_out, y_out, p_out):
 
 @njit(inline="always")
 def _digits(value, out, at, width):
-    """Write non-negative ``value`` in decimal at ``out[at:]`` (at least ``width`` digits,
-    zero-padded); returns the position after it."""
+    """Write ``value`` (uint64) in decimal at ``out[at:]`` (at least ``width`` digits,
+    zero-padded); returns the position after it. Unsigned division by the constant 10
+    compiles to a multiply and a shift."""
+    ten = np.uint64(10)
     n = 1
-    v = value // 10
-    while v > 0:
+    v = value // ten
+    while v > np.uint64(0):
         n += 1
-        v //= 10
+        v //= ten
     n = max(n, width)
     for k in range(n - 1, -1, -1):
-        out[at + k] = 48 + value % 10
-        value //= 10
+        out[at + k] = np.uint8(48) + np.uint8(value % ten)
+        value //= ten
     return at + n
 
 
-@njit(cache=True, nogil=True)
-def text_lines(ns, x, y, p, out):
-    """Events as ``t x y p`` lines (t in seconds with 9 decimals, from integer
-    nanoseconds ``ns`` ≥ 0) into the uint8 buffer ``out``; returns the bytes used."""
+#: Events per block of the parallel writers.
+_BLOCK = 65536
+#: The most bytes of one text line: seconds < 10¹⁰ with the point and 9 decimals (20),
+#: x and y < 65536 (5 each), p, three spaces and the newline.
+LINE_BYTES = 40
+_GIGA = np.uint64(1_000_000_000)
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def text_lines(t, x, y, p, out):
+    """Events as ``t x y p`` lines into the uint8 buffer ``out`` (at least
+    ``LINE_BYTES`` per event); returns the bytes used. t (s, ≥ 0) is written with
+    9 decimals from its integer nanoseconds (``np.round``: half to even). Blocks of
+    events are formatted in parallel, each into its own part of ``out``, then moved
+    together."""
+    n = t.size
+    blocks = (n + _BLOCK - 1) // _BLOCK
+    used = np.empty(blocks, dtype=np.int64)
+    for b in prange(blocks):
+        at = start = b * _BLOCK * LINE_BYTES
+        for e in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+            ns = np.uint64(np.rint(t[e] * 1e9))
+            at = _digits(ns // _GIGA, out, at, 1)
+            out[at] = 46  # "."
+            fraction = ns % _GIGA
+            for k in range(at + 9, at, -1):  # nine decimals
+                out[k] = np.uint8(48) + np.uint8(fraction % np.uint64(10))
+                fraction //= np.uint64(10)
+            at += 10
+            out[at] = 32
+            at = _digits(np.uint64(x[e]), out, at + 1, 1)
+            out[at] = 32
+            at = _digits(np.uint64(y[e]), out, at + 1, 1)
+            out[at] = 32
+            out[at + 1] = 48 + p[e]
+            out[at + 2] = 10
+            at += 3
+        used[b] = at - start
     at = 0
-    for e in range(ns.size):
-        at = _digits(ns[e] // 1_000_000_000, out, at, 1)
-        out[at] = 46  # "."
-        at = _digits(ns[e] % 1_000_000_000, out, at + 1, 9)
-        out[at] = 32
-        at = _digits(np.int64(x[e]), out, at + 1, 1)
-        out[at] = 32
-        at = _digits(np.int64(y[e]), out, at + 1, 1)
-        out[at] = 32
-        out[at + 1] = 48 + p[e]
-        out[at + 2] = 10
-        at += 3
+    for b in range(blocks):  # blocks move forward (never past their own start)
+        start = b * _BLOCK * LINE_BYTES
+        out[at : at + used[b]] = out[start : start + used[b]]
+        at += used[b]
     return at
+
+
+@njit(cache=True, parallel=True, nogil=True)
+def v2e_rows(t, x, y, p, out):
+    """Events as v2e's (N, 4) uint32 rows ``[t µs, x, y, p]`` into ``out``, t rounded
+    half to even (``np.round``); parallel over blocks of rows."""
+    n = t.size
+    blocks = (n + _BLOCK - 1) // _BLOCK
+    for b in prange(blocks):
+        for e in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+            out[e, 0] = np.uint32(np.rint(t[e] * 1e6))
+            out[e, 1], out[e, 2], out[e, 3] = x[e], y[e], p[e]

@@ -74,9 +74,10 @@ class EventFile:
         """One step's events (:class:`rawsim.events.EventBatch`), ending at ``frame_time``."""
         n = batch.t.size
         if self.fmt == "h5":
+            from rawsim.engine import events as ee
+
             rows = np.empty((n, 4), dtype=np.uint32)
-            rows[:, 0] = np.round(batch.t * 1e6)
-            rows[:, 1], rows[:, 2], rows[:, 3] = batch.x, batch.y, batch.p
+            ee.v2e_rows(batch.t, batch.x, batch.y, batch.p, rows)
             self.events.resize(self.count + n, axis=0)
             self.events[self.count :] = rows
         elif self.fmt == "txt":
@@ -115,13 +116,10 @@ class EventFile:
             self.stack.__exit__(kind, value, tb)
 
 
-def _lines(batch) -> bytes:
-    """``t x y p`` lines, t in seconds with 9 decimals (from integer nanoseconds: no
-    drift over long sequences)."""
+def _lines(batch) -> np.ndarray:
+    """``t x y p`` lines (uint8), t in seconds with 9 decimals (from integer
+    nanoseconds: no drift over long sequences)."""
     from rawsim.engine import events as ee
 
-    ns = np.round(batch.t * 1e9).astype(np.int64)
-    # Seconds < 10¹⁰ (11 characters with the point and 9 decimals) + x, y < 65536.
-    out = np.empty(ns.size * 40, dtype=np.uint8)
-    used = ee.text_lines(ns, batch.x, batch.y, batch.p, out)
-    return out[:used].tobytes()
+    out = np.empty(batch.t.size * ee.LINE_BYTES, dtype=np.uint8)
+    return out[: ee.text_lines(batch.t, batch.x, batch.y, batch.p, out)]
