@@ -357,7 +357,10 @@ def test_stream_writers_over_many_blocks():
     out = np.empty(n * ee.LINE_BYTES, np.uint8)
     text = bytes(out[: ee.text_lines(t, x, y, p, out)]).decode()
     ns = np.round(t * 1e9).astype(np.int64)
-    want = [f"{a // 10**9}.{a % 10**9:09d} {b} {c} {d}\n" for a, b, c, d in zip(ns, x, y, p)]
+    want = [
+        f"{a // 10**9}.{a % 10**9:09d} {b} {c} {d}\n"
+        for a, b, c, d in zip(ns, x, y, p, strict=True)
+    ]
     assert text == "".join(want)
     rows = np.empty((n, 4), np.uint32)
     ee.v2e_rows(t, x, y, p, rows)
