@@ -200,7 +200,7 @@ class EventStream:
         out = EventBatch(
             np.empty(n), np.empty_like(x), np.empty_like(y), np.empty_like(pol), counts
         )
-        buckets, chunks = max(1, n // 2), numba.get_num_threads()
+        buckets, chunks = max(1, n // ee.SLOT_EVENTS), numba.get_num_threads()
         _, _, t0, dt, _ = run
         ee.time_order(t_, x, y, pol, t0, dt, buckets, chunks, out.t, out.x, out.y, out.p)
         return out

@@ -263,7 +263,7 @@ def test_time_order_is_a_stable_sort_for_any_thread_count():
     order = np.argsort(t, kind="stable")
     for threads in (1, numba.config.NUMBA_NUM_THREADS):
         numba.set_num_threads(threads)
-        for buckets in (1, 7, n // 2):
+        for buckets in (1, 7, 256, n // 2):
             out = [np.empty_like(a) for a in (t, x, y, p)]
             time_order(t, x, y, p, 0.5, 0.01, buckets, threads, *out)
             for got, a in zip(out, (t, x, y, p), strict=True):

@@ -199,21 +199,20 @@ def time_order(t, x, y, p, t0, dt, buckets, chunks, t_out, x_out, y_out, p_out):
     """A step's events (in row-major pixel order) written into the ``*_out`` arrays in
     time order, ties keeping their row-major order.
 
-    A stable counting sort into ``buckets`` equal slots of [t0, t0 + dt]: ``chunks``
-    runs of events (one per thread) are counted and scattered in parallel (each
-    chunk's entries of a slot after the earlier chunks'), then each slot is
-    insertion-sorted (slots hold about two events). A stable sort has one result,
-    whatever the chunks or threads.
+    A stable sort in two passes that each stay in cache: ``chunks`` runs of events
+    (one per thread) are counted and scattered in parallel into ``buckets`` equal
+    slots of [t0, t0 + dt] (each chunk's entries of a slot after the earlier
+    chunks'); then each slot (about :data:`SLOT_EVENTS` events) is sorted on its
+    own, in parallel: a counting sort into finer slots and an insertion sort of
+    each (about two events). A stable sort has one result, whatever the buckets,
+    chunks or threads.
     """
     n = t.size
     size = (n + chunks - 1) // chunks
-    key = np.empty(n, dtype=np.int32)
     counts = np.zeros((chunks, buckets), dtype=np.int64)
     for c in prange(chunks):
         for e in range(c * size, min(n, (c + 1) * size)):
-            k = min(max(int((t[e] - t0) / dt * buckets), 0), buckets - 1)
-            key[e] = k
-            counts[c, k] += 1
+            counts[c, _slot(t[e], t0, dt, buckets)] += 1
     slot = np.empty(buckets + 1, dtype=np.int64)
     at = 0
     for k in range(buckets):  # counts become each chunk's first position in each slot
@@ -225,18 +224,68 @@ def time_order(t, x, y, p, t0, dt, buckets, chunks, t_out, x_out, y_out, p_out):
     slot[buckets] = at
     for c in prange(chunks):
         for e in range(c * size, min(n, (c + 1) * size)):
-            d = counts[c, key[e]]
-            counts[c, key[e]] = d + 1
+            k = _slot(t[e], t0, dt, buckets)
+            d = counts[c, k]
+            counts[c, k] = d + 1
             t_out[d], x_out[d], y_out[d], p_out[d] = t[e], x[e], y[e], p[e]
     for k in prange(buckets):
-        for a in range(slot[k] + 1, slot[k + 1]):
+        _sort_slot(k, slot[k], slot[k + 1], t0, dt, buckets, t_out, x_out, y_out, p_out)
+
+
+#: Events per slot of :func:`time_order`'s first pass (the caller's choice of buckets).
+SLOT_EVENTS = 2048
+
+
+@njit(inline="always")
+def _position(te, t0, dt, buckets):
+    """Where time ``te`` falls in [t0, t0 + dt], in units of 1/``buckets`` of it."""
+    return (te - t0) / dt * buckets
+
+
+@njit(inline="always")
+def _slot(te, t0, dt, buckets):
+    return min(max(int(_position(te, t0, dt, buckets)), 0), buckets - 1)
+
+
+@njit(inline="always")
+def _sort_slot(k, lo, hi, t0, dt, buckets, t_out, x_out, y_out, p_out):
+    """Stable sort of ``*_out[lo:hi]`` (the events of slot ``k``) by time, in place: a
+    counting sort into (hi − lo) // 2 finer slots (the fraction of slot k a time lies
+    at, which rises with the time), then insertion sorts."""
+    m = hi - lo
+    if m < 2:
+        return
+    fine = max(m // 2, 1)
+    lt, lx, ly, lp = (
+        t_out[lo:hi].copy(),
+        x_out[lo:hi].copy(),
+        y_out[lo:hi].copy(),
+        p_out[lo:hi].copy(),
+    )
+    key = np.empty(m, dtype=np.int64)
+    start = np.zeros(fine + 1, dtype=np.int64)
+    for e in range(m):
+        f = int((_position(lt[e], t0, dt, buckets) - k) * fine)
+        key[e] = min(max(f, 0), fine - 1)
+        start[key[e] + 1] += 1
+    for f in range(fine):
+        start[f + 1] += start[f]
+    for e in range(m):
+        d = lo + start[key[e]]
+        start[key[e]] += 1
+        t_out[d], x_out[d], y_out[d], p_out[d] = lt[e], lx[e], ly[e], lp[e]
+    first = lo
+    for f in range(fine):  # start[f] is now the end of fine slot f
+        end = lo + start[f]
+        for a in range(first + 1, end):
             te, xe, ye, pe = t_out[a], x_out[a], y_out[a], p_out[a]
             b = a - 1
-            while b >= slot[k] and t_out[b] > te:
+            while b >= first and t_out[b] > te:
                 t_out[b + 1], x_out[b + 1], y_out[b + 1] = t_out[b], x_out[b], y_out[b]
                 p_out[b + 1] = p_out[b]
                 b -= 1
             t_out[b + 1], x_out[b + 1], y_out[b + 1], p_out[b + 1] = te, xe, ye, pe
+        first = end
 
 
 @njit(inline="always")
@@ -297,10 +346,18 @@ def text_lines(t, x, y, p, out):
         used[b] = at - start
     at = 0
     for b in range(blocks):  # blocks move forward (never past their own start)
-        start = b * _BLOCK * LINE_BYTES
-        out[at : at + used[b]] = out[start : start + used[b]]
+        _move_down(out, at, b * _BLOCK * LINE_BYTES, used[b])
         at += used[b]
     return at
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _move_down(buf, to, start, n):
+    """``buf[start:start + n]`` copied to ``buf[to:]`` (to ≤ start), first byte first:
+    serial, where a slice assignment in a parallel kernel would be split over threads
+    and race on the overlap."""
+    for k in range(n):
+        buf[to + k] = buf[start + k]
 
 
 @njit(cache=True, parallel=True, nogil=True)
