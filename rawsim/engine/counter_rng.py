@@ -355,8 +355,15 @@ def poisson(lam, index, k0, k1):
             p = p * lam / k
             cdf = cdf + p
         return k
+    return _ptrs_from(lam, index, k0, k1, 0)
+
+
+@njit(error_model="numpy")
+def _ptrs_from(lam, index, k0, k1, first):
+    """PTRS's draw for mean ``lam`` ≥ 10 from its iteration ``first`` on (the earlier
+    ones known rejected)."""
     b, a, vr = _ptrs_constants(lam)
-    for j in range(MAX_ITERATIONS):
+    for j in range(first, MAX_ITERATIONS):
         u, v = uniforms(index, POISSON, k0, k1, np.uint64(j))
         k, us, squeeze = _ptrs_candidate(lam, b, a, u, v)
         if (squeeze and v <= vr) or _ptrs_accepts(lam, b, a, k, us, v):
@@ -402,7 +409,7 @@ def poisson_sites(lam, sites, k0, k1, out):
     _ptrs_first_test(mean[:rest], site[:rest], k0, k1, first[:rest])
     for j in range(rest):
         k = first[j]
-        out[large[j]] = k if k >= 0.0 else poisson(mean[j], site[j], k0, k1)
+        out[large[j]] = k if k >= 0.0 else _ptrs_from(mean[j], site[j], k0, k1, 1)
     lane = small[:m].copy()
     mean, site = np.empty(m), np.empty(m, np.uint64)
     for j in range(m):
