@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import secrets
 import shutil
 import signal
 import socket
@@ -78,16 +79,22 @@ def cluster(s3):
     """A two-CPU Ray head node started as users start one; its address."""
     port = _free_port()
     exe = Path(sys.executable).with_name("ray")
-    os.environ["RAY_AUTH_MODE"] = "token"  # Ray's default for new clusters: clients need it
+    # Token authentication, Ray's default for new clusters: the head and every client
+    # need the token. A fresh one in the environment, as a user would export it, so
+    # the test does not depend on a ~/.ray/auth_token left on the machine.
+    auth = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
+    os.environ.update(auth)
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
     start = [str(exe), "start", "--head", f"--port={port}", "--num-cpus=2"]
     start += ["--include-dashboard=false", "--object-store-memory=100000000"]
-    said = subprocess.run(start, check=True, env=env, capture_output=True, text=True)
+    said = subprocess.run(start, env=env, capture_output=True, text=True)
+    assert said.returncode == 0, said.stdout + said.stderr
     address = re.search(r"ray start --address='([^']+)'", said.stdout + said.stderr)
     assert address, said.stdout + said.stderr
     yield address[1]  # HOST:PORT, as `ray start` tells users to join it
     subprocess.run([str(exe), "stop", "--force"], env=env, capture_output=True)
-    os.environ.pop("RAY_AUTH_MODE")
+    for name in auth:
+        os.environ.pop(name)
 
 
 @pytest.fixture(scope="module")
