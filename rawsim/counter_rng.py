@@ -40,6 +40,7 @@ from rawsim.exact_math import (
     TUKEY_FRACTION_BITS,
     TUKEY_OCTAVES,
     TUKEY_SEGMENTS,
+    TUKEY_TOP_EXPONENT,
     UNIFORM_STEP,
     cos_reduced,
     cubic,
@@ -191,7 +192,7 @@ def tukey_from_table(u: torch.Tensor, table: torch.Tensor) -> torch.Tensor:
     the remaining mantissa bits, negated above ½ (Q(u) = −Q(1 − u); 1 − u is exact)."""
     upper = u > 0.5
     b = torch.where(upper, 1.0 - u, u).view(torch.int64)
-    row = (1021 - b.bitwise_right_shift(52)) * TUKEY_SEGMENTS + b.bitwise_right_shift(
+    row = (TUKEY_TOP_EXPONENT - b.bitwise_right_shift(52)) * TUKEY_SEGMENTS + b.bitwise_right_shift(
         TUKEY_FRACTION_BITS
     ).bitwise_and(TUKEY_SEGMENTS - 1)
     t = b.bitwise_and((1 << TUKEY_FRACTION_BITS) - 1).double() * 2.0**-TUKEY_FRACTION_BITS

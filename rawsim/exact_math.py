@@ -95,6 +95,8 @@ def sin_reduced(a):
 #: same small fraction of Q everywhere (< 1e-11 relative for |λ| ≤ 1).
 TUKEY_OCTAVES = 52
 TUKEY_SEGMENTS = 256
+#: The biased float64 exponent of octave 0, [¼, ½); octave j has this less j.
+TUKEY_TOP_EXPONENT = 1021
 #: The mantissa bits below the top 8 (log2 of :data:`TUKEY_SEGMENTS`), which pick the segment.
 TUKEY_FRACTION_BITS = 44
 

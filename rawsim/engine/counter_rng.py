@@ -25,6 +25,7 @@ from rawsim.exact_math import (
     TUKEY_FRACTION_BITS,
     TUKEY_OCTAVES,
     TUKEY_SEGMENTS,
+    TUKEY_TOP_EXPONENT,
     UNIFORM_STEP,
     cos_reduced,
     cubic,
@@ -234,7 +235,7 @@ def tukey_table(lam):
     return table
 
 
-_OCTAVE_TOP = np.uint64(1021)  # biased exponent of [¼, ½), octave 0
+_OCTAVE_TOP = np.uint64(TUKEY_TOP_EXPONENT)
 _SEGMENT_MASK = np.uint64(TUKEY_SEGMENTS - 1)
 _FRACTION_SHIFT = np.uint64(TUKEY_FRACTION_BITS)
 _FRACTION_MASK = np.uint64((1 << TUKEY_FRACTION_BITS) - 1)

@@ -289,21 +289,26 @@ def _sort_slot(k, lo, hi, t0, dt, buckets, t_out, x_out, y_out, p_out):
 
 
 @njit(inline="always")
-def _digits(value, out, at, width):
-    """Write ``value`` (uint64) in decimal at ``out[at:]`` (at least ``width`` digits,
-    zero-padded); returns the position after it. Unsigned division by the constant 10
-    compiles to a multiply and a shift."""
+def _fixed_digits(value, out, at, n):
+    """Write ``value`` (uint64) as exactly ``n`` decimal digits (zero-padded) at
+    ``out[at:]``; returns the position after them. Unsigned division by the constant
+    10 compiles to a multiply and a shift."""
     ten = np.uint64(10)
-    n = 1
-    v = value // ten
-    while v > np.uint64(0):
-        n += 1
-        v //= ten
-    n = max(n, width)
     for k in range(n - 1, -1, -1):
         out[at + k] = np.uint8(48) + np.uint8(value % ten)
         value //= ten
     return at + n
+
+
+@njit(inline="always")
+def _digits(value, out, at):
+    """Write ``value`` (uint64) in decimal at ``out[at:]``; returns the position after it."""
+    n = 1
+    v = value // np.uint64(10)
+    while v > np.uint64(0):
+        n += 1
+        v //= np.uint64(10)
+    return _fixed_digits(value, out, at, n)
 
 
 #: Events per block of the parallel writers.
@@ -328,17 +333,13 @@ def text_lines(t, x, y, p, out):
         at = start = b * _BLOCK * LINE_BYTES
         for e in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
             ns = np.uint64(np.rint(t[e] * 1e9))
-            at = _digits(ns // _GIGA, out, at, 1)
+            at = _digits(ns // _GIGA, out, at)
             out[at] = 46  # "."
-            fraction = ns % _GIGA
-            for k in range(at + 9, at, -1):  # nine decimals
-                out[k] = np.uint8(48) + np.uint8(fraction % np.uint64(10))
-                fraction //= np.uint64(10)
-            at += 10
+            at = _fixed_digits(ns % _GIGA, out, at + 1, 9)
             out[at] = 32
-            at = _digits(np.uint64(x[e]), out, at + 1, 1)
+            at = _digits(np.uint64(x[e]), out, at + 1)
             out[at] = 32
-            at = _digits(np.uint64(y[e]), out, at + 1, 1)
+            at = _digits(np.uint64(y[e]), out, at + 1)
             out[at] = 32
             out[at + 1] = 48 + p[e]
             out[at + 2] = 10
