@@ -4,10 +4,10 @@ the torch reference, for any device.
 Every draw is a pure function of (key, site, stream, iteration): the key is the
 file's 64-bit seed, the site its pixel index ``y · W + x`` (or the row index for
 row noise), the stream names what is drawn (:data:`STREAMS`), the iteration
-counts rejection retries. So the noise of a pixel does not depend on how the
-image is split into strips, threads, jobs or batches, nor on the device or the
-backend: :mod:`rawsim.engine.counter_rng` is the same generator compiled with
-numba, and the two are tested bit-equal.
+tells repeated draws of one site apart (an event stream's steps). So the noise
+of a pixel does not depend on how the image is split into strips, threads, jobs
+or batches, nor on the device or the backend: :mod:`rawsim.engine.counter_rng`
+is the same generator compiled with numba, and the two are tested bit-equal.
 
 Philox4x32-10 is Salmon et al., "Parallel random numbers: as easy as 1, 2, 3"
 (SC 2011): ten rounds of two 32×32→64-bit multiplies and a Weyl key schedule.
@@ -20,10 +20,10 @@ Distributions, each from :mod:`rawsim.exact_math` so the bits match:
 * normal: Box–Muller, both branches, from one block (two uniforms) per two sites;
 * Tukey-lambda: inverse transform of one uniform per site (two sites per block),
   the quantile read from a per-λ table of cubics (:func:`tukey_table`);
-* Poisson: exact; inversion by sequential search below λ = 10, Hörmann's
-  transformed rejection with squeeze (PTRS, "The transformed rejection method
-  for generating Poisson random variables", 1993) from 10 up, with retries on
-  successive iterations of its stream.
+* Poisson: exact, for means below :data:`~rawsim.poisson_table.POISSON_MEANS`:
+  Poisson(⌊λ⌋) from Walker's alias table of that integer mean plus Poisson(λ − ⌊λ⌋)
+  by a short inverse-CDF search, from one block per site
+  (:mod:`rawsim.poisson_table`).
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ import torch
 from rawsim.exact_math import (
     HALF_PI,
     INV_LN2,
-    LOG_FACTORIAL,
     LOGISTIC_LAMBDA,
     SQRT_HALF,
     TUKEY_FRACTION_BITS,
@@ -50,12 +49,9 @@ from rawsim.exact_math import (
     log_combine,
     log_mantissa,
     sin_reduced,
-    stirling_tail,
 )
 from rawsim.philox import (  # noqa: F401 - the generator's constants, also from here
-    INVERSION_BELOW,
     MASK32,
-    MAX_ITERATIONS,
     PHILOX_M0,
     PHILOX_M1,
     PHILOX_W0,
@@ -63,6 +59,7 @@ from rawsim.philox import (  # noqa: F401 - the generator's constants, also from
     STREAMS,
     split_key,
 )
+from rawsim.poisson_table import RESIDUAL_TERMS, poisson_tables
 
 
 def _mulhilo(m: int, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -208,67 +205,29 @@ def tukey_lambda(index: torch.Tensor, key, table: torch.Tensor) -> torch.Tensor:
     return tukey_from_table(torch.where(index.bitwise_and(1).bool(), u2, u1), table)
 
 
-def _log_factorial(k: torch.Tensor) -> torch.Tensor:
-    table = torch.tensor(LOG_FACTORIAL, dtype=torch.float64, device=k.device)
-    inside = k < len(LOG_FACTORIAL)
-    k1 = k + 1.0
-    tail = stirling_tail(k1, exact_log(k1))
-    return torch.where(inside, table[k.clamp(0, len(LOG_FACTORIAL) - 1).long()], tail)
-
-
 def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
-    """Exact Poisson draws (float64 counts) of mean ``lam`` ≥ 0 (float64), one per ``index``."""
-    out = torch.zeros_like(lam)
-    small = lam < INVERSION_BELOW
-    if bool(small.any()):
-        out[small] = _poisson_inversion(lam[small], index[small], key)
-    if not bool(small.all()):
-        big = ~small
-        out[big] = _poisson_ptrs(lam[big], index[big], key)
-    return out
-
-
-def _poisson_inversion(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
-    """Sequential search of the CDF: k = min{k : u ≤ F(k)}, with p_k = p_{k−1} λ / k."""
-    u, _ = uniforms(index, "poisson", key)
-    p = exact_exp(-lam)
+    """Exact Poisson draws (float64 counts) of means ``lam`` in [0, POISSON_MEANS)
+    (float64), one per ``index``: Poisson(⌊λ⌋) from its alias table plus
+    Poisson(λ − ⌊λ⌋) by inversion, from block (index, poisson, 0)."""
+    heads, cells = (torch.from_numpy(t).to(lam.device) for t in poisson_tables())
+    w0, w1, w2, w3 = philox4x32(
+        (index.bitwise_and(MASK32), index.bitwise_right_shift(32), STREAMS["poisson"], 0), key
+    )
+    a = w0.bitwise_left_shift(20).bitwise_or_(w1.bitwise_right_shift(12))
+    u = _uniform(w2, w3)
+    m = torch.floor(lam)
+    delta = lam - m
+    p = exact_exp(-delta)
     cdf = p.clone()
-    k = torch.zeros_like(lam)
-    active = u > cdf
-    step = 0.0
-    while bool(active.any()) and step < 1000:
-        step += 1.0
-        p = torch.where(active, p * lam / step, p)
-        cdf = torch.where(active, cdf + p, cdf)
-        k = torch.where(active, k + 1.0, k)
-        active &= u > cdf
-    return k
-
-
-def _poisson_ptrs(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
-    """PTRS (Hörmann 1993) for λ ≥ 10: iteration j draws block (index, poisson, j)."""
-    out = torch.full_like(lam, -1.0)
-    slam, loglam = ieee_sqrt(lam), exact_log(lam)
-    b = 0.931 + 2.53 * slam
-    a = -0.059 + 0.02483 * b
-    log_inv_alpha = exact_log(1.1239 + 1.1328 / (b - 3.4))
-    vr = 0.9277 - 3.6224 / (b - 2.0)
-    pending = torch.arange(lam.numel(), device=lam.device)
-    for j in range(MAX_ITERATIONS):
-        if not pending.numel():
-            break
-        lam_p, a_p, b_p = lam[pending], a[pending], b[pending]
-        u, v = uniforms(index[pending], "poisson", key, j)
-        u = u - 0.5
-        us = 0.5 - u.abs()
-        k = torch.floor((2.0 * a_p / us + b_p) * u + lam_p + 0.43)
-        quick = (us >= 0.07) & (v <= vr[pending])
-        possible = (k >= 0) & ~((us < 0.013) & (v > us))
-        lhs = exact_log(v) + log_inv_alpha[pending] - exact_log(a_p / (us * us) + b_p)
-        rhs = -lam_p + k * loglam[pending] - _log_factorial(k.clamp_min(0))
-        accept = quick | (possible & (lhs <= rhs))
-        out[pending[accept]] = k[accept]
-        pending = pending[~accept]
-    if pending.numel():  # never seen; kept finite and deterministic
-        out[pending] = torch.floor(lam[pending])
-    return out
+    residual = torch.zeros_like(lam)
+    for k in range(1, RESIDUAL_TERMS + 1):
+        p = p * delta / float(k)
+        residual += ((u > cdf) & (p > 0.0)).double()
+        cdf = cdf + p
+    head = heads[m.long()]
+    shift = head[:, 1]
+    j = a.bitwise_right_shift(shift)
+    cell = cells[head[:, 0] + j]
+    low = a.bitwise_and(torch.ones_like(shift).bitwise_left_shift(shift) - 1)
+    table = torch.where(low < cell[:, 0], head[:, 2] + j, cell[:, 1])
+    return residual + table.double()

@@ -113,17 +113,3 @@ def cubic_through_thirds(f0, f1, f2, f3):
 def cubic(t, c0, c1, c2, c3):
     """The cubic of :func:`cubic_through_thirds`'s coefficients at t, by Horner."""
     return ((c3 * t + c2) * t + c1) * t + c0
-
-
-#: ln k! for k = 0 … 255 (float64, from the C library's lgamma once, at import);
-#: a table, so both backends read the same bits. Beyond it: Stirling's series.
-LOG_FACTORIAL = tuple(math.lgamma(k + 1.0) for k in range(256))
-HALF_LOG_2PI = 0.91893853320467274178
-
-
-def stirling_tail(k1, log_k1):
-    """ln k! for k ≥ 256 from k1 = k + 1 and ln k1 (error < 1e-19 relative)."""
-    inv = 1.0 / k1
-    inv2 = inv * inv
-    series = inv * (1.0 / 12.0 - inv2 * (1.0 / 360.0 - inv2 * (1.0 / 1260.0)))
-    return (k1 - 0.5) * log_k1 - k1 + HALF_LOG_2PI + series

@@ -31,11 +31,12 @@ import torch
 from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda, tukey_table
 from rawsim.errors import ParameterError, check_choice
 from rawsim.exact_math import LOGISTIC_LAMBDA
+from rawsim.poisson_table import POISSON_MEANS
 
 NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
 #: Default spread (σ of ln σ) of sampled noise levels when a profile gives none.
 DEFAULT_SPREAD = 0.1
-EXACT_POISSON_BELOW = 100.0
+EXACT_POISSON_BELOW = float(POISSON_MEANS)
 QUANTIZATION_VARIANCE = 1.0 / 12.0
 
 

@@ -10,10 +10,6 @@ PHILOX_M0, PHILOX_M1 = 0xD2511F53, 0xCD9E8D57
 PHILOX_W0, PHILOX_W1 = 0x9E3779B9, 0xBB67AE85
 #: Counter word 2 of each kind of draw. Row noise indexes rows, the others sites.
 STREAMS = {"normal": 0, "tukey": 1, "poisson": 2, "row": 3, "threshold": 4, "shot": 5}
-#: Below this mean, Poisson draws invert the CDF; from it up, PTRS.
-INVERSION_BELOW = 10.0
-#: PTRS accepts within a few iterations (mean ≈ 1.2); a bound keeps a loop finite.
-MAX_ITERATIONS = 64
 
 
 def split_key(seed: int) -> tuple[int, int]:

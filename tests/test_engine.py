@@ -14,10 +14,11 @@ from scipy import stats
 from rawsim import counter_rng as ref
 from rawsim.cfa import CFA
 from rawsim.engine import counter_rng as eng
-from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_table, noise_vector
+from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_tables, noise_vector
 from rawsim.io.images import read_image
 from rawsim.noise import NOISE_MODELS, site_bias
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
+from rawsim.poisson_table import POISSON_MEANS, UNIFORM_BITS, poisson_tables, poisson_weights
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor
 from tests.conftest import DATA
@@ -45,7 +46,7 @@ def test_philox_known_answers_in_both_backends(counter, key, expected):
 
 
 @njit
-def _engine_draws(lam, k0, k1, tukey, logistic):
+def _engine_draws(lam, k0, k1, tukey, logistic, heads, cells):
     n = lam.shape[0]
     out = np.empty((5, n))
     for i in range(n):
@@ -54,16 +55,16 @@ def _engine_draws(lam, k0, k1, tukey, logistic):
         out[1, i] = eng.normal(site, eng.ROW, k0, k1)
         out[2, i] = eng.tukey_lambda(site, k0, k1, tukey)
         out[3, i] = eng.tukey_lambda(site, k0, k1, logistic)
-        out[4, i] = eng.poisson(lam[i], site, k0, k1)
+        out[4, i] = eng.poisson(lam[i], site, k0, k1, heads, cells)
     return out
 
 
 def test_draws_are_bit_equal_in_both_backends():
     n = 60_000
-    lam = np.concatenate([np.geomspace(1e-3, 300, n - 4), [0.0, 9.999, 10.0, 99.9]])
+    lam = np.concatenate([np.geomspace(1e-3, 99.99, n - 4), [0.0, 1.0, 98.5, np.nextafter(100, 0)]])
     sites = torch.arange(n, dtype=torch.int64) * 7919 + 2**40
     tables = eng.tukey_table(0.14), eng.tukey_table(0.0)  # λ → 0: the logistic limit
-    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), *tables)
+    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), *tables, *eng.poisson_arrays())
     expected = [
         ref.normal(sites, KEY),
         ref.normal(sites, KEY, "row"),
@@ -141,18 +142,42 @@ def test_exact_math_is_accurate():
         assert np.allclose(got, want(2 * np.pi * u.numpy()), atol=1e-15)
 
 
-@njit
 def _poisson_sample(lam, n, k0, k1):
     out = np.empty(n)
-    for i in range(n):
-        out[i] = eng.poisson(lam, np.uint64(i), k0, k1)
+    sites = np.arange(n, dtype=np.uint64)
+    eng.poisson_sites(np.full(n, lam), sites, k0, k1, *eng.poisson_arrays(), out)
     return out
 
 
-@pytest.mark.parametrize("lam", [0.3, 2.0, 9.9, 10.0, 37.5, 99.0])
+def test_poisson_alias_tables_hold_the_rounded_probabilities_exactly():
+    heads, cells = poisson_tables()
+    assert cells.shape[0] == heads[-1, 0] + (1 << (UNIFORM_BITS - heads[-1, 1]))
+    for m in range(POISSON_MEANS):
+        first, weights = poisson_weights(m)
+        assert sum(weights) == 2**UNIFORM_BITS
+        start, shift, low = heads[m]
+        # Each bucket of 2^shift uniform integers gives its own count below the
+        # threshold and its alias above: summed, exactly the weights.
+        got = np.zeros(first + len(weights) + 1, np.int64)
+        buckets = cells[start : start + (1 << (UNIFORM_BITS - shift))]
+        for j, (threshold, alias) in enumerate(buckets):
+            got[min(low + j, got.size - 1)] += threshold
+            got[alias] += (1 << shift) - threshold
+        assert got[-1] == 0 and np.array_equal(got[first:-1], weights)
+        pmf = stats.poisson.pmf(np.arange(first, first + len(weights)), m)
+        assert np.allclose(np.asarray(weights) / 2.0**UNIFORM_BITS, pmf, rtol=1e-12, atol=2.0**-52)
+        # every count left out is negligible: below 2⁻⁵³ each, and 1e-15 together
+        left_out = stats.poisson.cdf(first - 1, m) + stats.poisson.sf(first + len(weights) - 1, m)
+        assert left_out < 1e-15
+
+
+@pytest.mark.parametrize("lam", [0.0, 0.3, 1.0, 2.0, 9.9, 10.0, 37.5, 99.0, 99.99])
 def test_poisson_is_exact_in_distribution(lam):
     n = 400_000
-    x = _poisson_sample(lam, n, *eng.np_key(lam * 1000))
+    x = _poisson_sample(lam, n, *eng.np_key(int(lam * 1000)))
+    if lam == 0.0:
+        assert not x.any()
+        return
     assert np.all(x == np.floor(x)) and x.min() >= 0
     assert abs(x.mean() - lam) < 5 * np.sqrt(lam / n)
     assert abs(x.var() / lam - 1) < 5 * np.sqrt(2 / n) + 0.005
@@ -204,7 +229,7 @@ def test_noise_is_bit_equal_for_any_strip_split(pattern, model):
             30,
             MODEL_CODES[model],
             p,
-            noise_table(levels),
+            *noise_tables(levels),
             *eng.np_key(99),
             bias,
             float(profile.white_level),

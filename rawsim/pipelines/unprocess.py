@@ -192,7 +192,7 @@ def engine_unprocess(
         np.array([sensor.black_level, sensor.white_level], np.float64),
         kernels.MODEL_CODES[noise.model],
         kernels.noise_vector(noise, sensor.black_level),
-        kernels.noise_table(noise),
+        *kernels.noise_tables(noise),
         *np_key(key),
         bias_tile,
         noisy,

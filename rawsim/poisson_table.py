@@ -1,0 +1,104 @@
+"""Alias tables of the Poisson laws of integer means, shared by both backends' exact
+Poisson draws (:func:`rawsim.counter_rng.poisson` and its compiled twin).
+
+A draw of mean λ in [0, :data:`POISSON_MEANS`) is Poisson(m) + Poisson(δ), with
+m = ⌊λ⌋ and δ = λ − m: independent Poisson counts add, so the sum is exactly
+Poisson(λ). Poisson(m) comes from Walker's alias table of m, indexed by a 52-bit
+uniform integer A: its top bits pick a bucket, the rest are compared with the
+bucket's threshold. Poisson(δ), δ < 1, is a short inverse-CDF search.
+
+The tables are built from integer weights: each count's probability rounded to a
+multiple of 2⁻⁵² (:func:`poisson_weights`, by ``decimal``, correctly rounded, so
+the same on every machine), the weights summing to 2⁵² exactly. The alias
+method then reproduces those weights exactly: P(count = k) is the probability
+rounded to the resolution of a 52-bit uniform, no coarser than an inverse-CDF
+search with the same uniform. Counts whose probability rounds to 0 (below 2⁻⁵³,
+the far tails) are not drawn.
+"""
+
+from __future__ import annotations
+
+import decimal
+from functools import cache
+
+import numpy as np
+
+#: Tables for means 0 … POISSON_MEANS − 1; draws take λ < POISSON_MEANS.
+POISSON_MEANS = 100
+#: Bits of a draw's uniform integer A (the engine's and the reference's 52-bit uniforms).
+UNIFORM_BITS = 52
+#: Terms of the residual Poisson(δ) search: P(count > 20 | δ < 1) < 1/21! ≈ 2·10⁻²⁰.
+RESIDUAL_TERMS = 20
+
+
+def poisson_weights(m: int) -> tuple[int, list[int]]:
+    """(first count, weights): Poisson(m)'s probabilities as integers out of 2⁵².
+
+    Each probability e⁻ᵐ mᵏ / k! is computed to 40 significant digits and rounded
+    to an integer multiple of 2⁻⁵²; counts outside the returned run weigh 0. The
+    rounding residue (a few units) goes to the mode, so the weights sum to 2⁵².
+    """
+    ctx = decimal.Context(prec=40, rounding=decimal.ROUND_HALF_EVEN)
+    scale = decimal.Decimal(2**UNIFORM_BITS)
+    mean = decimal.Decimal(m)
+    weights = {}
+    p = ctx.exp(-mean)  # P(0)
+    k = 0
+    while True:
+        w = int(ctx.multiply(p, scale).to_integral_value(rounding=decimal.ROUND_HALF_EVEN))
+        if w:
+            weights[k] = w
+        elif k > m:  # past the mode and negligible: the rest is smaller still
+            break
+        k += 1
+        p = ctx.divide(ctx.multiply(p, mean), decimal.Decimal(k))
+    first, last = min(weights), max(weights)
+    run = [weights.get(k, 0) for k in range(first, last + 1)]
+    run[m - first] += 2**UNIFORM_BITS - sum(run)
+    return first, run
+
+
+def _alias(weights: list[int], bits: int) -> tuple[list[int], list[int]]:
+    """Walker's alias table of integer ``weights`` over 2^bits buckets (the weights
+    padded with zeros): (thresholds, aliases), bucket j giving entry j when the low
+    bits of A are below its threshold, else its alias. Exact in integers."""
+    size = 1 << bits
+    capacity = 1 << (UNIFORM_BITS - bits)
+    left = list(weights) + [0] * (size - len(weights))
+    threshold, alias = [capacity] * size, list(range(size))
+    small = [j for j in range(size) if left[j] < capacity]
+    large = [j for j in range(size) if left[j] > capacity]
+    while small and large:
+        s, g = small.pop(), large[-1]
+        threshold[s], alias[s] = left[s], g
+        left[g] -= capacity - left[s]
+        if left[g] <= capacity:
+            large.pop()
+            if left[g] < capacity:
+                small.append(g)
+            else:
+                threshold[g] = capacity
+    if small or large:  # the weights sum to size · capacity, so both empty together
+        raise AssertionError("alias table construction did not balance")
+    return threshold, alias
+
+
+@cache
+def poisson_tables() -> tuple[np.ndarray, np.ndarray]:
+    """The alias tables of means 0 … POISSON_MEANS − 1, built once per process.
+
+    Returns:
+        heads: (POISSON_MEANS, 3) int64: mean m's first cell, its shift
+            (52 − log2 of its bucket count) and its first count.
+        cells: (N, 2) int64: each bucket's threshold (of A's low ``shift`` bits)
+            and alias count.
+    """
+    heads = np.empty((POISSON_MEANS, 3), np.int64)
+    cells = []
+    for m in range(POISSON_MEANS):
+        first, weights = poisson_weights(m)
+        bits = max(len(weights) - 1, 0).bit_length()
+        threshold, alias = _alias(weights, bits)
+        heads[m] = len(cells), UNIFORM_BITS - bits, first
+        cells.extend(zip(threshold, (first + j for j in alias), strict=True))
+    return heads, np.array(cells, np.int64)
