@@ -125,6 +125,11 @@ def test_api_errors(sensor):
         rawsim.unprocess(x, sensor, [1, 2], iso=[100])
     with pytest.raises(ParameterError, match="code_max"):
         rawsim.unprocess((x * 255).to(torch.int32), sensor, [1, 2], iso=100)
+    codes = (x * 1023).to(torch.int32)
+    codes[1, 0, 3, 3] = 1024  # over a 10-bit code_max, whatever the type could hold
+    for image in (codes, codes.to(torch.uint16)):
+        with pytest.raises(ParameterError, match=r"must lie in \[0, 1023\]"):
+            rawsim.unprocess(image, sensor, [1, 2], iso=100, code_max=1023)
 
 
 def _batches(dataset, workers):

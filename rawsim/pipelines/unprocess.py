@@ -56,8 +56,10 @@ def _prepare(sensor, image, params, noise, display_referred, code_max):
     if dtype in INTEGER_DTYPES:
         if dtype == torch.int32 and code_max is None:
             raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
-        top = code_max or int(torch.iinfo(dtype).max)
-        if int(image.min()) < 0 or int(image.max()) > top:
+        info = torch.iinfo(dtype)
+        top = code_max or int(info.max)
+        # a full scan, skipped where the type itself keeps codes in range (uint8 at 255)
+        if (info.min < 0 or top < info.max) and (int(image.min()) < 0 or int(image.max()) > top):
             raise ParameterError(f"integer codes must lie in [0, {top}]")
         device = "cpu" if array else image.device
         codes = torch.arange(top + 1, dtype=torch.float32, device=device) / top
