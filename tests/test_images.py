@@ -1,0 +1,73 @@
+"""Decoding images for unprocessing: strip-wise reads against OpenImageIO's own
+whole-image read, on real files and on files of several strips."""
+
+from __future__ import annotations
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+import tifffile
+
+from rawsim.errors import UnsupportedInputError
+from rawsim.io.images import STRIP_ROWS, even_rgb, read_image
+from tests.conftest import DATA
+
+
+def _openimageio_samples(path):
+    inp = oiio.ImageInput.open(str(path))
+    spec = inp.spec()
+    base = spec.format.basetype
+    fmt = base if base in (oiio.UINT8, oiio.UINT16) else oiio.FLOAT
+    pixels = inp.read_image(0, 0, 0, spec.nchannels, fmt)
+    inp.close()
+    return even_rgb(np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels))
+
+
+def _tall(tmp_path, name, **attributes):
+    """A real photo stretched to more than two strips, written as ``name``."""
+    rows = 2 * STRIP_ROWS + 37
+    buf = oiio.ImageBufAlgo.resize(
+        oiio.ImageBuf(str(DATA / "srgb" / "coffee.png")), roi=oiio.ROI(0, 90, 0, rows)
+    )
+    for key, value in attributes.items():
+        buf.specmod().attribute(key, value)
+    path = tmp_path / name
+    assert buf.write(str(path)), oiio.geterror()
+    return path
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "srgb/rocket.jpg",
+        "srgb/coffee.png",
+        "srgb16/painted_figure_16bit.tif",
+        "exr/img2601_float_zip.exr",
+    ],
+)
+def test_strip_reads_give_openimageios_samples(name):
+    path = DATA / name
+    assert np.array_equal(read_image(path).pixels, _openimageio_samples(path))
+
+
+@pytest.mark.parametrize("name", ["tall.jpg", "tall.png", "tall.exr"])
+def test_files_of_several_strips_read_whole(tmp_path, name):
+    path = _tall(tmp_path, name)
+    pixels = read_image(path).pixels
+    assert pixels.shape[0] > 2 * STRIP_ROWS
+    assert np.array_equal(pixels, _openimageio_samples(path))
+
+
+def test_tiled_files_read_whole(tmp_path):
+    path = tmp_path / "tiled.tif"
+    samples = np.random.default_rng(1).integers(0, 65535, (600, 200, 3), dtype=np.uint16)
+    tifffile.imwrite(path, samples, tile=(64, 64), photometric="rgb")
+    assert np.array_equal(read_image(path).pixels, samples)
+
+
+def test_a_file_cut_after_its_first_strips_is_refused(tmp_path):
+    path = _tall(tmp_path, "cut.png")
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.8)])
+    with pytest.raises(UnsupportedInputError, match="cut.png: "):
+        read_image(path)
