@@ -9,6 +9,7 @@ odd sizes are cropped to even (the crop is reported).
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,6 +101,12 @@ def _libraw_reads(path: Path) -> bool:
         return False
 
 
+#: Full-scale code of each integer sample type that images decode to.
+CODE_MAX = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}
+#: ``on_rows(pixels, rows)`` of :func:`read_image`.
+RowsReady = Callable[[np.ndarray, int], None]
+
+
 @dataclass(frozen=True)
 class DecodedImage:
     """An image ready for unprocessing.
@@ -143,7 +150,7 @@ class DecodedImage:
         }
 
 
-def _decode(path: Path):
+def _decode(path: Path, on_rows: RowsReady | None = None):
     """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed)."""
     import OpenImageIO as oiio
 
@@ -188,7 +195,7 @@ def _decode(path: Path):
                     f"to decode, over the {limit // 1024} GB limit (a corrupt header?)"
                 ],
             )
-        pixels = _read_pixels(inp, spec, fmt)
+        pixels = _read_pixels(inp, spec, fmt, on_rows)
         error = inp.geterror().strip()
         if pixels is None or error:
             return None, spec, None, [f"cannot decode pixels ({error or 'truncated?'})"]
@@ -201,7 +208,7 @@ def _decode(path: Path):
 STRIP_ROWS = 256
 
 
-def _read_pixels(inp, spec, fmt) -> np.ndarray | None:
+def _read_pixels(inp, spec, fmt, on_rows: RowsReady | None) -> np.ndarray | None:
     """All of an open image's samples, (H, W, C) of ``fmt``, or None if a read failed.
 
     Scanline files are read :data:`STRIP_ROWS` rows at a time into one array: a
@@ -221,6 +228,8 @@ def _read_pixels(inp, spec, fmt) -> np.ndarray | None:
         if strip is None:
             return None
         pixels[y - top : end - top] = strip.reshape(end - y, spec.width, spec.nchannels)
+        if on_rows is not None:
+            on_rows(pixels, end - top)
     return pixels
 
 
@@ -244,8 +253,13 @@ def even_rgb(pixels: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
 
 
-def read_image(path: str | Path) -> DecodedImage:
-    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
+def read_image(path: str | Path, on_rows: RowsReady | None = None) -> DecodedImage:
+    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason.
+
+    ``on_rows(pixels, rows)``, if given, is called after each strip of a scanline
+    file with the (H, W, C) array being filled and the number of its rows decoded
+    so far, for a caller that works on them meanwhile (from another thread).
+    """
 
     path = Path(path)
     if path.suffix.lower() in RAW_EXTENSIONS:
@@ -259,12 +273,12 @@ def read_image(path: str | Path) -> DecodedImage:
     _, mismatch = sniff(path)
     said: list[str] = []
     with collected_stderr(said):
-        pixels, spec, format_name, error = _decode(path)
+        pixels, spec, format_name, error = _decode(path, on_rows)
     if pixels is None:
         reason = "; ".join([*error, *said]) or "truncated?"
         raise UnsupportedInputError(f"{path}: {reason}")
     pixels = np.asarray(pixels)
-    code_max = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}.get(pixels.dtype)
+    code_max = CODE_MAX.get(pixels.dtype)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     names = tuple(spec.channelnames) or tuple(f"ch{i}" for i in range(spec.nchannels))
