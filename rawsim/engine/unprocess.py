@@ -199,11 +199,9 @@ def _vignetting_row(y, cy, cx, norm, vignetting, v):
         v[x] = v[x] / (1.0 + strength * (gain - 1.0))
 
 
-@njit(parallel=True, nogil=True, **_JIT)
+@njit(parallel=True, **_JIT)
 def unprocess_kernel(
     pixels,
-    top,
-    height,
     lut,
     scale,
     ccm_bias,
@@ -226,15 +224,11 @@ def unprocess_kernel(
     noisy,
     clean,
 ):
-    """The whole unprocess chain for rows ``top`` … ``top + h − 1`` of an image
-    ``height`` rows high, into uint16 ``noisy`` (h, W). Releases the GIL, so a
-    thread can decode the next rows meanwhile.
+    """The whole unprocess chain for an (H, W, 3) image, into uint16 ``noisy`` (H, W).
 
     Args:
-        pixels: (h, W, 3) integer codes (with ``lut``) or float32 linear values
+        pixels: (H, W, 3) integer codes (with ``lut``) or float32 linear values
             (``lut`` empty).
-        top, height: the first row's index in the image and the image's height
-            (for the CFA phase, the lens shading and the noise's sites).
         lut: float32 linear value of each code (the reference's table).
         scale: 2^EV / brightness. ``ccm_bias``: (3,) subtracted first.
         matrix: (3, 3) sRGB → camera. ``wb``: (3,) white-balance gains.
@@ -244,19 +238,18 @@ def unprocess_kernel(
         vignetting: (strength, k1, k2, k3); no shading when strength is 0.
         levels: (black, white) DN.
         model, p, tukey, heads, cells, k0, k1, bias_tile: the noise (see :func:`noise_row`).
-        noisy, clean: (h, W) uint16 outputs; ``clean`` is written if it has rows.
+        noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
     black, white = levels[0], levels[1]
     span = white - black
     want_clean = clean.shape[0] > 0
     strength = vignetting[0]
-    cy, cx = (height - 1) / 2.0, (w - 1) / 2.0
+    cy, cx = (h - 1) / 2.0, (w - 1) / 2.0
     norm = cy * cy + cx * cx
-    for i in prange(h):
-        y = top + i
+    for y in prange(h):
         r, g, b, dn = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
-        _linear_row(pixels[i], lut, scale, ccm_bias, r, g, b)
+        _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
         if mono:
             for x in range(w):
                 dn[x] = (r[x] + g[x] + b[x]) / 3.0
@@ -267,5 +260,5 @@ def unprocess_kernel(
         for x in range(w):
             dn[x] = black + dn[x] * span
         if want_clean:
-            noise_row(dn, y, w, 0, p, tukey, heads, cells, k0, k1, bias_tile, white, clean[i])
-        noise_row(dn, y, w, model, p, tukey, heads, cells, k0, k1, bias_tile, white, noisy[i])
+            noise_row(dn, y, w, 0, p, tukey, heads, cells, k0, k1, bias_tile, white, clean[y])
+        noise_row(dn, y, w, model, p, tukey, heads, cells, k0, k1, bias_tile, white, noisy[y])

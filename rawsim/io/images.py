@@ -9,7 +9,6 @@ odd sizes are cropped to even (the crop is reported).
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -103,8 +102,6 @@ def _libraw_reads(path: Path) -> bool:
 
 #: Full-scale code of each integer sample type that images decode to.
 CODE_MAX = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}
-#: ``on_rows(pixels, rows)`` of :func:`read_image`.
-RowsReady = Callable[[np.ndarray, int], None]
 
 
 @dataclass(frozen=True)
@@ -150,7 +147,7 @@ class DecodedImage:
         }
 
 
-def _decode(path: Path, on_rows: RowsReady | None = None):
+def _decode(path: Path):
     """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed)."""
     import OpenImageIO as oiio
 
@@ -195,7 +192,7 @@ def _decode(path: Path, on_rows: RowsReady | None = None):
                     f"to decode, over the {limit // 1024} GB limit (a corrupt header?)"
                 ],
             )
-        pixels = _read_pixels(inp, spec, fmt, on_rows)
+        pixels = read_pixels(inp, spec, fmt)
         error = inp.geterror().strip()
         if pixels is None or error:
             return None, spec, None, [f"cannot decode pixels ({error or 'truncated?'})"]
@@ -204,32 +201,31 @@ def _decode(path: Path, on_rows: RowsReady | None = None):
         inp.close()
 
 
-#: Rows per read of a scanline file: the decoder's buffer stays in cache.
-STRIP_ROWS = 256
+#: Bytes per read of a scanline file: under glibc's mmap threshold (128 KiB), so
+#: the strip OpenImageIO returns is recycled by malloc, not mapped and page-faulted
+#: anew (a 24 MP JPEG: 0.06 s by strips of 96 KiB, 0.10–0.12 s by strips of 256
+#: rows, 0.088 s by ``read_image``, which decodes into a buffer of its own and copies it).
+STRIP_BYTES = 96 * 1024
 
 
-def _read_pixels(inp, spec, fmt, on_rows: RowsReady | None) -> np.ndarray | None:
-    """All of an open image's samples, (H, W, C) of ``fmt``, or None if a read failed.
-
-    Scanline files are read :data:`STRIP_ROWS` rows at a time into one array: a
-    24 MP JPEG in 0.055 s where ``read_image`` takes 0.088 s (it decodes the whole
-    image into a buffer of its own, then copies it). Tiled files in one read.
-    """
+def read_pixels(inp, spec, fmt) -> np.ndarray | None:
+    """All samples of the open image ``inp`` (``spec``), (H, W, C) of OpenImageIO
+    type ``fmt``, or None if a read failed: a scanline file a strip of
+    :data:`STRIP_BYTES` at a time into one array, a tiled file in one read."""
     if spec.tile_width:
         return inp.read_image(0, 0, 0, spec.nchannels, fmt)
     import OpenImageIO as oiio
 
-    dtype = {oiio.UINT8: np.uint8, oiio.UINT16: np.uint16}.get(fmt, np.float32)
+    dtype = np.dtype({oiio.UINT8: np.uint8, oiio.UINT16: np.uint16}.get(fmt, np.float32))
+    rows = max(1, STRIP_BYTES // (spec.width * spec.nchannels * dtype.itemsize))
     top, bottom = spec.y, spec.y + spec.height
     pixels = np.empty((spec.height, spec.width, spec.nchannels), dtype)
-    for y in range(top, bottom, STRIP_ROWS):
-        end = min(y + STRIP_ROWS, bottom)
+    for y in range(top, bottom, rows):
+        end = min(y + rows, bottom)
         strip = inp.read_scanlines(0, 0, y, end, 0, 0, spec.nchannels, fmt)
         if strip is None:
             return None
         pixels[y - top : end - top] = strip.reshape(end - y, spec.width, spec.nchannels)
-        if on_rows is not None:
-            on_rows(pixels, end - top)
     return pixels
 
 
@@ -253,13 +249,8 @@ def even_rgb(pixels: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
 
 
-def read_image(path: str | Path, on_rows: RowsReady | None = None) -> DecodedImage:
-    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason.
-
-    ``on_rows(pixels, rows)``, if given, is called after each strip of a scanline
-    file with the (H, W, C) array being filled and the number of its rows decoded
-    so far, for a caller that works on them meanwhile (from another thread).
-    """
+def read_image(path: str | Path) -> DecodedImage:
+    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
 
     path = Path(path)
     if path.suffix.lower() in RAW_EXTENSIONS:
@@ -273,7 +264,7 @@ def read_image(path: str | Path, on_rows: RowsReady | None = None) -> DecodedIma
     _, mismatch = sniff(path)
     said: list[str] = []
     with collected_stderr(said):
-        pixels, spec, format_name, error = _decode(path, on_rows)
+        pixels, spec, format_name, error = _decode(path)
     if pixels is None:
         reason = "; ".join([*error, *said]) or "truncated?"
         raise UnsupportedInputError(f"{path}: {reason}")

@@ -12,9 +12,6 @@ and fused (:func:`simulate` chooses).
 from __future__ import annotations
 
 import json
-import queue
-import threading
-from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -29,7 +26,7 @@ from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
-from rawsim.io.images import CODE_MAX, DecodedImage, read_image
+from rawsim.io.images import read_image
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
 from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
@@ -164,15 +161,11 @@ def engine_unprocess(
     display_referred: bool = True,
     code_max: int | None = None,
     clean: bool = False,
-    bands: Iterable[tuple[int, int]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`unprocess_tensor` for one (H, W, 3) image, by the compiled engine.
 
     Returns uint16 (H, W) noisy and clean codes. The same checks and lookup table
     as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`.
-    ``bands``: (top, bottom) row ranges to run one after the other as they become
-    ready (rows still being decoded into ``pixels``), together covering the
-    image; all rows at once by default. Integer codes only.
     """
     from rawsim.engine import unprocess as kernels
     from rawsim.engine.counter_rng import np_key
@@ -186,7 +179,8 @@ def engine_unprocess(
     bias_tile = np.zeros((2, 2)) + (0.0 if bias is None else np.asarray(bias, np.float64))
     noisy = np.empty((h, w), np.uint16)
     clean_out = np.empty((h, w) if clean else (0, 0), np.uint16)
-    settings = (
+    kernels.unprocess_kernel(
+        np.ascontiguousarray(pixels),
         np.zeros(0, np.float32) if lut is None else lut.numpy(),
         2.0**params.exposure_ev / params.brightness,
         np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0, 0.0, 0.0), float),
@@ -203,13 +197,9 @@ def engine_unprocess(
         *kernels.noise_tables(noise),
         *np_key(key),
         bias_tile,
+        noisy,
+        clean_out,
     )
-    pixels = np.ascontiguousarray(pixels)
-    for top, bottom in [(0, h)] if bands is None else bands:
-        band = slice(top, bottom)
-        kernels.unprocess_kernel(
-            pixels[band], top, h, *settings, noisy[band], clean_out[band] if clean else clean_out
-        )
     return noisy, clean_out if clean else None
 
 
@@ -324,7 +314,6 @@ def simulate(
     display_referred: bool = True,
     code_max: int | None = None,
     engine: bool | None = None,
-    bands: Iterable[tuple[int, int]] | None = None,
 ) -> Simulation:
     """Simulate one image as the files job does, from its ``seed``.
 
@@ -335,7 +324,7 @@ def simulate(
     The files job passes ``derive_seed(run_seed, key)``: the same seed gives the
     same capture through the files or the Python API, on any device. ``engine``
     picks the compiled engine (True) or the torch reference (False); None
-    chooses by :func:`use_engine`. ``bands`` (engine only): see :func:`engine_unprocess`.
+    chooses by :func:`use_engine`.
     """
     params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
     params = sample_params(
@@ -363,7 +352,7 @@ def simulate(
     )
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
-        noisy, clean = engine_unprocess(sensor, pixels, params, **run, bands=bands)
+        noisy, clean = engine_unprocess(sensor, pixels, params, **run)
         as_tensor = lambda m: None if m is None else torch.from_numpy(m)[None, None]  # noqa: E731
         return Simulation(as_tensor(noisy), as_tensor(clean), params, levels)
     if isinstance(image, np.ndarray):
@@ -377,13 +366,17 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
 
     Each output is written atomically. Returns the sidecar's metadata.
     """
+    decoded = read_image(task.source)
     device = resolve_device(options.device)
-    if str(device) == "cpu" and use_engine(None):
-        decoded, sim = _decode_while_simulating(task, options)
-    else:
-        decoded = read_image(task.source)
-        image = decoded.pixels if str(device) == "cpu" else image_tensor(decoded.pixels, device)
-        sim = _simulate_file(task, options, image, decoded.code_max)
+    image = decoded.pixels if str(device) == "cpu" else image_tensor(decoded.pixels, device)
+    sim = simulate(
+        options.make_sensor(),
+        image,
+        options,
+        task.seed,
+        display_referred=not decoded.is_float,
+        code_max=decoded.code_max,
+    )
     params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = Simulation.codes(sim.noisy)
@@ -413,78 +406,6 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     with atomic_output(task.outputs["json"]) as tmp:
         Path(tmp).write_text(json.dumps(metadata, indent=2) + "\n")
     return metadata
-
-
-def _decode_while_simulating(task: Task, options: UnprocessOptions):
-    """(decoded image, simulation) of ``task.source`` on the CPU engine, which runs
-    each band of rows while a thread decodes the next ones. Integer images whose
-    rows the kernel takes as they are (three channels, an even width) stream so;
-    the others are simulated once decoded. The same result as decoding first."""
-    ready: queue.SimpleQueue = queue.SimpleQueue()
-
-    def decode() -> None:
-        try:
-            ready.put(read_image(task.source, on_rows=lambda *strip: ready.put(strip)))
-        except BaseException as exc:  # noqa: BLE001 - raised again in the caller's thread
-            ready.put(exc)
-
-    thread = threading.Thread(target=decode, name="rawsim-decode", daemon=True)
-    thread.start()
-    try:
-        item = _received(ready.get())
-        if isinstance(item, tuple) and _streams(item[0]):
-            pixels, rows = item
-            image = pixels[: pixels.shape[0] // 2 * 2]
-            decoded: list[DecodedImage] = []
-            bands = _bands(ready, rows, image.shape[0], decoded)
-            sim = _simulate_file(task, options, image, CODE_MAX[image.dtype], bands)
-            return decoded[0], sim
-        while not isinstance(item, DecodedImage):
-            item = _received(ready.get())
-        return item, _simulate_file(task, options, item.pixels, item.code_max)
-    finally:
-        thread.join()
-
-
-def _received(item):
-    """An item of the decoding thread's queue; its exception raised here."""
-    if isinstance(item, BaseException):
-        raise item
-    return item
-
-
-def _streams(pixels: np.ndarray) -> bool:
-    """Whether the engine can run rows of ``pixels`` (H, W, C) while they are decoded."""
-    return pixels.dtype in CODE_MAX and pixels.shape[2] == 3 and pixels.shape[1] % 2 == 0
-
-
-def _bands(ready: queue.SimpleQueue, rows: int, height: int, decoded: list):
-    """(top, bottom) bands of the ``height`` rows as the decoding thread reports them
-    (``rows`` decoded so far); its final image is appended to ``decoded``."""
-    done = 0
-    while True:
-        end = min(rows, height)
-        if end > done:
-            yield done, end
-            done = end
-        item = _received(ready.get())
-        if isinstance(item, DecodedImage):
-            decoded.append(item)
-            return
-        rows = item[1]
-
-
-def _simulate_file(task: Task, options: UnprocessOptions, image, code_max, bands=None):
-    """:func:`simulate` of a decoded image (codes up to ``code_max``, or floats if None)."""
-    return simulate(
-        options.make_sensor(),
-        image,
-        options,
-        task.seed,
-        display_referred=code_max is not None,
-        code_max=code_max,
-        bands=bands,
-    )
 
 
 def _iso_warning(options: UnprocessOptions) -> list[str]:
