@@ -59,7 +59,7 @@ from rawsim.philox import (  # noqa: F401 - the generator's constants, also from
     STREAMS,
     split_key,
 )
-from rawsim.poisson_table import RESIDUAL_TERMS, poisson_tables
+from rawsim.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
 
 
 def _mulhilo(m: int, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -209,7 +209,7 @@ def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
     """Exact Poisson draws (float64 counts) of means ``lam`` in [0, POISSON_MEANS)
     (float64), one per ``index``: Poisson(⌊λ⌋) from its alias table plus
     Poisson(λ − ⌊λ⌋) by inversion, from block (index, poisson, 0)."""
-    heads, cells = (torch.from_numpy(t).to(lam.device) for t in poisson_tables())
+    table = torch.from_numpy(poisson_table()).to(lam.device)
     w0, w1, w2, w3 = philox4x32(
         (index.bitwise_and(MASK32), index.bitwise_right_shift(32), STREAMS["poisson"], 0), key
     )
@@ -224,10 +224,12 @@ def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
         p = p * delta / float(k)
         residual += ((u > cdf) & (p > 0.0)).double()
         cdf = cdf + p
-    head = heads[m.long()]
-    shift = head[:, 1]
-    j = a.bitwise_right_shift(shift)
-    cell = cells[head[:, 0] + j]
-    low = a.bitwise_and(torch.ones_like(shift).bitwise_left_shift(shift) - 1)
-    table = torch.where(low < cell[:, 0], head[:, 2] + j, cell[:, 1])
-    return residual + table.double()
+    word = table[m.long() * BUCKETS + a.bitwise_right_shift(LOW_BITS)]
+    low = (1 << LOW_BITS) - 1
+    own = a.bitwise_and(low) < word.bitwise_and(low)
+    counts = torch.where(
+        own,
+        word.bitwise_right_shift(LOW_BITS).bitwise_and((1 << COUNT_BITS) - 1),
+        word.bitwise_right_shift(LOW_BITS + COUNT_BITS),
+    )
+    return residual + counts.double()

@@ -4,8 +4,9 @@ Poisson draws (:func:`rawsim.counter_rng.poisson` and its compiled twin).
 A draw of mean λ in [0, :data:`POISSON_MEANS`) is Poisson(m) + Poisson(δ), with
 m = ⌊λ⌋ and δ = λ − m: independent Poisson counts add, so the sum is exactly
 Poisson(λ). Poisson(m) comes from Walker's alias table of m, indexed by a 52-bit
-uniform integer A: its top bits pick a bucket, the rest are compared with the
-bucket's threshold. Poisson(δ), δ < 1, is a short inverse-CDF search.
+uniform integer A: its top 8 bits pick one of :data:`BUCKETS` buckets, the other
+44 are compared with the bucket's threshold; a bucket is one packed 64-bit word,
+so a draw reads one word. Poisson(δ), δ < 1, is a short inverse-CDF search.
 
 The tables are built from integer weights: each count's probability rounded to a
 multiple of 2⁻⁵² (:func:`poisson_weights`, by ``decimal``, correctly rounded, so
@@ -29,6 +30,12 @@ POISSON_MEANS = 100
 UNIFORM_BITS = 52
 #: Terms of the residual Poisson(δ) search: P(count > 20 | δ < 1) < 1/21! ≈ 2·10⁻²⁰.
 RESIDUAL_TERMS = 20
+#: Buckets of each mean's alias table, picked by A's top 8 bits.
+BUCKETS = 256
+#: A's bits below the bucket's, compared with its threshold; and the shift of the
+#: counts packed above the threshold, 8 bits each (every count drawn is < 256).
+LOW_BITS = UNIFORM_BITS - 8
+COUNT_BITS = 8
 
 
 def poisson_weights(m: int) -> tuple[int, list[int]]:
@@ -58,16 +65,15 @@ def poisson_weights(m: int) -> tuple[int, list[int]]:
     return first, run
 
 
-def _alias(weights: list[int], bits: int) -> tuple[list[int], list[int]]:
-    """Walker's alias table of integer ``weights`` over 2^bits buckets (the weights
-    padded with zeros): (thresholds, aliases), bucket j giving entry j when the low
-    bits of A are below its threshold, else its alias. Exact in integers."""
-    size = 1 << bits
-    capacity = 1 << (UNIFORM_BITS - bits)
-    left = list(weights) + [0] * (size - len(weights))
-    threshold, alias = [capacity] * size, list(range(size))
-    small = [j for j in range(size) if left[j] < capacity]
-    large = [j for j in range(size) if left[j] > capacity]
+def _alias(weights: list[int]) -> tuple[list[int], list[int]]:
+    """Walker's alias table of integer ``weights`` over :data:`BUCKETS` buckets (the
+    weights padded with zeros): (thresholds, aliases), bucket j giving entry j when
+    A's low bits are below its threshold, else its alias. Exact in integers."""
+    capacity = 1 << LOW_BITS
+    left = list(weights) + [0] * (BUCKETS - len(weights))
+    threshold, alias = [capacity] * BUCKETS, list(range(BUCKETS))
+    small = [j for j in range(BUCKETS) if left[j] < capacity]
+    large = [j for j in range(BUCKETS) if left[j] > capacity]
     while small and large:
         s, g = small.pop(), large[-1]
         threshold[s], alias[s] = left[s], g
@@ -76,29 +82,29 @@ def _alias(weights: list[int], bits: int) -> tuple[list[int], list[int]]:
             large.pop()
             if left[g] < capacity:
                 small.append(g)
-            else:
-                threshold[g] = capacity
-    if small or large:  # the weights sum to size · capacity, so both empty together
+    if small or large:  # the weights sum to BUCKETS · capacity, so both empty together
         raise AssertionError("alias table construction did not balance")
     return threshold, alias
 
 
 @cache
-def poisson_tables() -> tuple[np.ndarray, np.ndarray]:
-    """The alias tables of means 0 … POISSON_MEANS − 1, built once per process.
+def poisson_table() -> np.ndarray:
+    """The alias tables of means 0 … POISSON_MEANS − 1, built once per process:
+    (POISSON_MEANS · BUCKETS,) int64, bucket j of mean m at m · BUCKETS + j.
 
-    Returns:
-        heads: (POISSON_MEANS, 3) int64: mean m's first cell, its shift
-            (52 − log2 of its bucket count) and its first count.
-        cells: (N, 2) int64: each bucket's threshold (of A's low ``shift`` bits)
-            and alias count.
+    A bucket packs its threshold (the low :data:`LOW_BITS` bits), the count it
+    gives when A's low bits are below the threshold (the next 8 bits) and its
+    alias count (the 8 above).
     """
-    heads = np.empty((POISSON_MEANS, 3), np.int64)
-    cells = []
+    table = np.empty(POISSON_MEANS * BUCKETS, np.int64)
     for m in range(POISSON_MEANS):
         first, weights = poisson_weights(m)
-        bits = max(len(weights) - 1, 0).bit_length()
-        threshold, alias = _alias(weights, bits)
-        heads[m] = len(cells), UNIFORM_BITS - bits, first
-        cells.extend(zip(threshold, (first + j for j in alias), strict=True))
-    return heads, np.array(cells, np.int64)
+        if first + len(weights) > 1 << COUNT_BITS:
+            raise AssertionError(f"Poisson({m}) draws counts beyond {COUNT_BITS} bits")
+        threshold, alias = _alias(weights)
+        for j in range(BUCKETS):
+            own = first + j if threshold[j] else 0  # a bucket of threshold 0 never gives its own
+            table[m * BUCKETS + j] = (
+                threshold[j] | own << LOW_BITS | (first + alias[j]) << (LOW_BITS + COUNT_BITS)
+            )
+    return table

@@ -18,7 +18,15 @@ from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_tables, n
 from rawsim.io.images import read_image
 from rawsim.noise import NOISE_MODELS, site_bias
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
-from rawsim.poisson_table import POISSON_MEANS, UNIFORM_BITS, poisson_tables, poisson_weights
+from rawsim.poisson_table import (
+    BUCKETS,
+    COUNT_BITS,
+    LOW_BITS,
+    POISSON_MEANS,
+    UNIFORM_BITS,
+    poisson_table,
+    poisson_weights,
+)
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor
 from tests.conftest import DATA
@@ -46,7 +54,7 @@ def test_philox_known_answers_in_both_backends(counter, key, expected):
 
 
 @njit
-def _engine_draws(lam, k0, k1, tukey, logistic, heads, cells):
+def _engine_draws(lam, k0, k1, tukey, logistic, table):
     n = lam.shape[0]
     out = np.empty((5, n))
     for i in range(n):
@@ -55,7 +63,7 @@ def _engine_draws(lam, k0, k1, tukey, logistic, heads, cells):
         out[1, i] = eng.normal(site, eng.ROW, k0, k1)
         out[2, i] = eng.tukey_lambda(site, k0, k1, tukey)
         out[3, i] = eng.tukey_lambda(site, k0, k1, logistic)
-        out[4, i] = eng.poisson(lam[i], site, k0, k1, heads, cells)
+        out[4, i] = eng.poisson(lam[i], site, k0, k1, table)
     return out
 
 
@@ -64,7 +72,7 @@ def test_draws_are_bit_equal_in_both_backends():
     lam = np.concatenate([np.geomspace(1e-3, 99.99, n - 4), [0.0, 1.0, 98.5, np.nextafter(100, 0)]])
     sites = torch.arange(n, dtype=torch.int64) * 7919 + 2**40
     tables = eng.tukey_table(0.14), eng.tukey_table(0.0)  # λ → 0: the logistic limit
-    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), *tables, *eng.poisson_arrays())
+    got = _engine_draws(lam, *eng.np_key(0x1234_5678_9ABC_DEF0), *tables, eng.poisson_words())
     expected = [
         ref.normal(sites, KEY),
         ref.normal(sites, KEY, "row"),
@@ -145,25 +153,26 @@ def test_exact_math_is_accurate():
 def _poisson_sample(lam, n, k0, k1):
     out = np.empty(n)
     sites = np.arange(n, dtype=np.uint64)
-    eng.poisson_sites(np.full(n, lam), sites, k0, k1, *eng.poisson_arrays(), out)
+    eng.poisson_sites(np.full(n, lam), sites, k0, k1, eng.poisson_words(), out)
     return out
 
 
 def test_poisson_alias_tables_hold_the_rounded_probabilities_exactly():
-    heads, cells = poisson_tables()
-    assert cells.shape[0] == heads[-1, 0] + (1 << (UNIFORM_BITS - heads[-1, 1]))
+    table = poisson_table()
+    assert table.shape == (POISSON_MEANS * BUCKETS,)
+    low = (1 << LOW_BITS) - 1
     for m in range(POISSON_MEANS):
         first, weights = poisson_weights(m)
         assert sum(weights) == 2**UNIFORM_BITS
-        start, shift, low = heads[m]
-        # Each bucket of 2^shift uniform integers gives its own count below the
+        # Each bucket of 2⁴⁴ uniform integers gives its own count below its
         # threshold and its alias above: summed, exactly the weights.
-        got = np.zeros(first + len(weights) + 1, np.int64)
-        buckets = cells[start : start + (1 << (UNIFORM_BITS - shift))]
-        for j, (threshold, alias) in enumerate(buckets):
-            got[min(low + j, got.size - 1)] += threshold
-            got[alias] += (1 << shift) - threshold
-        assert got[-1] == 0 and np.array_equal(got[first:-1], weights)
+        got = np.zeros(1 << COUNT_BITS, np.int64)
+        for word in table[m * BUCKETS : (m + 1) * BUCKETS].tolist():
+            threshold = word & low
+            got[(word >> LOW_BITS) & 255] += threshold
+            got[word >> (LOW_BITS + COUNT_BITS)] += (1 << LOW_BITS) - threshold
+        assert not got[:first].any() and not got[first + len(weights) :].any()
+        assert np.array_equal(got[first : first + len(weights)], weights)
         pmf = stats.poisson.pmf(np.arange(first, first + len(weights)), m)
         assert np.allclose(np.asarray(weights) / 2.0**UNIFORM_BITS, pmf, rtol=1e-12, atol=2.0**-52)
         # every count left out is negligible: below 2⁻⁵³ each, and 1e-15 together

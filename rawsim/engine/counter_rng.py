@@ -44,7 +44,7 @@ from rawsim.philox import (
     STREAMS,
     split_key,
 )
-from rawsim.poisson_table import RESIDUAL_TERMS, poisson_tables
+from rawsim.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
 
 _MASK = np.uint64(0xFFFFFFFF)
 _M0, _M1 = np.uint64(PHILOX_M0), np.uint64(PHILOX_M1)
@@ -319,11 +319,10 @@ def _tukey_from_table_inplace(u, table):
         u[x] = _tukey_cubic(segment[x], u[x], table)
 
 
-def poisson_arrays() -> tuple[np.ndarray, np.ndarray]:
-    """:func:`rawsim.poisson_table.poisson_tables` as the kernels take them: the
-    same integers, viewed as uint64 (heads (M, 3), cells (N, 2))."""
-    heads, cells = poisson_tables()
-    return heads.view(np.uint64), cells.view(np.uint64)
+def poisson_words() -> np.ndarray:
+    """:func:`rawsim.poisson_table.poisson_table` as the kernels take it: the same
+    words, viewed as uint64."""
+    return poisson_table().view(np.uint64)
 
 
 @njit(inline="always")
@@ -350,14 +349,20 @@ def _poisson_residual(delta, u, terms):
     return count, u <= cdf
 
 
+_BUCKETS = np.uint64(BUCKETS)
+_LOW_BITS = np.uint64(LOW_BITS)
+_LOW_MASK = np.uint64((1 << LOW_BITS) - 1)
+_COUNT_MASK = np.uint64((1 << COUNT_BITS) - 1)
+_ALIAS_SHIFT = np.uint64(LOW_BITS + COUNT_BITS)
+
+
 @njit(inline="always")
-def _poisson_table(m, a, heads, cells):
-    """Poisson(m) of an integer mean m (uint64) from its alias table, at A = ``a``."""
-    shift = heads[m, 1]
-    j = a >> shift
-    cell = heads[m, 0] + j
-    own = (a & ((np.uint64(1) << shift) - np.uint64(1))) < cells[cell, 0]
-    count = heads[m, 2] + j if own else cells[cell, 1]
+def _poisson_table(m, a, table):
+    """Poisson(m) of an integer mean m (uint64) from its alias table, at A = ``a``:
+    bucket A >> 44, its own count if A's low 44 bits are below its threshold."""
+    word = table[m * _BUCKETS + (a >> _LOW_BITS)]
+    own = (a & _LOW_MASK) < (word & _LOW_MASK)
+    count = (word >> _LOW_BITS) & _COUNT_MASK if own else word >> _ALIAS_SHIFT
     return _float(_TWO52_BITS | count) - _TWO52
 
 
@@ -369,13 +374,13 @@ def _mean_floor(lam):
 
 
 @njit(error_model="numpy")
-def poisson(lam, index, k0, k1, heads, cells):
+def poisson(lam, index, k0, k1, table):
     """An exact Poisson draw of mean ``lam`` in [0, POISSON_MEANS) (a float count),
-    with ``heads``, ``cells`` from :func:`poisson_arrays`: Poisson(⌊λ⌋) from its
-    alias table plus Poisson(λ − ⌊λ⌋) by inversion (see :mod:`rawsim.poisson_table`)."""
+    with ``table`` from :func:`poisson_words`: Poisson(⌊λ⌋) from its alias table
+    plus Poisson(λ − ⌊λ⌋) by inversion (see :mod:`rawsim.poisson_table`)."""
     a, u = _poisson_block(index, k0, k1)
     m, delta = _mean_floor(lam)
-    return _poisson_residual(delta, u, RESIDUAL_TERMS)[0] + _poisson_table(m, a, heads, cells)
+    return _poisson_residual(delta, u, RESIDUAL_TERMS)[0] + _poisson_table(m, a, table)
 
 
 #: Terms of the residual search that :func:`poisson_sites` runs for every site:
@@ -384,7 +389,7 @@ _FIRST_TERMS = 4
 
 
 @njit(error_model="numpy")
-def poisson_sites(lam, sites, k0, k1, heads, cells, out):
+def poisson_sites(lam, sites, k0, k1, table, out):
     """:func:`poisson` of means ``lam`` (n,) at ``sites`` (n,) uint64 into ``out`` (n,),
     bit for bit. The blocks and the residual counts' first :data:`_FIRST_TERMS`
     terms run in a loop that LLVM vectorises; the table lookups, and the full
@@ -401,4 +406,4 @@ def poisson_sites(lam, sites, k0, k1, heads, cells, out):
         if out[i] < 0.0:
             _, u = _poisson_block(sites[i], k0, k1)
             out[i] = _poisson_residual(delta, u, RESIDUAL_TERMS)[0]
-        out[i] += _poisson_table(m, a[i], heads, cells)
+        out[i] += _poisson_table(m, a[i], table)

@@ -23,8 +23,8 @@ from rawsim.engine.counter_rng import (
     ROW,
     normal,
     normal_row,
-    poisson_arrays,
     poisson_sites,
+    poisson_words,
     tukey_lambda_row,
     tukey_table,
 )
@@ -57,21 +57,20 @@ def noise_vector(levels, black: float) -> np.ndarray:
     )
 
 
-def noise_tables(levels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def noise_tables(levels) -> tuple[np.ndarray, np.ndarray]:
     """The noise model's tables, as :func:`noise_row` takes them: ``tukey``, the
     physics model's Tukey-lambda quantile table (:func:`tukey_table` of the levels'
-    λ), and ``heads``, ``cells``, the exact Poisson draws' alias tables
-    (:func:`poisson_arrays`); empty arrays where the model draws neither."""
-    empty = np.zeros((0, 4)), np.zeros((0, 3), np.uint64), np.zeros((0, 2), np.uint64)
-    tukey = tukey_table(levels.tukey_lambda) if levels.model == "physics" else empty[0]
+    λ), and ``poisson``, the exact Poisson draws' alias tables
+    (:func:`poisson_words`); empty arrays where the model draws neither."""
+    tukey = tukey_table(levels.tukey_lambda) if levels.model == "physics" else np.zeros((0, 4))
     shot = levels.model in ("poisson-gaussian", "physics")
-    return (tukey, *(poisson_arrays() if shot else empty[1:]))
+    return tukey, poisson_words() if shot else np.zeros(0, np.uint64)
 
 
 @njit(**_JIT)
-def noise_row(dn, y, width, model, p, tukey, heads, cells, k0, k1, bias_tile, white, out):
+def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
-    into codes ``out`` (w,), with ``tukey``, ``heads``, ``cells`` the model's
+    into codes ``out`` (w,), with ``tukey``, ``poisson`` the model's
     :func:`noise_tables`: the
     compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the
     reference's ``noise_field``: same operations, same order).
@@ -93,7 +92,7 @@ def noise_row(dn, y, width, model, p, tukey, heads, cells, k0, k1, bias_tile, wh
                 shot = alpha * math.sqrt(max(dn[x] - black, 0.0)) + beta
                 noise[x] = math.sqrt(iso_gain * (shot * shot) + read * read) * z[x]
         else:
-            _shot_noise(dn, first, model == 3, p, heads, cells, k0, k1, z, noise)
+            _shot_noise(dn, first, model == 3, p, poisson, k0, k1, z, noise)
         if model == 3:
             _physics_read_noise(y, first, p, tukey, k0, k1, bias_tile[y % 2], noise)
     for x in range(w):
@@ -101,7 +100,7 @@ def noise_row(dn, y, width, model, p, tukey, heads, cells, k0, k1, bias_tile, wh
 
 
 @njit(**_JIT)
-def _shot_noise(dn, first, physics, p, heads, cells, k0, k1, z, noise):
+def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
     """Shot noise (joined with Gaussian read noise unless ``physics``) into ``noise``:
     a normal of variance K·s + σ² everywhere, then exact Poisson where s is below
     :data:`EXACT_POISSON_BELOW` electrons."""
@@ -119,7 +118,7 @@ def _shot_noise(dn, first, physics, p, heads, cells, k0, k1, z, noise):
     for i in range(n):
         lam[i] = max(dn[at[i]] - black, 0.0) / k
         sites[i] = first + np.uint64(at[i])
-    poisson_sites(lam, sites, k0, k1, heads, cells, counts)
+    poisson_sites(lam, sites, k0, k1, poisson, counts)
     for i in range(n):
         x = at[i]
         positive = max(dn[x] - black, 0.0)
@@ -142,12 +141,12 @@ def _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise):
 
 
 @njit(**_JIT)
-def add_noise_rows(dn, top, width, model, p, tukey, heads, cells, k0, k1, bias_tile, white, out):
+def add_noise_rows(dn, top, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
     image ``width`` wide, into ``out`` (h, w); for the equality tests."""
     for y in range(dn.shape[0]):
         row = dn[y].astype(np.float64)
-        noise = (model, p, tukey, heads, cells, k0, k1, bias_tile, white)
+        noise = (model, p, tukey, poisson, k0, k1, bias_tile, white)
         noise_row(row, top + y, width, *noise, out[y])
 
 
@@ -216,8 +215,7 @@ def unprocess_kernel(
     model,
     p,
     tukey,
-    heads,
-    cells,
+    poisson,
     k0,
     k1,
     bias_tile,
@@ -237,7 +235,7 @@ def unprocess_kernel(
         colors: (2, 2) colour index of each site of the CFA tile.
         vignetting: (strength, k1, k2, k3); no shading when strength is 0.
         levels: (black, white) DN.
-        model, p, tukey, heads, cells, k0, k1, bias_tile: the noise (see :func:`noise_row`).
+        model, p, tukey, poisson, k0, k1, bias_tile: the noise (see :func:`noise_row`).
         noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
@@ -260,5 +258,5 @@ def unprocess_kernel(
         for x in range(w):
             dn[x] = black + dn[x] * span
         if want_clean:
-            noise_row(dn, y, w, 0, p, tukey, heads, cells, k0, k1, bias_tile, white, clean[y])
-        noise_row(dn, y, w, model, p, tukey, heads, cells, k0, k1, bias_tile, white, noisy[y])
+            noise_row(dn, y, w, 0, p, tukey, poisson, k0, k1, bias_tile, white, clean[y])
+        noise_row(dn, y, w, model, p, tukey, poisson, k0, k1, bias_tile, white, noisy[y])
