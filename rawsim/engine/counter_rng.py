@@ -295,28 +295,20 @@ def normal_row(first, k0, k1, out):
 
 @njit(error_model="numpy")
 def tukey_lambda_row(first, k0, k1, table, out):
-    """:func:`tukey_lambda` of sites ``first``, ``first + 1``, … into ``out`` (n,),
-    a block (two sites) at a time."""
-    start = first & np.uint64(1)
-    pairs = (out.size + int(start) + 1) // 2
-    both = np.empty(2 * pairs)
+    """:func:`tukey_lambda` of sites ``first``, ``first + 1``, … into ``out`` (n,), in
+    two loops: each block's two uniforms and their segments (:func:`_tukey_segment`),
+    which LLVM vectorises; then the table reads and cubics, a site at a time (one
+    loop vectorised neither, 4–6× slower)."""
+    start = int(first & np.uint64(1))  # an odd first site is its block's second
+    pairs = (out.size + start + 1) // 2
+    segment, t = np.empty(2 * pairs, np.uint64), np.empty(2 * pairs)
     block = first >> np.uint64(1)
-    for q in range(pairs):  # the uniforms first: this loop vectorises, the lookups not
-        both[2 * q], both[2 * q + 1] = uniforms(block + np.uint64(q), TUKEY, k0, k1, np.uint64(0))
-    _tukey_from_table_inplace(both, table)
-    out[:] = both[int(start) : int(start) + out.size]
-
-
-@njit(error_model="numpy")
-def _tukey_from_table_inplace(u, table):
-    """:func:`tukey_from_table` of each uniform of ``u`` (n,), in place, in two loops:
-    the segments, which LLVM vectorises, then the table reads, one site at a time
-    (4–6× faster than one loop, where LLVM vectorised neither)."""
-    segment = np.empty(u.size, np.uint64)
-    for x in range(u.size):
-        segment[x], u[x] = _tukey_segment(u[x])
-    for x in range(u.size):
-        u[x] = _tukey_cubic(segment[x], u[x], table)
+    for q in range(pairs):
+        u1, u2 = uniforms(block + np.uint64(q), TUKEY, k0, k1, np.uint64(0))
+        segment[2 * q], t[2 * q] = _tukey_segment(u1)
+        segment[2 * q + 1], t[2 * q + 1] = _tukey_segment(u2)
+    for x in range(out.size):
+        out[x] = _tukey_cubic(segment[start + x], t[start + x], table)
 
 
 def poisson_words() -> np.ndarray:
