@@ -280,9 +280,10 @@ def normal_row(first, k0, k1, out):
     """:func:`normal` of sites ``first``, ``first + 1``, … into ``out`` (n,): one
     branch-free loop over the row's blocks, each giving two sites, which LLVM
     vectorises."""
-    start = first & np.uint64(1)  # an odd first site is its block's second
-    pairs = (out.size + int(start) + 1) // 2
-    both = np.empty(2 * pairs)
+    start = int(first & np.uint64(1))  # an odd first site is its block's second
+    pairs = (out.size + start + 1) // 2
+    whole = start == 0 and out.size == 2 * pairs  # whole blocks: written in place
+    both = out if whole else np.empty(2 * pairs)
     block = first >> np.uint64(1)
     for q in range(pairs):
         u1, u2 = uniforms(block + np.uint64(q), NORMAL, k0, k1, np.uint64(0))
@@ -290,7 +291,8 @@ def normal_row(first, k0, k1, out):
         cos, sin = exact_cos_and_sin_2pi(u2)
         both[2 * q] = r * cos
         both[2 * q + 1] = r * sin
-    out[:] = both[int(start) : int(start) + out.size]
+    if not whole:
+        out[:] = both[start : start + out.size]
 
 
 @njit(error_model="numpy")

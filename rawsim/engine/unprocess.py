@@ -71,16 +71,16 @@ def noise_tables(levels) -> tuple[np.ndarray, np.ndarray]:
 def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
     into codes ``out`` (w,), with ``tukey``, ``poisson`` the model's
-    :func:`noise_tables`: the
-    compiled :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the
-    reference's ``noise_field``: same operations, same order).
+    :func:`noise_tables`: the compiled
+    :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the reference's
+    ``noise_field``: same operations, same order).
 
     Model 0 (``none``) gives the clean codes. The draws and the arithmetic run as
-    whole-row loops without branches, which LLVM vectorises; only the exact
-    Poisson draws of dark sites (a rejection loop) run site by site.
+    whole-row loops without branches, which LLVM vectorises; only the table reads
+    (Tukey-lambda's, and the exact Poisson draws' of dark sites) run site by site.
     """
     w = dn.shape[0]
-    noise = np.zeros(w)
+    noise = np.zeros(w) if model == 0 else np.empty(w)  # the models write every site
     if model != 0:
         first = np.uint64(y) * np.uint64(width)
         z = np.empty(w)
