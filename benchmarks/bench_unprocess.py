@@ -121,6 +121,9 @@ def compute_24mp(tmp: Path, repeat: int) -> None:
     profile = load_profile("sony_a7s2")
     print(f"2. compute only, 24 MP: engine vs torch reference ({torch.get_num_threads()} threads)")
     engine = {}
+    warm = UnprocessOptions(profile=profile, iso=1600, noise="physics")
+    for _ in range(5):  # a fresh process's first large arrays are slow to come by
+        simulate(warm.make_sensor(), pixels, warm, 1, engine=True)
     for noise in ("none", "gaussian", "poisson-gaussian", "physics"):
         options = UnprocessOptions(profile=profile, iso=1600, noise=noise)
         sensor = options.make_sensor()
