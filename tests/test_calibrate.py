@@ -174,11 +174,18 @@ def test_dense_photos_and_photos_as_flats_are_refused(tmp_path):
     dngs = tmp_path / "dngs"
     _unprocess(DATA / "srgb", dngs, "sony_a7s2", 800, "poisson-gaussian")
     runner = CliRunner()
-    for method, why in (("flat", "is not a flat field"), ("patches", "too uncertain")):
+    # Patches: so few flat patches that the fit is refused, as too uncertain or, with
+    # other noise draws, for too few usable levels.
+    reasons = {
+        "flat": ("is not a flat field",),
+        "patches": ("too uncertain", "usable signal levels"),
+    }
+    for method, whys in reasons.items():
         out = tmp_path / f"{method}.json"
         r = runner.invoke(cli, ["calibrate", str(dngs), "--method", method, "-o", str(out)])
         assert r.exit_code == 1, r.output
-        assert why in r.output and "nothing written" in r.output and not out.exists()
+        assert any(why in r.output for why in whys), r.output
+        assert "nothing written" in r.output and not out.exists()
     out = tmp_path / "forced.json"
     r = runner.invoke(cli, ["calibrate", str(dngs), "-o", str(out), "--force"])
     assert r.exit_code == 0 and "warning: unreliable" in r.output
