@@ -35,6 +35,8 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 NAME_MAX = 255
 #: Seconds a terminated worker gets to remove its temporary files before it is killed.
 WORKER_GRACE = 1.5
+#: Seconds after which a signal that a finalizer swallowed is sent again.
+REDELIVER_S = 0.01
 
 
 class Interrupted(BaseException):
@@ -60,8 +62,34 @@ def _stop_on_signal(signum, frame) -> None:
     raise Interrupted(signum)
 
 
+def _redelivering(previous: Callable) -> Callable:
+    """A ``sys.unraisablehook`` that delivers again an :class:`Interrupted` raised in
+    a finalizer, and passes anything else to ``previous``.
+
+    The garbage collector runs ``__del__`` methods at any point, and a signal
+    handler that runs inside one raises where nothing can unwind the job: Python
+    prints the exception and goes on, the signal now ignored. So the handler is
+    re-armed and the signal sent to this process again, from a timer thread a
+    moment later (sent from here, it would be handled here, in the hook), to be
+    raised at the next point that can unwind.
+    """
+
+    def hook(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, Interrupted):
+            previous(unraisable)
+            return
+        signum = unraisable.exc_value.signum
+        signal.signal(signum, _worker_terminated if _worker else _stop_on_signal)
+        again = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+        again.daemon = True
+        again.start()
+
+    return hook
+
+
 class stop_on_signals:
-    """Context: SIGINT and SIGTERM raise :class:`Interrupted` in the main thread.
+    """Context: SIGINT and SIGTERM raise :class:`Interrupted` in the main thread
+    (again if a finalizer swallowed it: :func:`_redelivering`).
 
     Restores the previous handlers on exit. Does nothing outside the main thread
     (Python delivers signals only there).
@@ -71,13 +99,18 @@ class stop_on_signals:
         self._old = None
         if threading.current_thread() is threading.main_thread():
             self._old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+            self._old_hook = sys.unraisablehook
             for sig in self._old:
                 signal.signal(sig, _stop_on_signal)
+            sys.unraisablehook = _redelivering(self._old_hook)
         return self
 
     def __exit__(self, *exc) -> None:
-        for sig, handler in (self._old or {}).items():
+        if self._old is None:
+            return
+        for sig, handler in self._old.items():
             signal.signal(sig, handler)
+        sys.unraisablehook = self._old_hook
 
 
 @dataclass(frozen=True)
@@ -403,6 +436,7 @@ def _init_worker(threads: int) -> None:
     warnings.filterwarnings("ignore", "rawpy is being used in a process created by multi")
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
+    sys.unraisablehook = _redelivering(sys.unraisablehook)
     set_threads(threads)
 
 

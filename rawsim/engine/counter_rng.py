@@ -378,7 +378,7 @@ def poisson(lam, index, k0, k1, table):
 
 
 #: Terms of the residual search that :func:`poisson_sites` runs for every site:
-#: they reach u for all but P(Poisson(δ) ≥ 4) ≤ 1.9 % of draws.
+#: they reach u for all but P(Poisson(δ) ≥ 5) < 0.4 % of draws.
 _FIRST_TERMS = 4
 
 
@@ -387,7 +387,7 @@ def poisson_sites(lam, sites, k0, k1, table, out):
     """:func:`poisson` of means ``lam`` (n,) at ``sites`` (n,) uint64 into ``out`` (n,),
     bit for bit. The blocks and the residual counts' first :data:`_FIRST_TERMS`
     terms run in a loop that LLVM vectorises; the table lookups, and the full
-    search where those terms did not reach u (≤ 2 % of draws), one site at a time."""
+    search where those terms did not reach u (< 0.4 % of draws), one site at a time."""
     n = lam.size
     a = np.empty(n, np.uint64)
     for i in range(n):
