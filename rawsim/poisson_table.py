@@ -101,10 +101,13 @@ def poisson_table() -> np.ndarray:
         first, weights = poisson_weights(m)
         if first + len(weights) > 1 << COUNT_BITS:
             raise AssertionError(f"Poisson({m}) draws counts beyond {COUNT_BITS} bits")
-        threshold, alias = _alias(weights)
-        for j in range(BUCKETS):
-            own = first + j if threshold[j] else 0  # a bucket of threshold 0 never gives its own
+        thresholds, alias = _alias(weights)
+        for j, threshold in enumerate(thresholds):
+            # A full bucket (threshold 2⁴⁴, which the field cannot hold) is its own
+            # alias: threshold 0 gives it. A bucket of threshold 0 never gives its own.
+            threshold %= 1 << LOW_BITS
+            own = first + j if threshold else 0
             table[m * BUCKETS + j] = (
-                threshold[j] | own << LOW_BITS | (first + alias[j]) << (LOW_BITS + COUNT_BITS)
+                threshold | own << LOW_BITS | (first + alias[j]) << (LOW_BITS + COUNT_BITS)
             )
     return table
