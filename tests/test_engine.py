@@ -167,9 +167,10 @@ def test_poisson_alias_tables_hold_the_rounded_probabilities_exactly():
         # Each bucket of 2⁴⁴ uniform integers gives its own count below its
         # threshold and its alias above: summed, exactly the weights.
         got = np.zeros(1 << COUNT_BITS, np.int64)
-        for word in table[m * BUCKETS : (m + 1) * BUCKETS].tolist():
-            threshold = word & low
-            got[(word >> LOW_BITS) & 255] += threshold
+        for j, word in enumerate(table[m * BUCKETS : (m + 1) * BUCKETS].tolist()):
+            threshold, own = word & low, (word >> LOW_BITS) & 255
+            assert own == (first + j if threshold else 0)  # bucket j's own count
+            got[own] += threshold
             got[word >> (LOW_BITS + COUNT_BITS)] += (1 << LOW_BITS) - threshold
         assert not got[:first].any() and not got[first + len(weights) :].any()
         assert np.array_equal(got[first : first + len(weights)], weights)
