@@ -28,6 +28,8 @@ Distributions, each from :mod:`rawsim.exact_math` so the bits match:
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 
@@ -169,10 +171,14 @@ def tukey_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
     return (exact_exp(lo * lam) - exact_exp(hi * lam)) / lam
 
 
+@functools.lru_cache(maxsize=8)
 def tukey_table(lam: float, device=None) -> torch.Tensor:
     """(TUKEY_OCTAVES · TUKEY_SEGMENTS, 4) float64 coefficients of the cubic through
     :func:`tukey_quantile` at the thirds of each segment of v in [2⁻⁵³, ½): octave j
-    is [2⁻ʲ⁻², 2⁻ʲ⁻¹) in equal segments (:data:`rawsim.exact_math.TUKEY_OCTAVES`)."""
+    is [2⁻ʲ⁻², 2⁻ʲ⁻¹) in equal segments (:data:`rawsim.exact_math.TUKEY_OCTAVES`).
+
+    Kept for the last few (λ, device): every strip of a sample draws from the same
+    table (do not modify it)."""
     octave = torch.ldexp(
         torch.ones(TUKEY_OCTAVES, dtype=torch.float64, device=device),
         -2 - torch.arange(TUKEY_OCTAVES, device=device),
@@ -209,7 +215,7 @@ def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
     """Exact Poisson draws (float64 counts) of means ``lam`` in [0, POISSON_MEANS)
     (float64), one per ``index``: Poisson(⌊λ⌋) from its alias table plus
     Poisson(λ − ⌊λ⌋) by inversion, from block (index, poisson, 0)."""
-    table = torch.from_numpy(poisson_table()).to(lam.device)
+    table = _poisson_table_on(lam.device)
     w0, w1, w2, w3 = philox4x32(
         (index.bitwise_and(MASK32), index.bitwise_right_shift(32), STREAMS["poisson"], 0), key
     )
@@ -233,3 +239,9 @@ def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
         word.bitwise_right_shift(LOW_BITS + COUNT_BITS),
     )
     return residual + counts.double()
+
+
+@functools.lru_cache(maxsize=4)
+def _poisson_table_on(device: torch.device) -> torch.Tensor:
+    """:func:`rawsim.poisson_table.poisson_table` on ``device``, copied there once."""
+    return torch.from_numpy(poisson_table()).to(device)
