@@ -144,10 +144,9 @@ def _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise):
 def add_noise_rows(dn, top, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
     image ``width`` wide, into ``out`` (h, w); for the equality tests."""
+    noise = (model, p, tukey, poisson, k0, k1, bias_tile, white)
     for y in range(dn.shape[0]):
-        row = dn[y].astype(np.float64)
-        noise = (model, p, tukey, poisson, k0, k1, bias_tile, white)
-        noise_row(row, top + y, width, *noise, out[y])
+        noise_row(dn[y].astype(np.float64), top + y, width, *noise, out[y])
 
 
 @njit(**_JIT)
