@@ -104,7 +104,7 @@ def run_scene(scene: str, pairs: int) -> None:
         frames = [oiio.ImageBuf(str(p)).get_pixels(oiio.UINT8) for p in paths]
         decode = time.perf_counter() - start
         print(f"  floor, OpenImageIO decode: {len(paths) / decode:.0f} frames/s")
-        from rawsim.events import EventSensor
+        from rawsim.events.sensor import EventSensor
         from rawsim.sensors import display_to_linear
 
         sensor = EventSensor(sigma_threshold=0)

@@ -37,8 +37,8 @@ import OpenImageIO as oiio
 import tifffile
 import torch
 
-from rawsim.batch import Task
 from rawsim.io.images import read_pixels
+from rawsim.io.task import Task
 from rawsim.pipelines.unprocess import UnprocessOptions, simulate, unprocess_file
 from rawsim.profiles import load_profile
 

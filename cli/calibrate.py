@@ -70,7 +70,6 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
       rawsim calibrate flats/ --dark darks/ -o mycam.json --plot fit.png
       rawsim calibrate photos/*.CR2 --method patches -o mycam.json --json
     """
-    from rawsim.batch import discover
     from rawsim.calibrate import (
         CalibrationRefused,
         build_profile,
@@ -84,6 +83,7 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.io.raw import read_raw
     from rawsim.profiles import profile_from_dict
+    from rawsim.run.batch import discover
 
     out = Path(output)
     if out.exists() and not overwrite:  # the same policy as every command: skip

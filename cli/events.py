@@ -159,12 +159,12 @@ def command(
     """
     import numpy as np
 
-    from rawsim.batch import discover
     from rawsim.errors import ParameterError
-    from rawsim.event_stream import EventParams, EventStream, voxel_grid
+    from rawsim.events.files import SUFFIX, EventFile
+    from rawsim.events.stream import EventParams, EventStream, voxel_grid
     from rawsim.io.atomic import atomic_output
-    from rawsim.io.events import SUFFIX, EventFile
     from rawsim.io.images import IMAGE_EXTENSIONS, write_image
+    from rawsim.run.batch import discover
 
     out = Path(out_dir)
     target = out / f"events{SUFFIX[fmt]}"
@@ -247,7 +247,7 @@ def _log_frames(paths, eps, ahead: int = 2):
     from concurrent.futures import ThreadPoolExecutor
 
     from rawsim.errors import ParameterError
-    from rawsim.event_stream import log_luminance
+    from rawsim.events.stream import log_luminance
 
     with ThreadPoolExecutor(ahead, thread_name_prefix="rawsim-frames") as pool:
         pending = deque(pool.submit(log_luminance, p, eps) for p in paths[:ahead])

@@ -33,12 +33,12 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     Example:
       rawsim info IMG_0001.CR2 --wb camera
     """
-    from rawsim.batch import discover, shown
-    from rawsim.errors import RawsimError
+    from rawsim.errors import RawsimError, shown
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.io.raw import read_raw
     from rawsim.isp.config import default_config, load_config, override
     from rawsim.pipelines.process import describe
+    from rawsim.run.batch import discover
 
     config = load_config(config_path) if config_path else default_config()
     config = override(config, wb=wb, white_level=white_level, highlights=highlights)

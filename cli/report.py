@@ -26,7 +26,7 @@ def run_files(
     address: str | None = None,
 ) -> None:
     """Discover ``inputs``, plan their outputs, run ``job`` on each and report; exits."""
-    from rawsim import batch
+    from rawsim.run import batch
 
     found, missing, ignored = batch.discover(inputs, extensions)
     if not found:
@@ -125,7 +125,8 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
     SIGINT or SIGTERM stops the job (no new file starts, workers are terminated,
     temporary files removed): the summary counts what was done, exit 130 or 143.
     """
-    from rawsim.batch import Interrupted, Summary, stop_on_signals
+    from rawsim.run.batch import Summary
+    from rawsim.run.jobs import Interrupted, stop_on_signals
 
     obj = ctx.obj or {}
     quiet, verbose, debug = obj.get("quiet"), obj.get("verbose", 0), obj.get("debug")

@@ -12,7 +12,9 @@ Public API (shapes are (B, C, H, W); see each docstring for units and domains):
   unprocess``; :func:`process` back to RGB; :func:`file_seed`;
   :class:`UnprocessDataset` (random crops, on the fly, deterministic per index
   and epoch)
-* events: :class:`EventSensor`
+* events: :class:`EventSensor` (count maps, torch), :class:`EventStream` (events,
+  compiled), :class:`EventParams`
+* Ray Data: :class:`RawPairs` (noisy/clean pairs for ``map_batches``)
 * whole images: :func:`unprocess_tensor`
 * stages: :mod:`rawsim.isp`
 
@@ -36,15 +38,18 @@ _EXPORTS = {
     "ProfileError": "rawsim.errors",
     "RawsimError": "rawsim.errors",
     "UnsupportedInputError": "rawsim.errors",
-    "EventSensor": "rawsim.events",
-    "NoiseLevels": "rawsim.noise",
-    "add_noise": "rawsim.noise",
+    "EventParams": "rawsim.events.params",
+    "EventSensor": "rawsim.events.sensor",
+    "EventStream": "rawsim.events.stream",
+    "NoiseLevels": "rawsim.noise.models",
+    "add_noise": "rawsim.noise.models",
     "UnprocessParams": "rawsim.params",
     "sample_params": "rawsim.params",
     "unprocess_tensor": "rawsim.pipelines.unprocess",
     "SensorProfile": "rawsim.profiles",
     "list_profiles": "rawsim.profiles",
     "load_profile": "rawsim.profiles",
+    "RawPairs": "rawsim.ray_data",
     "MonoSensor": "rawsim.sensors",
     "RGBSensor": "rawsim.sensors",
     "Sensor": "rawsim.sensors",
@@ -52,12 +57,15 @@ _EXPORTS = {
 
 __all__ = [
     "CFA",
+    "EventParams",
     "EventSensor",
+    "EventStream",
     "MonoSensor",
     "NoiseLevels",
     "ParameterError",
     "ProfileError",
     "RGBSensor",
+    "RawPairs",
     "RawsimError",
     "Sensor",
     "SensorProfile",

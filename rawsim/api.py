@@ -18,9 +18,9 @@ import torch
 from rawsim.errors import ParameterError
 from rawsim.io.raw import RawImage
 from rawsim.isp.pipeline import build_isp, default_config, override, validate_config
+from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.process import render_float
 from rawsim.pipelines.unprocess import INTEGER_DTYPES, UnprocessOptions, simulate
-from rawsim.seeds import derive_seed
 from rawsim.sensors import MonoSensor, ProfileSensor
 
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from rawsim.errors import ParameterError, RawsimError
 from rawsim.io.raw import RawImage
-from rawsim.noise import QUANTIZATION_VARIANCE, tukey_lambda_variance
+from rawsim.noise.models import QUANTIZATION_VARIANCE, tukey_lambda_variance
 
 METHODS = ("flat", "patches")
 CHANNELS = ("R", "Gr", "Gb", "B")
@@ -514,7 +514,7 @@ def fit_lambda(residual: np.ndarray, max_samples: int = 400_000, seed: int = 0) 
     """Tukey-lambda shape of a zero-mean sample: the λ of largest probability-plot correlation."""
     import torch
 
-    from rawsim.noise import tukey_lambda_quantile  # torch: only when dark frames are given
+    from rawsim.noise.models import tukey_lambda_quantile  # torch: only when dark frames are given
 
     x = np.asarray(residual, dtype=np.float64).reshape(-1)
     if x.size > max_samples:

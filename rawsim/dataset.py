@@ -9,12 +9,12 @@ import torch
 from torch.utils.data import Dataset
 
 from rawsim.api import unprocess
-from rawsim.batch import discover
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.images import IMAGE_EXTENSIONS, read_image
 from rawsim.isp.levels import normalize_levels
+from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import image_tensor
-from rawsim.seeds import derive_seed
+from rawsim.run.batch import discover
 from rawsim.sensors import MonoSensor, ProfileSensor
 
 

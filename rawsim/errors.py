@@ -7,6 +7,7 @@ these into one-line messages and exit codes, and shows tracebacks only with
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -70,3 +71,10 @@ def check_image(x, name: str = "input", channels: int | None = None) -> None:
         return
     if not bool(torch.isfinite(x.sum())) and not bool(torch.isfinite(x).all()):
         raise ParameterError(f"{name} contains NaN or infinite values")
+
+
+def shown(path: str | os.PathLike) -> str:
+    """A path as messages print it: quoted (Python's escapes) if it holds control
+    characters or bytes that are not UTF-8, so one message stays one line."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)

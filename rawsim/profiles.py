@@ -23,7 +23,7 @@ from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
 from rawsim.isp.levels import white_level_for_bits
-from rawsim.noise import (
+from rawsim.noise.models import (
     DEFAULT_SPREAD,
     GainCurve,
     LambdaCurve,

@@ -35,9 +35,9 @@ import numpy as np
 from rawsim.api import capture_metadata
 from rawsim.errors import ParameterError
 from rawsim.io.images import even_rgb
+from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
 from rawsim.profiles import SensorProfile, load_profile
-from rawsim.seeds import derive_seed
 
 #: Full-scale codes of integer images; float images are scene-linear.
 _CODE_MAX = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}

@@ -1,7 +1,7 @@
 """Sensor models (SPEC "Sensor models"): ``Sensor``, ``RGBSensor`` and ``MonoSensor``.
 
 The sensors chain the ISP stages of :mod:`rawsim.isp` and the noise models of
-:mod:`rawsim.noise`; they hold no random state: randomness comes in as a
+:mod:`rawsim.noise.models`; they hold no random state: randomness comes in as a
 ``torch.Generator`` and sampled values as :class:`~rawsim.params.UnprocessParams`.
 
 Shapes: images (B, 3, H, W), mosaics (B, 1, H, W) with H, W even.
@@ -24,7 +24,7 @@ from rawsim.isp.levels import denormalize_levels, normalize_levels, quantize, sa
 from rawsim.isp.tone import invert_tone_curve
 from rawsim.isp.transfer import TransferSpec, gamma_decode, gamma_encode
 from rawsim.isp.white_balance import invert_white_balance, safe_invert_white_balance
-from rawsim.noise import NoiseLevels, add_noise
+from rawsim.noise.models import NoiseLevels, add_noise
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile, load_profile, profile_from_dict
 
@@ -151,10 +151,10 @@ class ProfileSensor(Sensor):
         """Add noise at ``iso``, round to integers and saturate to [0, white] DN.
 
         ``model`` is a model name (its nominal levels at ``iso``) or already
-        resolved :class:`~rawsim.noise.NoiseLevels`, e.g. sampled ones. ``key`` is
+        resolved :class:`~rawsim.noise.models.NoiseLevels`, e.g. sampled ones. ``key`` is
         the noise seed (one per sample, or one for all) and ``top`` the first
         row's index in the image, when ``dn`` is a strip (see
-        :func:`~rawsim.noise.add_noise`). Returns ``dn``'s dtype.
+        :func:`~rawsim.noise.models.add_noise`). Returns ``dn``'s dtype.
         """
         levels = model if isinstance(model, NoiseLevels) else self.noise_levels(iso, model)
         if key is None and levels.model != "none":

@@ -6,10 +6,12 @@ from pathlib import Path
 import pytest
 import torch
 
-from rawsim.batch import Task, _run_one, discover, parse_shard, plan, run
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io import atomic
 from rawsim.io.atomic import atomic_output
+from rawsim.io.task import Task
+from rawsim.run.batch import discover, parse_shard, plan, run
+from rawsim.run.jobs import _run_one
 from tests.conftest import ROOT
 
 

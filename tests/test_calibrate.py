@@ -15,7 +15,7 @@ from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
 from rawsim.io.png import write_png
 from rawsim.io.raw import read_raw
-from rawsim.noise import sample_tukey_lambda
+from rawsim.noise.models import sample_tukey_lambda
 from rawsim.profiles import list_profiles, load_profile
 from rawsim.sensors import RGBSensor
 from rawsim_cli.main import cli

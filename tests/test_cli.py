@@ -336,7 +336,7 @@ def test_json_records_on_stdout(photos, tmp_path):
 def test_cli_choices_match_the_core():
     # The CLI lists them literally so that its --help needs no torch import.
     from rawsim.isp.tone import TONE_CURVES
-    from rawsim.noise import NOISE_MODELS
+    from rawsim.noise.models import NOISE_MODELS
     from rawsim_cli import unprocess
 
     assert set(unprocess.TONES) == set(TONE_CURVES)

@@ -11,14 +11,13 @@ import torch
 from numba import njit
 from scipy import stats
 
-from rawsim import counter_rng as ref
 from rawsim.cfa import CFA
-from rawsim.engine import counter_rng as eng
 from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_tables, noise_vector
 from rawsim.io.images import read_image
-from rawsim.noise import NOISE_MODELS, site_bias
-from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
-from rawsim.poisson_table import (
+from rawsim.noise import kernels as eng
+from rawsim.noise import reference as ref
+from rawsim.noise.models import NOISE_MODELS, site_bias
+from rawsim.noise.poisson_table import (
     BUCKETS,
     COUNT_BITS,
     LOW_BITS,
@@ -27,6 +26,7 @@ from rawsim.poisson_table import (
     poisson_table,
     poisson_weights,
 )
+from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor
 from tests.conftest import DATA

@@ -11,12 +11,12 @@ import torch
 from click.testing import CliRunner
 
 from rawsim.errors import ParameterError
-from rawsim.event_stream import EventParams, EventStream, voxel_grid
-from rawsim.events import (
+from rawsim.events.sensor import (
     EventSensor,
     events_to_timestamp_image,
     events_to_voxel_grid,
 )
+from rawsim.events.stream import EventParams, EventStream, voxel_grid
 from rawsim_cli.main import cli
 
 
@@ -253,7 +253,7 @@ def test_time_order_is_a_stable_sort_for_any_thread_count():
     with many ties and clustered times, on 1 thread and on all."""
     import numba
 
-    from rawsim.engine.events import time_order
+    from rawsim.events.kernels import time_order
 
     g = np.random.default_rng(8)
     n = 50_000
@@ -346,7 +346,7 @@ def test_stream_writers_over_many_blocks():
     """The parallel writers' bytes, over several blocks of events, are the formats'
     definitions: ESIM's text lines (9 decimals of the rounded nanoseconds) and v2e's
     uint32 rows (rounded microseconds), in order."""
-    from rawsim.engine import events as ee
+    from rawsim.events import kernels as ee
 
     g = np.random.default_rng(5)
     n = 150_001

@@ -5,7 +5,7 @@ import torch
 
 from rawsim.errors import ParameterError
 from rawsim.isp.levels import quantize
-from rawsim.noise import (
+from rawsim.noise.models import (
     EXACT_POISSON_BELOW,
     GainCurve,
     NoiseLevels,

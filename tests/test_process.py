@@ -10,9 +10,9 @@ import rawpy
 import torch
 from click.testing import CliRunner
 
-from rawsim.batch import Task
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.raw import read_raw
+from rawsim.io.task import Task
 from rawsim.isp.pipeline import (
     STAGES,
     config_to_toml,

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from rawsim.noise import NoiseLevels
+from rawsim.noise.models import NoiseLevels
 from rawsim.profiles import load_profile
 from tests.conftest import DATA
 from tests.test_cli import digest, run

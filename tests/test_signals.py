@@ -135,7 +135,7 @@ def test_a_rerun_completes_the_job_with_the_same_bytes(inputs, tmp_path):
 
 FINALIZER = """
 import os, signal, sys
-from rawsim import batch
+from rawsim.run import jobs
 
 class Finalized:
     def __del__(self):
@@ -151,13 +151,13 @@ def job():
 
 try:
     if sys.argv[1] == "worker":
-        batch._init_worker(1)
-        batch._in_job = True
+        jobs._init_worker(1)
+        jobs._in_job = True
         job()
     else:
-        with batch.stop_on_signals():
+        with jobs.stop_on_signals():
             job()
-except batch.Interrupted as stop:
+except jobs.Interrupted as stop:
     print("interrupted", stop.signum)
 """
 

@@ -2,8 +2,8 @@
 
 Each kernel runs every stage of a pipeline in one pass over the image, a row at a
 time, parallel over rows (``prange``), with the stage maths of the torch
-reference (:mod:`rawsim.isp`, :mod:`rawsim.noise`) and the same counter-based
-noise (:mod:`rawsim.engine.counter_rng`). Compiled code is cached on disk
+reference (:mod:`rawsim.isp`, :mod:`rawsim.noise.models`) and the same counter-based
+noise (:mod:`rawsim.noise.kernels`). Compiled code is cached on disk
 (``cache=True``): beside the package when it is writable, else in numba's
 user-wide cache folder (``NUMBA_CACHE_DIR`` or ``~/.cache/numba``), so only the
 first run on a machine compiles.
@@ -12,8 +12,8 @@ first run on a machine compiles.
 torch reference when it cannot.
 
 For developers: numba keys a cached kernel on its own module's file only. The
-kernels inline functions of :mod:`rawsim.engine.counter_rng` and
-:mod:`rawsim.exact_math`, so after editing those alone, delete the cache
+kernels inline functions of :mod:`rawsim.noise.kernels` and
+:mod:`rawsim.noise.exact_math`, so after editing those alone, delete the cache
 (``find rawsim -name '*.nbi' -delete``) or touch the kernel modules. Installs
 are not affected: a new version replaces every file.
 """

@@ -6,7 +6,7 @@ sRGB → camera matrix → inverse white balance (exact or Brooks's safe one) �
 mosaic (only the site's channel is kept) → vignetting → levels → noise →
 rounding and saturation → uint16. The torch reference of each stage is in
 :mod:`rawsim.sensors` and :mod:`rawsim.isp`; the noise is
-:func:`rawsim.noise.noise_field`, drawn here by :func:`noise_row` from the same
+:func:`rawsim.noise.models.noise_field`, drawn here by :func:`noise_row` from the same
 counter-based generator, bit for bit. Arithmetic is float64 (the reference runs
 in float32), so the clean codes agree with the reference within one code.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from rawsim.engine import configure
-from rawsim.engine.counter_rng import (
+from rawsim.noise.kernels import (
     ROW,
     normal,
     normal_row,
@@ -28,7 +28,7 @@ from rawsim.engine.counter_rng import (
     tukey_lambda_row,
     tukey_table,
 )
-from rawsim.noise import EXACT_POISSON_BELOW
+from rawsim.noise.models import EXACT_POISSON_BELOW
 
 configure()
 
@@ -42,7 +42,7 @@ N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_ROW = range(7)
 
 
 def noise_vector(levels, black: float) -> np.ndarray:
-    """The kernel's noise parameters from :class:`~rawsim.noise.NoiseLevels`."""
+    """The kernel's noise parameters from :class:`~rawsim.noise.models.NoiseLevels`."""
     return np.array(
         [
             black,

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 from rawsim.errors import ParameterError
 
 if TYPE_CHECKING:
-    from rawsim.batch import Task
+    from rawsim.io.task import Task
 
 #: Object stores: no folders, and a missing bucket is an error, not something to make.
 _OBJECT_STORES = {"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "oss"}

@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from rawsim._version import __version__
-from rawsim.batch import Task
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.atomic import atomic_output
 from rawsim.io.images import OUTPUT_FORMATS, write_image
 from rawsim.io.raw import RawImage, read_raw
+from rawsim.io.task import Task
 from rawsim.isp.config import (
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,

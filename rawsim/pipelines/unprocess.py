@@ -3,7 +3,7 @@
 :func:`unprocess_tensor` is the tensor core, used by the files job here and by
 the Python API. It runs the sensor's stages over strips of
 :data:`STRIP_ROWS` rows, so that temporaries stay small and cache-resident. The
-noise is drawn per pixel from a counter-based generator (:mod:`rawsim.counter_rng`),
+noise is drawn per pixel from a counter-based generator (:mod:`rawsim.noise.reference`),
 so any strip height, device, job count or run split gives the same bits.
 Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
 and fused (:func:`simulate` chooses).
@@ -19,7 +19,6 @@ import numpy as np
 import torch
 
 from rawsim._version import __version__
-from rawsim.batch import Task
 from rawsim.cfa import PACKED_PLANES
 from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
@@ -27,13 +26,14 @@ from rawsim.errors import ParameterError, check_choice, check_image, values_chec
 from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
+from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
 from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
-from rawsim.noise import NOISE_MODELS, NoiseLevels, site_bias
+from rawsim.noise.models import NOISE_MODELS, NoiseLevels, site_bias
+from rawsim.noise.seeds import derive_seed
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
-from rawsim.seeds import derive_seed
 from rawsim.sensors import MonoSensor, ProfileSensor, RGBSensor, display_to_linear
 
 STRIP_ROWS = 128
@@ -94,9 +94,9 @@ def unprocess_tensor(
             scene-linear (1.0 = white level before exposure).
         params: the image's :class:`UnprocessParams` (ISO, matrix, gains, …).
         noise: noise model name (one of ``NOISE_MODELS``, nominal levels at the
-            ISO) or resolved :class:`~rawsim.noise.NoiseLevels` (e.g. sampled).
+            ISO) or resolved :class:`~rawsim.noise.models.NoiseLevels` (e.g. sampled).
         key: the noise seed (64-bit int; one per sample as a list, or one for
-            the batch): see :func:`rawsim.noise.add_noise`. Needed unless the
+            the batch): see :func:`rawsim.noise.models.add_noise`. Needed unless the
             model is ``none``.
         clean: also return the noise-free mosaic.
 
@@ -168,7 +168,7 @@ def engine_unprocess(
     as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`.
     """
     from rawsim.engine import unprocess as kernels
-    from rawsim.engine.counter_rng import np_key
+    from rawsim.noise.kernels import np_key
 
     noise, lut = _prepare(sensor, pixels, params, noise, display_referred, code_max)
     if lut is None and display_referred:  # display-referred floats: decode first

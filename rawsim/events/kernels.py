@@ -1,4 +1,4 @@
-"""The event-stream simulator's compiled kernels (see :mod:`rawsim.events`).
+"""The event-stream simulator's compiled kernels (see :mod:`rawsim.events.sensor`).
 
 Per pixel and frame step, the effective log intensity runs linearly from the
 previous frame's value to this one's (``s`` from 0 to 1 over the step), while
@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit, prange
 
 from rawsim.engine import configure
-from rawsim.engine.counter_rng import normal, uniforms
-from rawsim.philox import STREAMS
+from rawsim.noise.kernels import normal, uniforms
+from rawsim.noise.philox import STREAMS
 
 configure()  # a fork-safe threading layer, as every kernel module
 

@@ -2,8 +2,8 @@
 
 Tasks are grouped into bundles of about equal cost (input bytes plus a fixed
 overhead per file), several per cluster CPU so that the load balances; each bundle
-is a Ray generator task that runs :func:`rawsim.batch._run_one` on its files in
-order and streams back one :class:`~rawsim.batch.Result` per file, so progress,
+is a Ray generator task that runs :func:`rawsim.run.jobs._run_one` on its files in
+order and streams back one :class:`~rawsim.run.jobs.Result` per file, so progress,
 messages and ``--json`` records arrive as files finish, as in a local run.
 
 A bundle whose worker dies (killed, out of memory, node lost) is resubmitted
@@ -22,9 +22,10 @@ import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
 
-from rawsim.batch import Result, Task, _run_one, set_threads, shown
-from rawsim.errors import ParameterError
+from rawsim.errors import ParameterError, shown
 from rawsim.io import remote
+from rawsim.io.task import Task
+from rawsim.run.jobs import Result, _run_one, set_threads
 
 _log = logging.getLogger(__name__)
 

@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 import torch
 
-from rawsim.counter_rng import ieee_sqrt, normal, poisson, split_key, tukey_lambda, tukey_table
 from rawsim.errors import ParameterError, check_choice
-from rawsim.exact_math import LOGISTIC_LAMBDA
-from rawsim.poisson_table import POISSON_MEANS
+from rawsim.noise.exact_math import LOGISTIC_LAMBDA
+from rawsim.noise.poisson_table import POISSON_MEANS
+from rawsim.noise.reference import ieee_sqrt, normal, poisson, split_key, tukey_lambda, tukey_table
 
 NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
 #: Default spread (σ of ln σ) of sampled noise levels when a profile gives none.
@@ -377,7 +377,7 @@ def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: 
         levels: noise parameters at the ISO (:meth:`NoiseSpec.levels`).
         key: the noise seed (a 64-bit int), or one per sample. Each draw is a
             function of (key, pixel index ``y · w + x``), from
-            :mod:`rawsim.counter_rng`, so the result does not depend on how the
+            :mod:`rawsim.noise.reference`, so the result does not depend on how the
             image is cut into strips or batches, nor on the device.
         cfa: the mosaic's :class:`~rawsim.cfa.CFA`, to place a non-zero
             ``channel_bias`` (physics model); None for a monochrome sensor, which

@@ -1,5 +1,5 @@
 """Philox4x32-10 and the noise draws made from it, compiled: the engine's backend of
-:mod:`rawsim.counter_rng` (the torch reference), bit-equal to it.
+:mod:`rawsim.noise.reference` (the torch reference), bit-equal to it.
 
 Scalar functions for use inside the engine's kernels. Words are uint64 holding
 32-bit values; every constant is typed so numba never mixes signed and
@@ -16,7 +16,7 @@ from numba import njit
 from numba.core import types
 from numba.extending import intrinsic, overload
 
-from rawsim.exact_math import (
+from rawsim.noise.exact_math import (
     HALF_PI,
     INV_LN2,
     LOGISTIC_LAMBDA,
@@ -36,7 +36,7 @@ from rawsim.exact_math import (
     log_mantissa,
     sin_reduced,
 )
-from rawsim.philox import (
+from rawsim.noise.philox import (
     PHILOX_M0,
     PHILOX_M1,
     PHILOX_W0,
@@ -44,7 +44,7 @@ from rawsim.philox import (
     STREAMS,
     split_key,
 )
-from rawsim.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
+from rawsim.noise.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
 
 _MASK = np.uint64(0xFFFFFFFF)
 _M0, _M1 = np.uint64(PHILOX_M0), np.uint64(PHILOX_M1)
@@ -55,7 +55,7 @@ NORMAL, TUKEY, POISSON, ROW = (np.uint64(STREAMS[k]) for k in ("normal", "tukey"
 
 @overload(horner)
 def _horner(x, coefficients):
-    """Compiled calls of :func:`rawsim.exact_math.horner` run that same function."""
+    """Compiled calls of :func:`rawsim.noise.exact_math.horner` run that same function."""
     return horner
 
 
@@ -212,7 +212,7 @@ def tukey_quantile(u, lam):
 def tukey_table(lam):
     """(TUKEY_OCTAVES · TUKEY_SEGMENTS, 4) coefficients of the cubic through
     :func:`tukey_quantile` at the thirds of each segment of v in [2⁻⁵³, ½)
-    (the layout is :data:`rawsim.exact_math.TUKEY_OCTAVES`'s)."""
+    (the layout is :data:`rawsim.noise.exact_math.TUKEY_OCTAVES`'s)."""
     table = np.empty((TUKEY_OCTAVES * TUKEY_SEGMENTS, 4))
     octave = 0.25
     for j in range(TUKEY_OCTAVES):
@@ -314,7 +314,7 @@ def tukey_lambda_row(first, k0, k1, table, out):
 
 
 def poisson_words() -> np.ndarray:
-    """:func:`rawsim.poisson_table.poisson_table` as the kernels take it: the same
+    """:func:`rawsim.noise.poisson_table.poisson_table` as the kernels take it: the same
     words, viewed as uint64."""
     return poisson_table().view(np.uint64)
 
@@ -371,7 +371,7 @@ def _mean_floor(lam):
 def poisson(lam, index, k0, k1, table):
     """An exact Poisson draw of mean ``lam`` in [0, POISSON_MEANS) (a float count),
     with ``table`` from :func:`poisson_words`: Poisson(⌊λ⌋) from its alias table
-    plus Poisson(λ − ⌊λ⌋) by inversion (see :mod:`rawsim.poisson_table`)."""
+    plus Poisson(λ − ⌊λ⌋) by inversion (see :mod:`rawsim.noise.poisson_table`)."""
     a, u = _poisson_block(index, k0, k1)
     m, delta = _mean_floor(lam)
     return _poisson_residual(delta, u, RESIDUAL_TERMS)[0] + _poisson_table(m, a, table)

@@ -1,5 +1,5 @@
 """Alias tables of the Poisson laws of integer means, shared by both backends' exact
-Poisson draws (:func:`rawsim.counter_rng.poisson` and its compiled twin).
+Poisson draws (:func:`rawsim.noise.reference.poisson` and its compiled twin).
 
 A draw of mean λ in [0, :data:`POISSON_MEANS`) is Poisson(m) + Poisson(δ), with
 m = ⌊λ⌋ and δ = λ − m: independent Poisson counts add, so the sum is exactly

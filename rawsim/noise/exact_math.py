@@ -44,7 +44,7 @@ def horner(x, coefficients):
     """Σ cᵢ xⁱ by Horner's rule, highest order first: one multiply and one add a step.
 
     Starts from 0, whose first step gives the leading coefficient exactly. The
-    engine compiles this same function (:mod:`rawsim.engine.counter_rng`).
+    engine compiles this same function (:mod:`rawsim.noise.kernels`).
     """
     p = 0.0
     for c in coefficients:

@@ -6,7 +6,7 @@ file's 64-bit seed, the site its pixel index ``y · W + x`` (or the row index fo
 row noise), the stream names what is drawn (:data:`STREAMS`), the iteration
 tells repeated draws of one site apart (an event stream's steps). So the noise
 of a pixel does not depend on how the image is split into strips, threads, jobs
-or batches, nor on the device or the backend: :mod:`rawsim.engine.counter_rng`
+or batches, nor on the device or the backend: :mod:`rawsim.noise.kernels`
 is the same generator compiled with numba, and the two are tested bit-equal.
 
 Philox4x32-10 is Salmon et al., "Parallel random numbers: as easy as 1, 2, 3"
@@ -14,16 +14,16 @@ Philox4x32-10 is Salmon et al., "Parallel random numbers: as easy as 1, 2, 3"
 Integers are carried in int64 tensors (torch has no full uint32 arithmetic);
 products are split in 16-bit halves so nothing overflows.
 
-Distributions, each from :mod:`rawsim.exact_math` so the bits match:
+Distributions, each from :mod:`rawsim.noise.exact_math` so the bits match:
 
 * uniform: ``(n + ½) · 2⁻⁵²`` from 52 bits of two words, in (0, 1) exactly;
 * normal: Box–Muller, both branches, from one block (two uniforms) per two sites;
 * Tukey-lambda: inverse transform of one uniform per site (two sites per block),
   the quantile read from a per-λ table of cubics (:func:`tukey_table`);
-* Poisson: exact, for means below :data:`~rawsim.poisson_table.POISSON_MEANS`:
+* Poisson: exact, for means below :data:`~rawsim.noise.poisson_table.POISSON_MEANS`:
   Poisson(⌊λ⌋) from Walker's alias table of that integer mean plus Poisson(λ − ⌊λ⌋)
   by a short inverse-CDF search, from one block per site
-  (:mod:`rawsim.poisson_table`).
+  (:mod:`rawsim.noise.poisson_table`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import functools
 import numpy as np
 import torch
 
-from rawsim.exact_math import (
+from rawsim.noise.exact_math import (
     HALF_PI,
     INV_LN2,
     LOGISTIC_LAMBDA,
@@ -52,7 +52,7 @@ from rawsim.exact_math import (
     log_mantissa,
     sin_reduced,
 )
-from rawsim.philox import (  # noqa: F401 - the generator's constants, also from here
+from rawsim.noise.philox import (  # noqa: F401 - the generator's constants, also from here
     MASK32,
     PHILOX_M0,
     PHILOX_M1,
@@ -61,7 +61,7 @@ from rawsim.philox import (  # noqa: F401 - the generator's constants, also from
     STREAMS,
     split_key,
 )
-from rawsim.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
+from rawsim.noise.poisson_table import BUCKETS, COUNT_BITS, LOW_BITS, RESIDUAL_TERMS, poisson_table
 
 
 def _mulhilo(m: int, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -112,7 +112,7 @@ def uniforms(index: torch.Tensor, stream: str, key, iteration=0) -> tuple[torch.
 
 
 def exact_log(x: torch.Tensor) -> torch.Tensor:
-    """ln x for float64 x > 0, the same bits as the engine's (:mod:`rawsim.exact_math`)."""
+    """ln x for float64 x > 0, the same bits as the engine's (:mod:`rawsim.noise.exact_math`)."""
     m, e = torch.frexp(x)
     low = m < SQRT_HALF
     m = torch.where(low, m * 2.0, m)
@@ -175,7 +175,7 @@ def tukey_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
 def tukey_table(lam: float, device=None) -> torch.Tensor:
     """(TUKEY_OCTAVES · TUKEY_SEGMENTS, 4) float64 coefficients of the cubic through
     :func:`tukey_quantile` at the thirds of each segment of v in [2⁻⁵³, ½): octave j
-    is [2⁻ʲ⁻², 2⁻ʲ⁻¹) in equal segments (:data:`rawsim.exact_math.TUKEY_OCTAVES`).
+    is [2⁻ʲ⁻², 2⁻ʲ⁻¹) in equal segments (:data:`rawsim.noise.exact_math.TUKEY_OCTAVES`).
 
     Kept for the last few (λ, device): every strip of a sample draws from the same
     table (do not modify it)."""
@@ -243,5 +243,5 @@ def poisson(lam: torch.Tensor, index: torch.Tensor, key) -> torch.Tensor:
 
 @functools.lru_cache(maxsize=4)
 def _poisson_table_on(device: torch.device) -> torch.Tensor:
-    """:func:`rawsim.poisson_table.poisson_table` on ``device``, copied there once."""
+    """:func:`rawsim.noise.poisson_table.poisson_table` on ``device``, copied there once."""
     return torch.from_numpy(poisson_table()).to(device)

@@ -1,65 +1,19 @@
 """Event streams: (x, y, t, polarity) from frames, torch-free (see :class:`EventStream`).
 
-The count-map model of the Python API, :class:`rawsim.events.EventSensor`, shares
-:class:`EventParams`.
+The count-map model of the Python API, :class:`rawsim.events.sensor.EventSensor`, shares
+:class:`~rawsim.events.params.EventParams`.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from rawsim.errors import ParameterError
-
-#: Rec. 709 luminance weights for RGB frames.
-LUMA = (0.2126, 0.7152, 0.0722)
-
-
-@dataclass(frozen=True)
-class EventParams:
-    """Parameters of :class:`rawsim.events.EventSensor` and :class:`EventStream`
-    (SPEC defaults).
-
-    Attributes:
-        threshold_pos, threshold_neg: contrast thresholds θ+ and θ− (log units).
-        sigma_threshold: σ of the threshold noise: |N(0, σ)| added per pixel and step
-            (EventSensor), or N(0, σ) per pixel once, a fixed pattern (EventStream).
-        cutoff_hz: cut-off frequency of the temporal high-pass, 0 = off.
-        leak_rate_hz: rate of leak events (positive), per pixel.
-        shot_noise_rate_hz: rate of shot-noise events, per pixel, split evenly
-            between the polarities.
-        eps: offset inside the logarithm, log(I + eps).
-    """
-
-    threshold_pos: float = 0.2
-    threshold_neg: float = 0.2
-    sigma_threshold: float = 0.03
-    cutoff_hz: float = 0.0
-    leak_rate_hz: float = 0.0
-    shot_noise_rate_hz: float = 0.0
-    eps: float = 1e-7
-
-    def __post_init__(self) -> None:
-        for name in ("threshold_pos", "threshold_neg"):
-            if not getattr(self, name) > 0:
-                raise ParameterError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("sigma_threshold", "cutoff_hz", "leak_rate_hz", "shot_noise_rate_hz"):
-            value = getattr(self, name)
-            if not (value >= 0 and math.isfinite(value)):
-                raise ParameterError(f"{name} must be a finite number ≥ 0, got {value}")
-        if not self.eps > 0:
-            raise ParameterError(f"eps must be > 0, got {self.eps}")
-
-    @property
-    def random(self) -> bool:
-        """Whether the model draws random numbers."""
-        return self.sigma_threshold > 0 or self.leak_rate_hz > 0 or self.shot_noise_rate_hz > 0
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+from rawsim.events.params import LUMA, EventParams
 
 
 @dataclass
@@ -84,22 +38,22 @@ class EventStream:
     al., CVPR-W 2021): each pixel remembers the log intensity of its last event;
     between frames the log intensity is interpolated linearly in time, and each
     crossing of the reference ± θ is an event at the crossing time (see
-    :mod:`rawsim.engine.events`). Per pixel, θ+ and θ− are the nominal thresholds
+    :mod:`rawsim.events.kernels`). Per pixel, θ+ and θ− are the nominal thresholds
     plus N(0, ``sigma_threshold``) drawn once (fixed-pattern mismatch, at least
     0.01) from the counter-based generator keyed by ``seed``: unlike
-    :class:`rawsim.events.EventSensor`'s fresh draw per step. ``refractory_s`` absorbs
+    :class:`rawsim.events.sensor.EventSensor`'s fresh draw per step. ``refractory_s`` absorbs
     crossings that follow an event too soon; ``leak_rate_hz`` lowers the
     reference by that many θ+ per second (ON events in a still scene);
     ``shot_noise_rate_hz`` adds random events; ``cutoff_hz`` scales each step's
-    change by 1 − τ/(τ + dt), as :meth:`rawsim.events.EventSensor.log_change`.
+    change by 1 − τ/(τ + dt), as :meth:`rawsim.events.sensor.EventSensor.log_change`.
 
     With no mismatch, leak, refractory period or noise, a step from a fresh
-    pixel gives :class:`rawsim.events.EventSensor`'s counts exactly; later steps keep the
+    pixel gives :class:`rawsim.events.sensor.EventSensor`'s counts exactly; later steps keep the
     remainders that it drops.
 
-    ``device`` None runs the compiled engine (:mod:`rawsim.engine.events`); a torch
+    ``device`` None runs the compiled engine (:mod:`rawsim.events.kernels`); a torch
     device (``"cuda"``, ``"cpu"``) runs the torch reference there
-    (:func:`rawsim.events.stream_step`). Both give the same events, bit for bit.
+    (:func:`rawsim.events.sensor.stream_step`). Both give the same events, bit for bit.
     """
 
     def __init__(
@@ -110,7 +64,7 @@ class EventStream:
         refractory_s: float = 0.0,
         device: str | None = None,
     ) -> None:
-        from rawsim.philox import split_key
+        from rawsim.noise.philox import split_key
 
         if not (refractory_s >= 0 and math.isfinite(refractory_s)):
             raise ParameterError(f"refractory_s must be a finite number ≥ 0, got {refractory_s}")
@@ -118,8 +72,8 @@ class EventStream:
         self.device = device
         h, w = shape
         if device is None:  # the compiled engine
-            from rawsim.engine import events as ee
-            from rawsim.engine.counter_rng import np_key
+            from rawsim.events import kernels as ee
+            from rawsim.noise.kernels import np_key
 
             self.key = np_key(seed)
             jitter = np.empty((h, w, 2))
@@ -128,7 +82,7 @@ class EventStream:
         else:  # the torch reference, on that device
             import torch
 
-            from rawsim.events import threshold_normals
+            from rawsim.events.sensor import threshold_normals
 
             self.key = split_key(seed)
             jitter = threshold_normals((h, w), self.key, device)
@@ -184,7 +138,7 @@ class EventStream:
     def _step_engine(self, level: np.ndarray, run: tuple) -> EventBatch:
         import numba
 
-        from rawsim.engine import events as ee
+        from rawsim.events import kernels as ee
 
         args = (self.level, level, self.ref, self.on, self.off, self.last, *run)
         args += (*self.key, self.steps)
@@ -206,7 +160,7 @@ class EventStream:
         return out
 
     def _step_torch(self, level, run: tuple) -> EventBatch:
-        from rawsim.events import stream_step
+        from rawsim.events.sensor import stream_step
 
         state = {"l0": self.level, "ref": self.ref, "on": self.on, "off": self.off}
         state["last"] = self.last
@@ -249,7 +203,7 @@ def voxel_grid(batch: EventBatch, t0: float, dt: float, bins: int) -> np.ndarray
 def log_luminance(path, eps: float) -> np.ndarray:
     """log(luminance + eps) of an image file, (H, W) float64: 8/16-bit images sRGB-decoded,
     float images linear, RGB as Rec. 709 luminance (alpha ignored)."""
-    from rawsim.engine import events as ee
+    from rawsim.events import kernels as ee
     from rawsim.io.images import read_image
 
     decoded = read_image(path)

@@ -1,6 +1,6 @@
 """The counter-based generator's constants and key schedule, torch-free: shared by
-the torch reference (:mod:`rawsim.counter_rng`) and the compiled backend
-(:mod:`rawsim.engine.counter_rng`), so a process that only runs compiled kernels
+the torch reference (:mod:`rawsim.noise.reference`) and the compiled backend
+(:mod:`rawsim.noise.kernels`), so a process that only runs compiled kernels
 does not import torch."""
 
 from __future__ import annotations

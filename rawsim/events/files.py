@@ -71,10 +71,11 @@ class EventFile:
         self.frame_idx.append(0)
 
     def add(self, batch, frame_time: float) -> None:
-        """One step's events (:class:`rawsim.events.EventBatch`), ending at ``frame_time``."""
+        """One step's events (an :class:`~rawsim.events.stream.EventBatch`), ending at
+        ``frame_time``."""
         n = batch.t.size
         if self.fmt == "h5":
-            from rawsim.engine import events as ee
+            from rawsim.events import kernels as ee
 
             rows = np.empty((n, 4), dtype=np.uint32)
             ee.v2e_rows(batch.t, batch.x, batch.y, batch.p, rows)
@@ -119,7 +120,7 @@ class EventFile:
 def _lines(batch) -> np.ndarray:
     """``t x y p`` lines (uint8), t in seconds with 9 decimals (from integer
     nanoseconds: no drift over long sequences)."""
-    from rawsim.engine import events as ee
+    from rawsim.events import kernels as ee
 
     out = np.empty(batch.t.size * ee.LINE_BYTES, dtype=np.uint8)
     return out[: ee.text_lines(batch.t, batch.x, batch.y, batch.p, out)]

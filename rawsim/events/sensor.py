@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError
-from rawsim.event_stream import LUMA, EventParams  # noqa: F401 - also the API's
+from rawsim.events.params import LUMA, EventParams  # noqa: F401 - also the API's
 
 
 def to_grey(frames: torch.Tensor) -> torch.Tensor:
@@ -159,9 +159,9 @@ def events_to_timestamp_image(events: torch.Tensor) -> torch.Tensor:
 
 
 def threshold_normals(shape: tuple[int, int], key, device) -> torch.Tensor:
-    """The torch reference of :func:`rawsim.engine.events.threshold_normals`: standard
+    """The torch reference of :func:`rawsim.events.kernels.threshold_normals`: standard
     normals (H, W, 2) float64, site 2·(i·W + j) + c of the ``threshold`` stream."""
-    from rawsim.counter_rng import normal
+    from rawsim.noise.reference import normal
 
     h, w = shape
     sites = torch.arange(2 * h * w, dtype=torch.int64, device=device)
@@ -169,8 +169,8 @@ def threshold_normals(shape: tuple[int, int], key, device) -> torch.Tensor:
 
 
 def stream_step(state: dict, l1: torch.Tensor, leak, refractory, t0, dt, p_half, key, step):
-    """The torch reference of one :class:`~rawsim.event_stream.EventStream` step (the
-    compiled :func:`rawsim.engine.events.count_events` / ``emit_events`` /
+    """The torch reference of one :class:`~rawsim.events.stream.EventStream` step (the
+    compiled :func:`rawsim.events.kernels.count_events` / ``emit_events`` /
     ``time_order``), for any device, the same bits.
 
     ``state`` holds (H, W) float64 tensors ``l0`` (the previous level), ``ref``,
@@ -178,7 +178,7 @@ def stream_step(state: dict, l1: torch.Tensor, leak, refractory, t0, dt, p_half,
     Returns (t, x, y, p, counts): the events in time order (ties in row-major pixel
     order, each pixel's crossings before its shot-noise event) and (2, H, W) counts.
     """
-    from rawsim.counter_rng import uniforms
+    from rawsim.noise.reference import uniforms
 
     l0, ref, on, off, last = (state[k] for k in ("l0", "ref", "on", "off", "last"))
     h, w = l0.shape

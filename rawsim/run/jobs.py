@@ -1,0 +1,243 @@
+"""Running one job on one file, in this process or in a pool worker: its outcome
+(:class:`Result`), what existing outputs mean, its failure message, and how SIGINT
+and SIGTERM stop it (:class:`Interrupted`) so that it leaves no partial outputs.
+
+A job is a plain function ``job(task, **kwargs) -> dict`` that knows nothing of
+batches; it raises :class:`~rawsim.errors.RawsimError` for bad inputs.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing import get_all_start_methods, get_context
+
+from rawsim.errors import RawsimError, shown
+from rawsim.io import remote
+from rawsim.io.task import Task
+
+#: Seconds after which a signal that a finalizer swallowed is sent again.
+REDELIVER_S = 0.01
+
+
+class Interrupted(BaseException):
+    """SIGINT or SIGTERM stopped the job; exit status 128 + ``signum`` (130, 143).
+
+    A BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it,
+    and on its way out every atomic write removes its temporary file.
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+def _stop_on_signal(signum, frame) -> None:
+    """The first SIGINT/SIGTERM stops the job; later ones wait for its cleanup (≤ 2 s)."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+def _redelivering(previous: Callable) -> Callable:
+    """A ``sys.unraisablehook`` that delivers again an :class:`Interrupted` raised in
+    a finalizer, and passes anything else to ``previous``.
+
+    The garbage collector runs ``__del__`` methods at any point, and a signal
+    handler that runs inside one raises where nothing can unwind the job: Python
+    prints the exception and goes on, the signal now ignored. So the handler is
+    re-armed and the signal sent to this process again, from a timer thread a
+    moment later (sent from here, it would be handled here, in the hook), to be
+    raised at the next point that can unwind.
+    """
+
+    def hook(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, Interrupted):
+            previous(unraisable)
+            return
+        signum = unraisable.exc_value.signum
+        signal.signal(signum, _worker_terminated if _worker else _stop_on_signal)
+        again = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+        again.daemon = True
+        again.start()
+
+    return hook
+
+
+class stop_on_signals:
+    """Context: SIGINT and SIGTERM raise :class:`Interrupted` in the main thread
+    (again if a finalizer swallowed it: :func:`_redelivering`).
+
+    Restores the previous handlers on exit. Does nothing outside the main thread
+    (Python delivers signals only there).
+    """
+
+    def __enter__(self):
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+            self._old_hook = sys.unraisablehook
+            for sig in self._old:
+                signal.signal(sig, _stop_on_signal)
+            sys.unraisablehook = _redelivering(self._old_hook)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._old is None:
+            return
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+        sys.unraisablehook = self._old_hook
+
+
+@dataclass
+class Result:
+    """The outcome of one task: ``done``, ``skipped`` or ``failed``."""
+
+    task: Task
+    status: str
+    message: str = ""
+    record: dict = field(default_factory=dict)
+    detail: str = ""
+    seconds: float = 0.0
+
+
+def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: dict) -> Result:
+    """Run ``job`` on ``task``: skipped if all its outputs exist, refused if only some
+    do (they are not a finished set of this command's: nothing is overwritten without
+    ``--overwrite``). A job that fails or is interrupted leaves none of the outputs
+    it had begun to write."""
+    try:
+        existing = {p for p in task.outputs.values() if remote.exists(p)}
+    except Exception as err:  # OSError, or a remote file system's own errors
+        return Result(task, "failed", f"{shown(task.source)}: cannot check its outputs: {err}")
+    if not overwrite and existing:
+        if len(existing) == len(task.outputs):
+            return Result(task, "skipped", f"{shown(task.source)}: outputs exist (use --overwrite)")
+        absent = next(p for p in task.outputs.values() if p not in existing)
+        return Result(
+            task,
+            "failed",
+            f"{shown(task.source)}: {shown(min(existing))} exists but {shown(absent)} does not; "
+            "not replacing a file this run did not finish (use --overwrite to replace it)",
+        )
+    start = time.perf_counter()
+    global _in_job
+    _in_job = True
+    local = task  # the task with local paths (a remote input is downloaded first)
+    try:
+        with remote.staged(task) as local:
+            record = job(local, **kwargs)
+    except BaseException as err:
+        for p in task.outputs.values():  # the outputs this job had written so far
+            if p not in existing:
+                remote.remove(p)
+        if isinstance(err, Interrupted):
+            if _worker:  # terminated by the parent: the temporary files are gone, leave now
+                os._exit(128 + signal.SIGTERM)
+            raise
+        if not isinstance(err, Exception):
+            raise
+        detail = traceback.format_exc() if debug else ""
+        message = _failure(err, local)
+        if local.source != task.source:  # name the input as the user gave it
+            message = message.replace(str(local.source), shown(task.source))
+        return Result(task, "failed", message, detail=detail)
+    finally:
+        _in_job = False
+    return Result(task, "done", record=record, seconds=time.perf_counter() - start)
+
+
+def _failure(err: Exception, task: Task) -> str:
+    """The one-line message of a job's error: a :class:`RawsimError` says it all; a
+    full disk says so; anything else (a bug, or a library's error on a bad file)
+    is named with its type."""
+    if isinstance(err, RawsimError):
+        return _one_line(err, task)
+    text = str(err)
+    if isinstance(err, OSError) and (
+        err.errno == errno.ENOSPC or ("requested and" in text and "written" in text)
+    ):
+        folder = os.path.dirname(str(next(iter(task.outputs.values()))))
+        return f"{shown(task.source)}: disk full writing into {shown(folder)} (free some space)"
+    return f"{shown(task.source)}: {type(err).__name__}: {_one_line(err, None)}"
+
+
+def _one_line(err: BaseException, task: Task | None) -> str:
+    text = " ".join(str(err).split()) or type(err).__name__
+    if task is not None and str(task.source) not in text and shown(task.source) not in text:
+        text = f"{shown(task.source)}: {text}"
+    return text
+
+
+def _worker_context():
+    """Fork where the platform can (as torch's DataLoader does), else spawn.
+
+    Forked workers share the parent's imported modules, which spares each of them
+    the seconds that importing torch takes; the parent has run no parallel torch
+    work before the pool starts. CUDA does not survive a fork, so with a GPU
+    present the workers are spawned.
+    """
+    import torch
+
+    if "fork" in get_all_start_methods() and not torch.cuda.is_available():
+        return get_context("fork")
+    return get_context("spawn")
+
+
+#: Whether this process is a pool worker, and whether it is running a job now.
+_worker = False
+
+
+_in_job = False
+
+
+def _worker_terminated(signum, frame) -> None:
+    """SIGTERM in a worker: unwind the running job (its atomic writes remove their
+    temporary files), then exit; an idle worker exits at once."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if _in_job:
+        raise Interrupted(signum)
+    os._exit(128 + signum)
+
+
+def _init_worker(threads: int) -> None:
+    """Give each worker its share of the cores, in torch and in the engine, so that
+    jobs × threads ≤ cores; leave SIGINT (Ctrl-C reaches the whole process group)
+    to the parent, which terminates the workers with SIGTERM."""
+    global _worker
+    _worker = True
+    # rawpy warns of OpenMP in forked processes: the parent never ran LibRaw (nor any
+    # OpenMP code) before forking, so its threads cannot be held by a lost lock.
+    warnings.filterwarnings("ignore", "rawpy is being used in a process created by multi")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+    sys.unraisablehook = _redelivering(sys.unraisablehook)
+    set_threads(threads)
+
+
+def set_threads(threads: int) -> None:
+    """Use ``threads`` CPU threads in torch, the engine, PNG writing and decoders."""
+    import torch
+
+    from rawsim import engine
+    from rawsim.io import png
+
+    torch.set_num_threads(threads)
+    png.set_threads(threads)
+    if "OpenImageIO" in sys.modules:  # decoders' own thread pools: the same share
+        sys.modules["OpenImageIO"].attribute("threads", threads)
+    if engine.available():
+        engine.set_threads(threads)
