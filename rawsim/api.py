@@ -63,8 +63,16 @@ def unprocess(
             on the same device.
         iso: one ISO for all, one per sample, or None with ``iso_range``
             (log-uniform per sample, from its seed).
-        randomize, noise, tone, transfer, exposure_ev, vignetting,
-        safe_white_balance: as the ``rawsim unprocess`` options.
+        iso_range: (MIN, MAX) for ``iso=None``, as ``--iso-range``.
+        randomize: as ``--randomize``.
+        noise: as ``--noise``.
+        tone: as ``--tone``.
+        transfer: as ``--transfer``.
+        exposure_ev: as ``--exposure``.
+        vignetting: as ``--vignetting``.
+        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
+        display_referred: False for scene-linear float images (as EXR inputs).
+        code_max: the full-scale code of integer ``images`` (255 for 8-bit).
 
     Returns:
         ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
