@@ -29,6 +29,7 @@ import numpy as np
 
 from rawsim.color import SRGB_TO_XYZ, srgb_from_camera
 from rawsim.errors import ParameterError
+from rawsim.isp.curves import TransferSpec
 
 DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHT_MODES = ("clip", "blend")
@@ -378,53 +379,6 @@ def load_config_text(text: str, origin: str = "config") -> list[dict]:
     if unknown:
         raise ParameterError(f"{origin}: unknown top-level key {unknown[0]!r}; valid: stage")
     return validate_config(data.get("stage", []), origin)
-
-
-@dataclass(frozen=True)
-class TransferSpec:
-    """A parsed transfer name: ``srgb``, ``linear`` or ``gamma:G``."""
-
-    kind: str
-    gamma: float = 1.0
-
-    @classmethod
-    def parse(cls, text: str) -> TransferSpec:
-        """Parse ``"srgb"``, ``"linear"`` or ``"gamma:2.2"``."""
-        text = str(text).strip().lower()
-        if text in ("srgb", "linear"):
-            return cls(text)
-        if text.startswith("gamma:"):
-            try:
-                gamma = float(text.split(":", 1)[1])
-            except ValueError:
-                gamma = float("nan")
-            if not gamma > 0:
-                raise ParameterError(f"bad transfer {text!r}: gamma must be a number > 0")
-            return cls("gamma", gamma)
-        raise ParameterError(f"unknown transfer {text!r}; valid: srgb, linear, gamma:G")
-
-    def __str__(self) -> str:
-        return f"gamma:{self.gamma:g}" if self.kind == "gamma" else self.kind
-
-    def encode(self, x):
-        """Linear → display values (torch tensors: :mod:`rawsim.isp.transfer`)."""
-        from rawsim.isp.transfer import gamma_encode, srgb_encode
-
-        if self.kind == "srgb":
-            return srgb_encode(x)
-        if self.kind == "gamma":
-            return gamma_encode(x, self.gamma)
-        return x
-
-    def decode(self, v):
-        """Display → linear values (torch tensors)."""
-        from rawsim.isp.transfer import gamma_decode, srgb_decode
-
-        if self.kind == "srgb":
-            return srgb_decode(v)
-        if self.kind == "gamma":
-            return gamma_decode(v, self.gamma)
-        return v
 
 
 def auto_white_balance(raw) -> tuple[float, float, float]:
