@@ -264,7 +264,7 @@ def run(
         max_workers=jobs,
         mp_context=_worker_context(),
         initializer=_init_worker,
-        initargs=(threads,),
+        initargs=(threads, os.getpid()),
     )
     try:
         futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
