@@ -174,3 +174,65 @@ def test_workers_die_with_a_killed_parent(inputs, tmp_path):
         for pid in workers:
             if running(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+def tagged(tag: str) -> list[int]:
+    """Live processes whose environment holds ``RAWSIM_TEST_TAG=tag``."""
+    found = []
+    for environ in Path("/proc").glob("[0-9]*/environ"):
+        try:
+            if f"RAWSIM_TEST_TAG={tag}".encode() in environ.read_bytes().split(b"\0"):
+                if running(int(environ.parent.name)):
+                    found.append(int(environ.parent.name))
+        except OSError:
+            continue
+    return found
+
+
+AGENTS = (b"ray::DashboardAgent", b"ray::RuntimeEnvAgent")
+
+
+def cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def test_ray_tasks_of_a_local_cluster_die_with_a_killed_parent(tmp_path):
+    """With no --address, rawsim starts a Ray cluster of its own; SIGKILL the main
+    process only: its tasks stop, and nothing is written after 2 s."""
+    pytest.importorskip("ray")
+    inputs, out = tmp_path / "in", tmp_path / "out"
+    inputs.mkdir()
+    for i in range(40):
+        shutil.copy(DATA / "srgb" / "astronaut.png", inputs / f"a{i:02d}.png")
+    tag = f"{os.getpid()}-{time.monotonic_ns()}"
+    env = {**os.environ, "RAWSIM_TEST_TAG": tag, "RAY_USAGE_STATS_ENABLED": "0"}
+    command = [sys.executable, "-c", CLI, *args(inputs, out)[:-2], "--noise", "physics"]
+    command += ["--executor", "ray"]  # (not --jobs: the cluster's CPUs set that)
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+        env=env,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(list(out.glob("*.json"))) < 2:
+            time.sleep(0.1)
+        assert list(out.glob("*.json")), "the Ray run did not start"
+        assert [pid for pid in tagged(tag) if b"ray::" in cmdline(pid)], "no Ray workers seen"
+        proc.kill()
+        proc.wait()
+        time.sleep(2.0)
+        alive = [cmdline(pid) for pid in tagged(tag)]
+        # Ray's dashboard and runtime-env agents linger, idle: they run no task
+        assert [c for c in alive if not c.startswith(AGENTS)] == [], "outlived their parent"
+        before = sorted(p.name for p in out.iterdir())
+        time.sleep(1.5)
+        assert sorted(p.name for p in out.iterdir()) == before
+    finally:
+        for pid in tagged(tag):  # whatever of the cluster is left (Ray's own agents)
+            os.kill(pid, signal.SIGKILL)
