@@ -74,11 +74,18 @@ def remove_stale_temporaries(folder: str | Path) -> int:
 
 
 def running(pid: int) -> bool:
-    """Whether process ``pid`` exists on this machine."""
+    """Whether process ``pid`` exists on this machine and is not a zombie (a killed
+    process its parent has not reaped yet writes nothing more)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # someone else's process
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except FileNotFoundError:  # it ended just now, or there is no /proc (not Linux)
+        return not os.path.isdir("/proc/self")
+    except (OSError, IndexError):
+        return True

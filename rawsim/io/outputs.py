@@ -49,7 +49,7 @@ def marker(outputs: Mapping[str, Path | str]) -> Path | str:
     output), named by a hash of the outputs' names, so any name length fits."""
     anchor = outputs.get("json") or next(iter(outputs.values()))
     names = "\0".join(sorted(file_name(p) for p in outputs.values()))
-    name = MARKER_PREFIX + hashlib.sha256(names.encode()).hexdigest()[:16]
+    name = MARKER_PREFIX + hashlib.sha256(os.fsencode(names)).hexdigest()[:16]
     if remote.is_url(anchor):
         return remote.join(str(anchor).rsplit("/", 1)[0], name)
     return Path(anchor).parent / name

@@ -23,6 +23,7 @@ from multiprocessing import get_all_start_methods, get_context
 
 from rawsim.errors import RawsimError, shown
 from rawsim.io import outputs, remote
+from rawsim.io.atomic import running
 from rawsim.io.task import Task
 
 #: Seconds after which a signal that a finalizer swallowed is sent again.
@@ -260,20 +261,31 @@ def _die_with_parent(parent: int) -> None:
     temporaries) and the worker exits, within :data:`ORPHAN_GRACE_S`.
 
     On Linux the kernel sends the signal at once (``prctl(PR_SET_PDEATHSIG)``);
-    everywhere, a thread also polls the parent's pid every :data:`PARENT_POLL_S`
-    and, should the job not unwind in time (stuck in native code), ends the
-    process.
+    everywhere, :func:`stop_with` also watches the parent.
     """
     if sys.platform.startswith("linux"):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-    watcher = threading.Thread(target=_watch_parent, args=(parent,), daemon=True)
-    watcher.start()
+    stop_with(parent)
 
 
-def _watch_parent(parent: int) -> None:
-    """Wait for ``parent`` to go (this process is then re-parented), then stop."""
-    while os.getppid() == parent:
+#: The processes this one already watches (:func:`stop_with`).
+_watched: set[int] = set()
+
+
+def stop_with(pid: int) -> None:
+    """Stop this process when process ``pid`` (of this machine) is gone: a thread
+    polls it every :data:`PARENT_POLL_S`, then sends this process SIGTERM (the
+    running job unwinds) and, should it not be gone after :data:`ORPHAN_GRACE_S`
+    (stuck in native code), ends it. Once per ``pid``."""
+    if pid in _watched:
+        return
+    _watched.add(pid)
+    threading.Thread(target=_watch, args=(pid,), daemon=True).start()
+
+
+def _watch(pid: int) -> None:
+    while running(pid):
         time.sleep(PARENT_POLL_S)
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(ORPHAN_GRACE_S)
