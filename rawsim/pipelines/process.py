@@ -23,8 +23,8 @@ import numpy as np
 from rawsim._version import __version__
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
-from rawsim.io.atomic import atomic_output
 from rawsim.io.images import OUTPUT_FORMATS, write_image
+from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.io.task import Task
 from rawsim.isp.config import (
@@ -494,8 +494,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         **{k: v for k, v in info.items() if k != "white_level"},
         "white_level_used": info.get("white_level", raw.white_level),
     }
-    with atomic_output(task.outputs["image"]) as tmp:
-        write_image(tmp, samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
-    with atomic_output(task.outputs["json"]) as tmp:
-        Path(tmp).write_text(json.dumps(meta, indent=2) + "\n")
+    with atomic_outputs(task.outputs) as tmp:
+        write_image(tmp["image"], samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
+        tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
