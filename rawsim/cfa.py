@@ -294,6 +294,26 @@ def apply_tile(x: torch.Tensor, tile: torch.Tensor, op) -> torch.Tensor:
     return op(blocks, t).reshape(b, c, h, w)
 
 
+def phase_reflect_index(n: int, pad: int, period: int):
+    """Source index (int64 numpy array, length n + 2·pad) of each position −pad … n + pad − 1
+    of a line of ``n`` CFA sites extended by ``pad`` on both sides.
+
+    Inside, the identity. Outside, the mirror image about the edge site, moved
+    outwards by less than one period to the nearest index of the same CFA phase
+    (≡ the virtual index mod ``period``), so the extended mosaic keeps the
+    pattern; for ``period`` 2 this is plain reflection (torch's ``reflect``
+    padding). Needs n ≥ pad + period.
+    """
+    import numpy as np
+
+    if n < pad + period:
+        raise ParameterError(f"cannot extend {n} sites by {pad} keeping a period of {period}")
+    v = np.arange(-pad, n + pad)
+    low = -v + np.mod(2 * v, period)
+    high = 2 * (n - 1) - v - np.mod(2 * (n - 1) - 2 * v, period)
+    return np.where(v < 0, low, np.where(v >= n, high, v)).astype(np.int64)
+
+
 def _check_even(height: int, width: int) -> None:
     if height % 2 or width % 2:
         raise ParameterError(f"a Bayer image needs even height and width, got {height}×{width}")
