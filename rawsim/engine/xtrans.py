@@ -52,27 +52,50 @@ def _extend(mosaic, rows, cols, out):
             dst[j] = src[cols[j]]
 
 
+def _neighbour_lists(cmap: np.ndarray, offsets: np.ndarray, colors) -> tuple:
+    """For each site phase (r, c) and each colour in ``colors``: the indices into
+    ``offsets`` of the neighbours of that colour, ascending (the reference's
+    summation order), padded with −1; and their counts."""
+    ph, pw = cmap.shape
+    lists = np.full((ph, pw, len(colors), len(offsets)), -1, np.int64)
+    counts = np.zeros((ph, pw, len(colors)), np.int64)
+    for r in range(ph):
+        for c in range(pw):
+            for n, color in enumerate(colors):
+                ks = [
+                    k
+                    for k, (dy, dx) in enumerate(offsets)
+                    if cmap[(r + dy) % ph, (c + dx) % pw] == color
+                ]
+                lists[r, c, n, : len(ks)] = ks
+                counts[r, c, n] = len(ks)
+    return lists, counts
+
+
 @njit(parallel=True, **_JIT)
-def _bilinear(m, cmap, est, q):
+def _bilinear(m, cmap, lists, counts, est, q):
     """3×3 same-colour means into ``est`` (3, H, W) over rows/cols [q, H − q)."""
     h, w = m.shape
     ph, pw = cmap.shape
     for i in prange(q, h - q):
+        pr = i % ph
+        pc = q % pw
         for j in range(q, w - q):
-            own = cmap[i % ph, j % pw]
+            own = cmap[pr, pc]
             for c in range(3):
                 if c == own:
                     est[c, i, j] = m[i, j]
                     continue
                 num = np.float32(0.0)
                 den = np.float32(0.0)
-                for k in range(8):
-                    y = i + _N3[k, 0]
-                    x = j + _N3[k, 1]
-                    if cmap[y % ph, x % pw] == c:
-                        num = num + _K3[k] * m[y, x]
-                        den = den + _K3[k]
+                for s in range(counts[pr, pc, c]):
+                    k = lists[pr, pc, c, s]
+                    num = num + _K3[k] * m[i + _N3[k, 0], j + _N3[k, 1]]
+                    den = den + _K3[k]
                 est[c, i, j] = num / den
+            pc += 1
+            if pc == pw:
+                pc = 0
 
 
 @njit(inline="always", **_JIT)
@@ -90,56 +113,72 @@ def _inv_sq(g):
 
 @njit(parallel=True, **_JIT)
 def _green(m, cmap, est, out, q):
-    """Step 1 of an ``icd`` round: green into ``out[1]`` over [q, H − q)."""
+    """Step 1 of an ``icd`` round: green into ``out[1]`` over [q, H − q).
+
+    _N3 is symmetric (neighbour 7 − k is opposite k), so each of the 8 RGB
+    differences is taken once and used twice.
+    """
     h, w = m.shape
     ph, pw = cmap.shape
     for i in prange(q, h - q):
+        l1 = np.empty(8, np.float32)
+        pr = i % ph
+        pc = q % pw
         for j in range(q, w - q):
-            own = cmap[i % ph, j % pw]
+            own = cmap[pr, pc]
+            pc += 1
+            if pc == pw:
+                pc = 0
             if own == 1:
                 out[1, i, j] = m[i, j]
                 continue
+            for k in range(8):
+                l1[k] = _l1(est, i + _N3[k, 0], j + _N3[k, 1], i, j)
             num = np.float32(0.0)
             den = np.float32(0.0)
             for k in range(8):
-                dy = _N3[k, 0]
-                dx = _N3[k, 1]
-                g = _l1(est, i + dy, j + dx, i, j) + _HALF * _l1(est, i - dy, j - dx, i, j)
+                g = l1[k] + _HALF * l1[7 - k]
                 weight = _K3[k] * _inv_sq(g)
-                d = est[own, i + dy, j + dx] - est[1, i + dy, j + dx]
+                y = i + _N3[k, 0]
+                x = j + _N3[k, 1]
+                d = est[own, y, x] - est[1, y, x]
                 num = num + weight * d
                 den = den + weight
             out[1, i, j] = m[i, j] - num / den
 
 
 @njit(parallel=True, **_JIT)
-def _red_blue(m, cmap, out, q):
+def _red_blue(m, cmap, lists, counts, out, q):
     """Step 2 of an ``icd`` round: red and blue into ``out[0]``, ``out[2]`` over [q, H − q)."""
     h, w = m.shape
     ph, pw = cmap.shape
     green = out[1]
     for i in prange(q, h - q):
+        pr = i % ph
+        pc = q % pw
         for j in range(q, w - q):
-            own = cmap[i % ph, j % pw]
+            own = cmap[pr, pc]
             g0 = green[i, j]
-            for c in (0, 2):
+            for n in range(2):
+                c = 2 * n
                 if c == own:
                     out[c, i, j] = m[i, j]
                     continue
                 num = np.float32(0.0)
                 den = np.float32(0.0)
-                for k in range(24):
+                for s in range(counts[pr, pc, n]):
+                    k = lists[pr, pc, n, s]
                     dy = _N5[k, 0]
                     dx = _N5[k, 1]
-                    y = i + dy
-                    x = j + dx
-                    if cmap[y % ph, x % pw] != c:
-                        continue
-                    g = abs(green[y, x] - g0) + _HALF * abs(green[i - dy, j - dx] - g0)
+                    gn = green[i + dy, j + dx]
+                    g = abs(gn - g0) + _HALF * abs(green[i - dy, j - dx] - g0)
                     weight = _K5[k] * _inv_sq(g)
-                    num = num + weight * (m[y, x] - green[y, x])
+                    num = num + weight * (m[i + dy, j + dx] - gn)
                     den = den + weight
                 out[c, i, j] = g0 + num / den
+            pc += 1
+            if pc == pw:
+                pc = 0
 
 
 def demosaic_xtrans(
@@ -172,13 +211,15 @@ def demosaic_xtrans(
     m = np.empty((rows.size, cols.size), np.float32)
     _extend(mosaic, rows, cols, m)
     est = np.empty((3, *m.shape), np.float32)
-    _bilinear(m, cmap, est, 1)
+    lists3, counts3 = _neighbour_lists(cmap, _N3, (0, 1, 2))
+    _bilinear(m, cmap, lists3, counts3, est, 1)
     if method == "icd":
+        lists5, counts5 = _neighbour_lists(cmap, _N5, (0, 2))
         out = np.empty_like(est)
         q = 1
         for _ in range(iterations):
             _green(m, cmap, est, out, q + 1)
-            _red_blue(m, cmap, out, q + 3)
+            _red_blue(m, cmap, lists5, counts5, out, q + 3)
             est, out = out, est
             q += 3
     return np.ascontiguousarray(est[:, pad : pad + h, pad : pad + w])
