@@ -36,12 +36,12 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     from rawsim.errors import RawsimError, shown
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.io.raw import read_raw
-    from rawsim.isp.config import default_config, load_config, override
+    from rawsim.isp.config import IspConfig
     from rawsim.pipelines.process import describe
     from rawsim.run.batch import discover
 
-    config = load_config(config_path) if config_path else default_config()
-    config = override(config, wb=wb, white_level=white_level, highlights=highlights)
+    config = IspConfig.load(config_path) if config_path else IspConfig.default()
+    config = config.override(wb=wb, white_level=white_level, highlights=highlights)
     found, missing, _ = discover(inputs, RAW_EXTENSIONS)
     failed = len(missing)
     for result in missing:

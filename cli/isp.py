@@ -22,9 +22,9 @@ def command():
 @usage_errors
 def show_cmd():
     """Print the default ISP config as TOML (edit it and pass it to 'rawsim process -c')."""
-    from rawsim.isp.config import config_to_toml, default_config
+    from rawsim.isp.config import IspConfig
 
-    click.echo(config_to_toml(default_config()), nl=False)
+    click.echo(IspConfig.default().to_toml(), nl=False)
 
 
 @command.command("check")
@@ -33,7 +33,6 @@ def show_cmd():
 @usage_errors
 def check_cmd(config):
     """Validate a config file; print the effective stage order."""
-    from rawsim.isp.config import load_config
+    from rawsim.isp.config import IspConfig
 
-    stages = load_config(config)
-    click.echo(" → ".join(s["name"] for s in stages if s["enabled"]))
+    click.echo(" → ".join(s.name for s in IspConfig.load(config).enabled))

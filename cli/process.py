@@ -139,12 +139,11 @@ def command(
     """
     from rawsim.device import resolve_device
     from rawsim.io.images import RAW_EXTENSIONS
-    from rawsim.isp.config import default_config, load_config, override
+    from rawsim.isp.config import IspConfig
     from rawsim.pipelines.process import ProcessOptions, process_file
 
-    config = load_config(config_path) if config_path else default_config()
-    config = override(
-        config,
+    config = IspConfig.load(config_path) if config_path else IspConfig.default()
+    config = config.override(
         wb=wb,
         white_level=white_level,
         demosaic=demosaic,

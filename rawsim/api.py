@@ -17,7 +17,8 @@ import torch
 
 from rawsim.errors import ParameterError
 from rawsim.io.raw import RawImage
-from rawsim.isp.pipeline import build_isp, default_config, override, validate_config
+from rawsim.isp.config import IspConfig
+from rawsim.isp.pipeline import build_isp
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.process import render_float
 from rawsim.pipelines.unprocess import INTEGER_DTYPES, UnprocessOptions, simulate
@@ -63,8 +64,16 @@ def unprocess(
             on the same device.
         iso: one ISO for all, one per sample, or None with ``iso_range``
             (log-uniform per sample, from its seed).
-        randomize, noise, tone, transfer, exposure_ev, vignetting,
-        safe_white_balance: as the ``rawsim unprocess`` options.
+        iso_range: (MIN, MAX) for ``iso=None``, as ``--iso-range``.
+        randomize: as ``--randomize``.
+        noise: as ``--noise``.
+        tone: as ``--tone``.
+        transfer: as ``--transfer``.
+        exposure_ev: as ``--exposure``.
+        vignetting: as ``--vignetting``.
+        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
+        display_referred: False for scene-linear float images (as EXR inputs).
+        code_max: the full-scale code of integer ``images`` (255 for 8-bit).
 
     Returns:
         ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
@@ -139,7 +148,7 @@ def process(
     mosaics: torch.Tensor,
     sensor: ProfileSensor,
     metadata: Sequence[dict],
-    config: list[dict] | None = None,
+    config: IspConfig | list[dict] | None = None,
     **changes,
 ) -> torch.Tensor:
     """Render mosaics from :func:`unprocess` back to images through the ISP.
@@ -150,7 +159,8 @@ def process(
         metadata: :func:`unprocess`'s dicts: each sample's white balance and
             matrix are used (``white_balance`` mode ``camera``), and its baseline
             exposure (the DNG's BaselineExposure) unless the config ignores it.
-        config: an ISP config (see ``rawsim isp show``); default: the default ISP.
+        config: an ISP config (see ``rawsim isp show``), typed or as its TOML tables;
+            default: the default ISP.
         changes: stage overrides as ``rawsim process`` takes them, e.g.
             ``demosaic="bilinear"``.
 
@@ -165,9 +175,9 @@ def process(
             f"need mosaics (B, 1, H, W) and one metadata dict each, got "
             f"{tuple(mosaics.shape)} and {len(metadata)}"
         )
-    config = validate_config(config if config is not None else default_config())
+    config = IspConfig.of(config) if config is not None else IspConfig.default()
     if changes:
-        config = override(config, **changes)
+        config = config.override(**changes)
     mono = isinstance(sensor, MonoSensor)
     p = sensor.profile
     outs = []

@@ -43,8 +43,11 @@ class UnprocessDataset(Dataset):
         crop: crop size S in pixels, even; crops start on even rows and columns,
             so every crop has the sensor's CFA phase.
         seed: the dataset's seed.
-        iso, iso_range, randomize, noise: as for :func:`rawsim.api.unprocess`
-            (default: log-uniform ISO over the profile's range, randomized).
+        iso: one ISO for every item, as for :func:`rawsim.api.unprocess`.
+        iso_range: (MIN, MAX), each item's ISO drawn log-uniformly (default,
+            with ``iso`` None too: the profile's whole range).
+        randomize: sample colour matrix, white balance and brightness per item.
+        noise: the noise model, as ``--noise``.
         layout: ``packed`` or ``mosaic``.
         normalize: scale DN to [0, 1] above black.
     """

@@ -68,8 +68,16 @@ class RawPairs:
         profile: a bundled profile's name, a profile JSON's path, or a profile.
         root: the folder (path or URL) the CLI would be given; keys are relative to it.
         seed: the run's seed, as ``--seed``.
-        iso, iso_range, randomize, noise, tone, transfer, exposure_ev, vignetting,
-        safe_white_balance, sensor: as the ``rawsim unprocess`` options.
+        iso: one ISO for every row, as ``--iso`` (give this or ``iso_range``).
+        iso_range: (MIN, MAX), as ``--iso-range``.
+        randomize: as ``--randomize``.
+        noise: as ``--noise``.
+        tone: as ``--tone``.
+        transfer: as ``--transfer``.
+        exposure_ev: as ``--exposure``.
+        vignetting: as ``--vignetting``.
+        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
+        sensor: ``rgb`` or ``mono``, as ``--sensor``.
         clean: also return the noise-free mosaic.
     """
 

@@ -22,7 +22,7 @@ from rawsim.isp.color_matrix import apply_color_matrix
 from rawsim.isp.lens_shading import invert_lens_shading, radial_gain
 from rawsim.isp.levels import denormalize_levels, normalize_levels, quantize, saturate
 from rawsim.isp.tone import invert_tone_curve
-from rawsim.isp.transfer import TransferSpec, gamma_decode, gamma_encode
+from rawsim.isp.transfer import TransferSpec, gamma_decode, gamma_encode, invert_transfer
 from rawsim.isp.white_balance import invert_white_balance, safe_invert_white_balance
 from rawsim.noise.models import NoiseLevels, add_noise
 from rawsim.params import UnprocessParams, sample_params
@@ -37,7 +37,7 @@ def display_to_linear(v: torch.Tensor, tone: str = "none", transfer: str = "srgb
     The order follows Brooks et al. (their tone curve acts on encoded values).
     ``v`` is any shape, nominally in [0, 1].
     """
-    return TransferSpec.parse(transfer).decode(invert_tone_curve(v, tone))
+    return invert_transfer(invert_tone_curve(v, tone), TransferSpec.parse(transfer))
 
 
 def _read_config(config) -> dict:

@@ -95,8 +95,8 @@ def test_temporaries_fit_long_names_and_stale_ones_are_removed(tmp_path):
         tmp.write_bytes(b"ok")
     assert long.read_bytes() == b"ok"
     dead = _dead_pid()
-    stale = tmp_path / f".rawsim-{atomic._HOST}-{dead}-0123abcd.tmp.dng"
-    live = tmp_path / f".rawsim-{atomic._HOST}-{os.getpid()}-0123abcd.tmp.dng"
+    stale = tmp_path / f".rawsim-{atomic.HOST}-{dead}-0123abcd.tmp.dng"
+    live = tmp_path / f".rawsim-{atomic.HOST}-{os.getpid()}-0123abcd.tmp.dng"
     other = tmp_path / f".rawsim-ffffff-{dead}-0123abcd.tmp.dng"  # another machine's
     for p in (stale, live, other):
         p.write_bytes(b"")

@@ -8,6 +8,7 @@ The cluster's workers get the S3 endpoint and credentials from the environment
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import secrets
@@ -25,6 +26,7 @@ import pytest
 import tifffile
 from click.testing import CliRunner
 
+from rawsim.io import outputs
 from rawsim_cli.main import cli
 from tests.conftest import DATA
 
@@ -269,6 +271,47 @@ def test_s3_with_the_ray_executor(photos, local_run, s3, cluster):
     )
     assert r.returncode == 1 and "16 done, 0 skipped, 1 failed" in r.stderr
     assert _objects(s3, "raw-ray") == digest(out)
+
+
+def _leave_unfinished(client, prefix: str, stem: str, marked: bool) -> None:
+    """Make ``stem``'s outputs under ``prefix`` look as a run killed while uploading
+    them left them: the sidecar and the clean DNG missing, and (``marked``) the
+    set's marker naming a process that is gone; unmarked, they are someone else's."""
+    for suffix in (".json", ".clean.dng"):
+        client.delete_object(Bucket=BUCKET, Key=f"{prefix}/{stem}{suffix}")
+    if marked:
+        gone = subprocess.Popen(["true"])
+        gone.wait()
+        urls = {k: f"s3://{BUCKET}/{prefix}/{stem}{s}" for k, s in SUFFIXES.items()}
+        key = outputs.marker(urls)[len(f"s3://{BUCKET}/") :]
+        names = [u.rsplit("/", 1)[1] for u in urls.values()]
+        info = {"host": outputs.HOST, "pid": gone.pid, "outputs": names}
+        client.put_object(Bucket=BUCKET, Key=key, Body=json.dumps(info).encode())
+
+
+SUFFIXES = {"dng": ".dng", "clean_dng": ".clean.dng", "json": ".json"}
+
+
+@pytest.mark.parametrize("executor", ["local", "ray"])
+def test_an_unfinished_remote_set_is_finished_and_a_foreign_one_refused(
+    photos, s3, executor, request, tmp_path
+):
+    assert here("unprocess", photos / "a", "-o", tmp_path, *COMMON).exit_code == 0
+    prefix = f"unfinished-{executor}"
+    url_out = f"s3://{BUCKET}/{prefix}"
+    assert here("unprocess", photos / "a", "-o", url_out, *COMMON).exit_code == 0
+    _leave_unfinished(s3, prefix, "00_chelsea", marked=True)
+    _leave_unfinished(s3, prefix, "01_rocket", marked=False)
+    ray = []
+    if executor == "ray":
+        ray = ["--executor", "ray", "--address", request.getfixturevalue("cluster")]
+    r = rawsim("unprocess", photos / "a", "-o", url_out, *COMMON, *ray)
+    assert r.returncode == 1 and "1 done, 6 skipped, 1 failed" in r.stderr, r.stderr
+    assert "01_rocket.dng exists but" in r.stderr
+    objects = _objects(s3, prefix)
+    expected = digest(tmp_path)
+    del expected["01_rocket.json"], expected["01_rocket.clean.dng"]
+    assert objects == expected  # the marker gone, the set whole, the foreign one untouched
 
 
 def test_bad_urls_say_what_is_wrong(s3, tmp_path):

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.raw import read_raw
 from rawsim.io.task import Task
-from rawsim.isp.pipeline import (
+from rawsim.isp.config import (
     STAGES,
     config_to_toml,
     default_config,
@@ -412,9 +412,9 @@ def test_process_cli_config_flags_and_errors(tmp_path):
 
 
 def test_cli_choices_match_the_core():
+    from rawsim.isp.config import OUTPUT_SPACES
     from rawsim.isp.demosaic import DEMOSAIC_METHODS
     from rawsim.isp.highlights import HIGHLIGHT_MODES
-    from rawsim.isp.pipeline import OUTPUT_SPACES
     from rawsim.isp.tone import TONE_CURVES
     from rawsim_cli import process
 

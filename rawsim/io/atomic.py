@@ -22,7 +22,7 @@ from pathlib import Path
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 #: This machine, in temporary names: 6 hex digits of its host name's hash.
-_HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:6]
+HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:6]
 _TEMPORARY = re.compile(r"^\.rawsim-(?P<host>[0-9a-f]{6})-(?P<pid>\d+)-[0-9a-f]{8}\.tmp")
 
 
@@ -36,15 +36,22 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    suffix = path.suffix if len(path.suffix) <= 16 else ""
-    tmp = path.parent / f".rawsim-{_HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
+    tmp = temporary_path(path)
     try:
         yield tmp
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def temporary_path(path: Path) -> Path:
+    """A new, empty temporary file in ``path``'s folder (which must exist), named as
+    this module's docstring says; ``path``'s suffix is kept (if ≤ 16 characters)."""
+    suffix = path.suffix if len(path.suffix) <= 16 else ""
+    tmp = path.parent / f".rawsim-{HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
+    return tmp
 
 
 def remove_stale_temporaries(folder: str | Path) -> int:
@@ -57,7 +64,7 @@ def remove_stale_temporaries(folder: str | Path) -> int:
         return 0
     for entry in entries:
         match = _TEMPORARY.match(entry.name)
-        if match and match["host"] == _HOST and not _running(int(match["pid"])):
+        if match and match["host"] == HOST and not running(int(match["pid"])):
             try:
                 os.unlink(entry.path)
                 removed += 1
@@ -66,12 +73,19 @@ def remove_stale_temporaries(folder: str | Path) -> int:
     return removed
 
 
-def _running(pid: int) -> bool:
-    """Whether process ``pid`` exists on this machine."""
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine and is not a zombie (a killed
+    process its parent has not reaped yet writes nothing more)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # someone else's process
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            return fh.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except FileNotFoundError:  # it ended just now, or there is no /proc (not Linux)
+        return not os.path.isdir("/proc/self")
+    except (OSError, IndexError):
+        return True

@@ -9,7 +9,7 @@ real files are handled here, the way LibRaw handles them:
   ``RawImage.matrix_source`` says which;
 * white balance: the camera's multipliers where LibRaw would use them, else
   what LibRaw falls back to (``RawImage.camera_wb_fallback``, applied by the
-  ISP's :func:`~rawsim.isp.config.white_balance`);
+  ISP's :meth:`~rawsim.isp.config.WhiteBalanceStage.resolve`);
 * files without a CFA (LinearRaw DNGs): read as 3-channel linear data and
   rendered without demosaicking;
 * monochrome files (one colour, no filter): read as (H, W, 1) grey data and

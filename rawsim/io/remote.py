@@ -1,9 +1,9 @@
 """Inputs and outputs at fsspec URLs: ``s3://bucket/folder``, ``gs://…``, ``file://…``.
 
-A job reads and writes local files as always: :func:`staged` copies a remote input
-into a private scratch folder, gives the job local output paths there, and then
-uploads each finished output under its final name. An object store shows an object
-only when its upload is complete (a PUT or a completed multipart upload), so a
+A job reads and writes local files as always: :func:`rawsim.io.outputs.staged`
+copies a remote input into a private scratch folder, gives the job local output
+paths there, and then uploads each finished output under its final name. An object
+store shows an object only when its upload is complete (a PUT or a completed multipart upload), so a
 remote output appears whole or not at all, as a local rename makes it.
 
 The file system of a URL comes from fsspec and the package the user installed for
@@ -14,20 +14,15 @@ are the file system's own settings (for S3: ``AWS_ACCESS_KEY_ID``,
 
 from __future__ import annotations
 
-import os
 import secrets
-import shutil
-import tempfile
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
-from dataclasses import replace
+from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
 
 from rawsim.errors import ParameterError
 
 if TYPE_CHECKING:
-    from rawsim.io.task import Task
+    pass
 
 #: Object stores: no folders, and a missing bucket is an error, not something to make.
 _OBJECT_STORES = {"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "oss"}
@@ -119,34 +114,3 @@ def check_writable(url: str) -> None:
         fs.rm_file(probe)
     except Exception as err:  # the file system's own errors too (credentials, no bucket)
         raise OSError(str(err) or type(err).__name__) from None
-
-
-@contextmanager
-def staged(task: Task) -> Iterator[Task]:
-    """Yield ``task`` with local paths: a remote source is downloaded into a scratch
-    folder and remote outputs point there, keeping their names. When the job
-    returns, each remote output it wrote is uploaded; the scratch folder is removed
-    in every case."""
-    if not is_url(task.source) and not any(map(is_url, task.outputs.values())):
-        yield task
-        return
-    scratch = Path(tempfile.mkdtemp(prefix="rawsim-"))
-    try:
-        source = task.source
-        if is_url(source):
-            fs, path = filesystem(source)
-            source = scratch / "in" / PurePosixPath(path).name
-            source.parent.mkdir()
-            fs.get_file(path, os.fspath(source))
-        local = {
-            k: scratch / "out" / PurePosixPath(p).name if is_url(p) else p
-            for k, p in task.outputs.items()
-        }
-        yield replace(task, source=source, outputs=local)
-        # the sidecar last: an output set with its sidecar is complete
-        for kind, target in sorted(task.outputs.items(), key=lambda kv: kv[0] == "json"):
-            if is_url(target) and local[kind].exists():
-                fs, path = filesystem(target)
-                fs.put_file(os.fspath(local[kind]), path)
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)

@@ -1,20 +1,29 @@
-"""The ISP's configuration: its stages, their parameters, validation and TOML.
+"""The ISP's configuration: one typed, validated description per stage, in order.
 
-A config is a list of tables, one per stage, in processing order::
+Users write a config as TOML, a list of tables, one per stage, in processing
+order::
 
     [[stage]]
     name = "white_balance"
     mode = "camera"
 
-Every stage takes ``enabled`` (bool) besides its own keys; :func:`default_config`
-lists them all with their defaults, and ``rawsim isp show`` prints it as TOML.
-:func:`validate_config` rejects unknown stages and keys, bad values and orders
-that cannot work (listing what is valid). :func:`white_balance` and
-:func:`camera_to_output` give a stage's values for a particular raw.
+Each table becomes one frozen stage description (:class:`WhiteBalanceStage`, …,
+all listed in :data:`STAGES`), validated on construction: every stage takes
+``enabled`` (bool) besides its own parameters, which have defaults, checks and a
+help text in one place, the stage's dataclass field. An :class:`IspConfig` holds
+the stages in order and rejects orders that cannot work; it reads TOML
+(:meth:`IspConfig.load`), writes it (:meth:`IspConfig.to_toml`, what ``rawsim isp
+show`` prints) and takes the CLI's flags (:meth:`IspConfig.override`). Errors say
+what is valid.
 
-No torch here: the compiled engine and ``rawsim process`` start without it. The
-stages themselves are in :mod:`rawsim.isp.pipeline` (torch reference) and
-:mod:`rawsim.engine.process` (compiled).
+:func:`resolve` is the one step from a config to a particular raw: the stages
+that act on it and the values they take from it (white level in DN, white-balance
+gains, camera → output matrix, exposure stops), recorded as the sidecar shows
+them. The torch reference (:func:`rawsim.isp.pipeline.build_isp`) and the
+compiled engine (:func:`rawsim.pipelines.process.engine_plan`) both build from
+that :class:`ResolvedIsp`.
+
+No torch here: the compiled engine and ``rawsim process`` start without it.
 """
 
 from __future__ import annotations
@@ -22,13 +31,17 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import InitVar, dataclass, field, fields, replace
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from rawsim.color import SRGB_TO_XYZ, srgb_from_camera
 from rawsim.errors import ParameterError
+from rawsim.isp.curves import TransferSpec
+
+if TYPE_CHECKING:
+    from rawsim.io.raw import RawImage
 
 DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHT_MODES = ("clip", "blend")
@@ -50,9 +63,9 @@ ORIENTATION_OPS = {
 }
 
 OUTPUT_SPACES = ("srgb", "xyz", "camera")
-WB_MODES = ("camera", "daylight", "auto", "R,G,B")
 
 
+# ------------------------------------------------------------------ value checks
 def _choice(valid):
     def check(value):
         if value not in valid:
@@ -91,12 +104,6 @@ def _auto_or(check, what: str = "a number"):
     return auto_or
 
 
-def tone_params(stage: dict) -> tuple[str, float, float | None]:
-    """(curve, exposure, white or None for the curve's own) of a ``tone`` stage."""
-    white = None if stage["white"] == "auto" else stage["white"]
-    return stage["curve"], stage["exposure"], white
-
-
 def _flag(value):
     if not isinstance(value, bool):
         raise ParameterError(f"expected true or false, got {value!r}")
@@ -127,194 +134,526 @@ def _transfer(value):
 
 
 def _shading_k(value):
-    if not isinstance(value, list) or len(value) != 3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise ParameterError(f"expected a list of 3 numbers, got {value!r}")
-    return [_number()(v) for v in value]
+    return tuple(_number()(v) for v in value)
+
+
+def _param(default: Any, check: Callable[[Any], Any], help: str):
+    """A stage parameter: its default, its check (returns the value as stored) and help."""
+    return field(default=default, metadata={"check": check, "help": help})
+
+
+# ------------------------------------------------------------------ stages
+@dataclass(frozen=True)
+class Stage:
+    """One stage's description: ``enabled`` and its parameters, checked on construction.
+
+    Subclasses set ``name`` (the TOML ``name``) and where the stage may run, and
+    declare their parameters with :func:`_param`. Stages that take values from
+    the raw being processed record them in :meth:`resolve`.
+    """
+
+    name: ClassVar[str]
+    #: Enabled in :meth:`IspConfig.default`.
+    on_by_default: ClassVar[bool] = True
+    #: Acts on the mosaic (before ``demosaic``); skipped for raws without a CFA.
+    mosaic_only: ClassVar[bool] = False
+    #: Needs RGB: comes after ``demosaic``.
+    rgb_only: ClassVar[bool] = False
+    #: Needs colour channels: skipped for monochrome data.
+    colour_only: ClassVar[bool] = False
+
+    enabled: bool = True
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            check = f.metadata.get("check", _flag)
+            try:
+                object.__setattr__(self, f.name, check(getattr(self, f.name)))
+            except ParameterError as err:
+                raise ParameterError(f"{self.name}.{f.name}: {err}") from None
+        self._check()
+
+    def _check(self) -> None:
+        """Checks across parameters, after each one's own."""
+
+    @classmethod
+    def params(cls) -> dict[str, Any]:
+        """Parameter name → its dataclass field (default, ``check`` and ``help`` metadata)."""
+        return {f.name: f for f in fields(cls) if f.name != "enabled"}
+
+    @classmethod
+    def from_table(cls, table: dict) -> Stage:
+        """The stage of a TOML table (its ``name`` already matched); defaults fill the rest."""
+        params = cls.params()
+        unknown = sorted(set(table) - set(params) - {"name", "enabled"})
+        if unknown:
+            valid = ", ".join(["enabled", *params])
+            raise ParameterError(f"{cls.name}: unknown key {unknown[0]!r}; valid: {valid}")
+        return cls(**{k: v for k, v in table.items() if k != "name"})
+
+    def to_table(self) -> dict:
+        """The TOML table: ``name``, ``enabled``, then every parameter (lists as lists)."""
+        table = {"name": self.name, "enabled": self.enabled}
+        for key in self.params():
+            value = getattr(self, key)
+            table[key] = list(value) if isinstance(value, tuple) else value
+        return table
+
+    def acts_on(self, raw: RawImage) -> bool:
+        """Whether the stage runs on ``raw``: mosaic stages need a CFA, colour stages colour."""
+        if raw.cfa is None and self.mosaic_only:
+            return False
+        return not (monochrome(raw) and self.colour_only)
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """Record in ``info`` the values this stage takes from ``raw`` (most take none)."""
 
 
 @dataclass(frozen=True)
-class Param:
-    default: Any
-    check: Callable[[Any], Any]
-    help: str
+class BlackLevelStage(Stage):
+    """Black level subtraction and scaling to white = 1."""
+
+    name: ClassVar[str] = "black_level"
+    white_level: str = _param(
+        "file", _choice(("file", "auto")), "file, or auto (LibRaw's adjust_maximum_thr=0.75)"
+    )
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["white_level"]``: the file's white level (DN), or with ``white_level =
+        "auto"`` the image's maximum where that lies between 75 % of the file's and the
+        file's (LibRaw's default render: the brightest value becomes white)."""
+        level = float(raw.white_level)
+        if self.white_level == "auto":
+            top = float(raw.data.max())
+            if ADJUST_MAXIMUM * level < top < level:
+                level = top
+        info["white_level"] = level
 
 
-#: Stage name → its parameters, in the default processing order.
-STAGES: dict[str, dict[str, Param]] = {
-    "black_level": {
-        "white_level": Param(
-            "file", _choice(("file", "auto")), "file, or auto (LibRaw's adjust_maximum_thr=0.75)"
-        ),
-    },
-    "dead_pixel": {
-        "threshold": Param(0.1, _number(1e-6), "deviation from the neighbours' mean (white = 1)"),
-        "kernel": Param(3, _choice((3, 5)), "neighbourhood size within the colour plane"),
-        "temperature": Param(0.01, _number(1e-6), "width of the soft decision"),
-    },
-    "lens_shading": {
-        "k": Param([0.3, 0.15, 0.05], _shading_k, "V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶"),
-        "strength": Param(1.0, _number(0), "0 = off, 1 = the full model"),
-    },
-    "anti_aliasing": {
-        "method": Param("weighted_average", _choice(ANTI_ALIAS_METHODS[1:]), "blur kernel"),
-        "sigma": Param(0.5, _number(1e-3), "Gaussian σ in plane pixels"),
-    },
-    "white_balance": {
-        "mode": Param("camera", _wb_mode, "camera, daylight, auto (LibRaw's grey world) or R,G,B"),
-    },
-    "highlights": {
-        "mode": Param("clip", _choice(HIGHLIGHT_MODES), "clip, or blend (after demosaic)"),
-    },
-    "demosaic": {
-        "method": Param("wcd", _choice(DEMOSAIC_METHODS), "interpolation method"),
-    },
-    "denoise": {
-        "method": Param("bilateral", _choice(DENOISE_METHODS[1:]), "filter"),
-        "kernel": Param(5, _number(3, 15, integer=True), "window size (odd)"),
-        "sigma": Param(1.0, _number(1e-3), "spatial σ (pixels)"),
-        "sigma_color": Param(0.05, _number(1e-6), "range σ (linear units)"),
-    },
-    "color_matrix": {
-        "output_space": Param(
-            "srgb", _choice(OUTPUT_SPACES), "linear sRGB primaries, XYZ, or camera RGB"
-        ),
-    },
-    "exposure": {
-        "ev": Param(
-            0.0,
-            _auto_or(_number(-20, 20), "stops in [-20, 20]"),
-            "stops (0 maps the white level to 1), or auto: the 99th percentile to 1 (LibRaw's "
-            "auto-brightness)",
-        ),
-        "baseline": Param(
-            "apply",
-            _choice(("apply", "ignore")),
-            "the DNG's BaselineExposure: apply (as Adobe's DNG SDK) or ignore (as LibRaw)",
-        ),
-    },
-    "tone": {
-        "curve": Param("none", _choice(TONE_CURVES), "tone curve"),
-        "exposure": Param(
-            0.0, _number(0, 4), "filmic curves: stops of gain before the curve (1 reached at 2^-ev)"
-        ),
-        "white": Param(
-            "auto",
-            _auto_or(_number(0.25, 12)),
-            "filmic curves: white point in the curve's units (auto: reinhard 4, aces 7.24, "
-            "hable 11.2); larger compresses highlights more",
-        ),
-    },
-    "transfer": {"function": Param("srgb", _transfer, "srgb, gamma:G or linear")},
-    "ycbcr": {},
-    "orientation": {},
-}
-_DISABLED_BY_DEFAULT = {"dead_pixel", "lens_shading", "anti_aliasing", "denoise", "ycbcr"}
-MOSAIC_ONLY = {"dead_pixel", "anti_aliasing", "demosaic"}
-RGB_ONLY = {"color_matrix", "ycbcr", "orientation"}
-#: Stages that need colour channels: skipped for monochrome data.
-COLOUR_ONLY = {"white_balance", "highlights", "color_matrix", "ycbcr"}
+@dataclass(frozen=True)
+class DeadPixelStage(Stage):
+    """Soft correction of pixels far from their colour plane's neighbours."""
+
+    name: ClassVar[str] = "dead_pixel"
+    on_by_default: ClassVar[bool] = False
+    mosaic_only: ClassVar[bool] = True
+    threshold: float = _param(0.1, _number(1e-6), "deviation from the neighbours' mean (white = 1)")
+    kernel: int = _param(3, _choice((3, 5)), "neighbourhood size within the colour plane")
+    temperature: float = _param(0.01, _number(1e-6), "width of the soft decision")
 
 
-def default_config() -> list[dict]:
-    """Every stage with its defaults, in the default order."""
-    return [
-        {
-            "name": name,
-            "enabled": name not in _DISABLED_BY_DEFAULT,
-            **{k: p.default for k, p in params.items()},
-        }
-        for name, params in STAGES.items()
-    ]
+@dataclass(frozen=True)
+class LensShadingStage(Stage):
+    """Radial vignetting correction."""
+
+    name: ClassVar[str] = "lens_shading"
+    on_by_default: ClassVar[bool] = False
+    k: tuple[float, float, float] = _param(
+        (0.3, 0.15, 0.05), _shading_k, "V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶"
+    )
+    strength: float = _param(1.0, _number(0), "0 = off, 1 = the full model")
 
 
-def validate_config(config: Any, origin: str = "config") -> list[dict]:
-    """Check a config (list of stage tables); fill defaults. Errors say what is valid."""
-    if not isinstance(config, list) or not all(isinstance(s, dict) for s in config):
-        raise ParameterError(f"{origin}: expected a list of [[stage]] tables")
-    out, seen = [], set()
-    for i, stage in enumerate(config):
-        name = stage.get("name")
-        where = f"{origin}: stage {i + 1}"
-        if name not in STAGES:
-            raise ParameterError(f"{where}: unknown stage {name!r}; valid: {', '.join(STAGES)}")
-        if name in seen:
-            raise ParameterError(f"{where}: stage {name!r} appears twice")
-        seen.add(name)
-        params = STAGES[name]
-        unknown = sorted(set(stage) - set(params) - {"name", "enabled"})
-        if unknown:
-            valid = ", ".join(["enabled", *params]) or "enabled"
-            raise ParameterError(f"{where} ({name}): unknown key {unknown[0]!r}; valid: {valid}")
-        entry = {"name": name, "enabled": True}
-        try:
-            entry["enabled"] = _flag(stage.get("enabled", True))
-        except ParameterError as err:
-            raise ParameterError(f"{where} ({name}).enabled: {err}") from None
-        for key, p in params.items():
-            try:
-                entry[key] = p.check(stage.get(key, p.default))
-            except ParameterError as err:
-                raise ParameterError(f"{where} ({name}).{key}: {err}") from None
-        shapes_tone = name == "tone" and (entry["exposure"] != 0 or entry["white"] != "auto")
-        if shapes_tone and entry["curve"] in ("none", "smoothstep"):
+@dataclass(frozen=True)
+class AntiAliasingStage(Stage):
+    """Per-plane blur of the mosaic."""
+
+    name: ClassVar[str] = "anti_aliasing"
+    on_by_default: ClassVar[bool] = False
+    mosaic_only: ClassVar[bool] = True
+    method: str = _param("weighted_average", _choice(ANTI_ALIAS_METHODS[1:]), "blur kernel")
+    sigma: float = _param(0.5, _number(1e-3), "Gaussian σ in plane pixels")
+
+
+@dataclass(frozen=True)
+class WhiteBalanceStage(Stage):
+    """Per-channel gains."""
+
+    name: ClassVar[str] = "white_balance"
+    colour_only: ClassVar[bool] = True
+    mode: str = _param("camera", _wb_mode, "camera, daylight, auto (LibRaw's grey world) or R,G,B")
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["white_balance"]``: gains (R, G, B) for ``raw``, as LibRaw chooses them,
+        and ``info["white_balance_source"]``: which gains were used and why.
+
+        ``camera``: the camera's multipliers where LibRaw uses them; where they are
+        missing or marked unusable (a first multiplier ≤ 0, e.g. −1 or ``[0, 1, 0, 0]``)
+        LibRaw's automatic white balance, and where only the blue one is missing the
+        daylight multipliers (which LibRaw then keeps). ``daylight``: the multipliers
+        LibRaw starts from. ``auto``: :func:`auto_white_balance`. A fallback is warned
+        in ``info["warnings"]``.
+
+        With highlights clipped (LibRaw's default) the gains are scaled so that the
+        smallest is 1, as LibRaw does: every channel reaches white together and clipped
+        highlights stay neutral. With other highlight modes they keep G = 1.
+        """
+        mode, source = self.mode, self.mode
+        if mode == "camera" and raw.as_shot_wb is None:
+            mode = raw.camera_wb_fallback
+            why = f"the camera's multipliers are unusable ({raw.camera_wb_note})"
+            source = f"{mode}: {why}, as LibRaw does"
+            info["warnings"].append(f"camera white balance: {why}; using {mode}, as LibRaw does")
+        if mode == "daylight" and raw.daylight_wb is None:
+            mode, source = "auto", "auto: no daylight multipliers"
+            info["warnings"].append("daylight white balance unknown: using auto (grey world)")
+        if mode == "camera":
+            gains = raw.as_shot_wb
+        elif mode == "daylight":
+            gains = raw.daylight_wb
+        elif mode == "auto":
+            gains = auto_white_balance(raw)
+        else:
+            gains, source = parse_gains(mode), "user"
+        highlights = config.enabled_stage(HighlightsStage)
+        if highlights is not None and highlights.mode == "clip":
+            low = min(gains)
+            gains = tuple(float(g / low) for g in gains)
+        info["white_balance"] = list(gains)
+        info["white_balance_source"] = source
+
+
+@dataclass(frozen=True)
+class HighlightsStage(Stage):
+    """Clipping at white, or dcraw's blend of clipped channels."""
+
+    name: ClassVar[str] = "highlights"
+    colour_only: ClassVar[bool] = True
+    mode: str = _param("clip", _choice(HIGHLIGHT_MODES), "clip, or blend (after demosaic)")
+
+
+@dataclass(frozen=True)
+class DemosaicStage(Stage):
+    """Mosaic → RGB."""
+
+    name: ClassVar[str] = "demosaic"
+    mosaic_only: ClassVar[bool] = True
+    method: str = _param("wcd", _choice(DEMOSAIC_METHODS), "interpolation method")
+
+
+@dataclass(frozen=True)
+class DenoiseStage(Stage):
+    """Edge-preserving smoothing, on the mosaic's planes or on RGB."""
+
+    name: ClassVar[str] = "denoise"
+    on_by_default: ClassVar[bool] = False
+    method: str = _param("bilateral", _choice(DENOISE_METHODS[1:]), "filter")
+    kernel: int = _param(5, _number(3, 15, integer=True), "window size (odd)")
+    sigma: float = _param(1.0, _number(1e-3), "spatial σ (pixels)")
+    sigma_color: float = _param(0.05, _number(1e-6), "range σ (linear units)")
+
+
+@dataclass(frozen=True)
+class ColorMatrixStage(Stage):
+    """Camera RGB (white-balanced) → the output space."""
+
+    name: ClassVar[str] = "color_matrix"
+    rgb_only: ClassVar[bool] = True
+    colour_only: ClassVar[bool] = True
+    output_space: str = _param(
+        "srgb", _choice(OUTPUT_SPACES), "linear sRGB primaries, XYZ, or camera RGB"
+    )
+
+    def matrix(self, raw: RawImage) -> np.ndarray:
+        """(3, 3) float64 camera (white-balanced) → output-space matrix for ``raw``."""
+        if self.output_space == "camera":
+            return np.eye(3)
+        if raw.xyz_to_camera is not None:
+            to_srgb = srgb_from_camera(raw.xyz_to_camera)
+        elif raw.camera_to_srgb is not None:
+            to_srgb = raw.camera_to_srgb
+        else:
+            to_srgb = np.eye(3)
+        return SRGB_TO_XYZ @ to_srgb if self.output_space == "xyz" else to_srgb
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["color_matrix"]``: :meth:`matrix` as nested lists."""
+        info["color_matrix"] = self.matrix(raw).tolist()
+
+
+@dataclass(frozen=True)
+class ExposureStage(Stage):
+    """A gain of 2^stops."""
+
+    name: ClassVar[str] = "exposure"
+    ev: float | str = _param(
+        0.0,
+        _auto_or(_number(-20, 20), "stops in [-20, 20]"),
+        "stops (0 maps the white level to 1), or auto: the 99th percentile to 1 (LibRaw's "
+        "auto-brightness)",
+    )
+    baseline: str = _param(
+        "apply",
+        _choice(("apply", "ignore")),
+        "the DNG's BaselineExposure: apply (as Adobe's DNG SDK) or ignore (as LibRaw)",
+    )
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["exposure_stops"]``: ``ev``, plus the file's DNG BaselineExposure unless
+        ``baseline = "ignore"``; for ``auto`` :func:`auto_exposure_stops` (the baseline is
+        then moot), which reads the values the stages before it recorded."""
+        if self.ev == "auto":
+            stops = auto_exposure_stops(raw, info)
+        else:
+            stops = self.ev + (raw.baseline_exposure if self.baseline == "apply" else 0.0)
+        info["exposure_stops"] = stops
+
+
+@dataclass(frozen=True)
+class ToneStage(Stage):
+    """A tone curve on linear values."""
+
+    name: ClassVar[str] = "tone"
+    curve: str = _param("none", _choice(TONE_CURVES), "tone curve")
+    exposure: float = _param(
+        0.0, _number(0, 4), "filmic curves: stops of gain before the curve (1 reached at 2^-ev)"
+    )
+    white: float | str = _param(
+        "auto",
+        _auto_or(_number(0.25, 12)),
+        "filmic curves: white point in the curve's units (auto: reinhard 4, aces 7.24, "
+        "hable 11.2); larger compresses highlights more",
+    )
+
+    def _check(self) -> None:
+        shapes = self.exposure != 0 or self.white != "auto"
+        if shapes and self.curve in ("none", "smoothstep"):
             raise ParameterError(
-                f"{where} (tone): exposure and white shape the filmic curves (reinhard, aces, "
-                f"hable), not {entry['curve']!r}; choose one with --tone"
+                f"{self.name}: exposure and white shape the filmic curves (reinhard, aces, "
+                f"hable), not {self.curve!r}; choose one with --tone"
             )
-        out.append(entry)
-    _check_order(out, origin)
-    return out
+
+    @property
+    def white_point(self) -> float | None:
+        """``white`` as a number, or None for the curve's own."""
+        return None if self.white == "auto" else self.white
 
 
-def _check_order(config: list[dict], origin: str) -> None:
-    names = [s["name"] for s in config if s["enabled"]]
-    for required in ("black_level", "demosaic"):
-        if required not in names:
-            raise ParameterError(f"{origin}: the ISP needs an enabled {required!r} stage")
-    split = names.index("demosaic")
-    late = [n for n in names[split:] if n in MOSAIC_ONLY - {"demosaic"}]
-    early = [n for n in names[:split] if n in RGB_ONLY]
+@dataclass(frozen=True)
+class TransferStage(Stage):
+    """The output transfer function (OETF)."""
+
+    name: ClassVar[str] = "transfer"
+    function: str = _param("srgb", _transfer, "srgb, gamma:G or linear")
+
+    @property
+    def spec(self) -> TransferSpec:
+        return TransferSpec.parse(self.function)
+
+
+@dataclass(frozen=True)
+class YCbCrStage(Stage):
+    """RGB → YCbCr (BT.601)."""
+
+    name: ClassVar[str] = "ycbcr"
+    on_by_default: ClassVar[bool] = False
+    rgb_only: ClassVar[bool] = True
+    colour_only: ClassVar[bool] = True
+
+
+@dataclass(frozen=True)
+class OrientationStage(Stage):
+    """The raw's EXIF orientation, applied last."""
+
+    name: ClassVar[str] = "orientation"
+    rgb_only: ClassVar[bool] = True
+
+
+#: Stage name → its type, in the default processing order.
+STAGES: dict[str, type[Stage]] = {
+    cls.name: cls
+    for cls in (
+        BlackLevelStage,
+        DeadPixelStage,
+        LensShadingStage,
+        AntiAliasingStage,
+        WhiteBalanceStage,
+        HighlightsStage,
+        DemosaicStage,
+        DenoiseStage,
+        ColorMatrixStage,
+        ExposureStage,
+        ToneStage,
+        TransferStage,
+        YCbCrStage,
+        OrientationStage,
+    )
+}
+
+#: ``rawsim process`` flag → the stage and parameter it sets.
+_FLAGS: dict[str, tuple[type[Stage], str]] = {
+    "wb": (WhiteBalanceStage, "mode"),
+    "white_level": (BlackLevelStage, "white_level"),
+    "baseline_exposure": (ExposureStage, "baseline"),
+    "demosaic": (DemosaicStage, "method"),
+    "highlights": (HighlightsStage, "mode"),
+    "tone": (ToneStage, "curve"),
+    "tone_exposure": (ToneStage, "exposure"),
+    "tone_white": (ToneStage, "white"),
+    "exposure": (ExposureStage, "ev"),
+    "output_space": (ColorMatrixStage, "output_space"),
+    "transfer": (TransferStage, "function"),
+}
+
+
+# ------------------------------------------------------------------ the config
+@dataclass(frozen=True)
+class IspConfig:
+    """Stages in processing order, each at most once, in an order that can work.
+
+    ``origin`` names the config in errors (a file, ``options``); it is not kept.
+    """
+
+    stages: tuple[Stage, ...]
+    origin: InitVar[str] = "config"
+
+    def __post_init__(self, origin: str) -> None:
+        object.__setattr__(self, "stages", tuple(self.stages))
+        seen: set[type[Stage]] = set()
+        for i, stage in enumerate(self.stages):
+            if type(stage) in seen:
+                raise ParameterError(f"{origin}: stage {i + 1}: stage {stage.name!r} appears twice")
+            seen.add(type(stage))
+        _check_order(self.enabled, origin)
+
+    @classmethod
+    def default(cls) -> IspConfig:
+        """Every stage with its defaults, in the default order."""
+        return cls(tuple(stage(enabled=stage.on_by_default) for stage in STAGES.values()))
+
+    @classmethod
+    def of(cls, config: IspConfig | list[dict]) -> IspConfig:
+        """``config`` itself, or its TOML form (a list of stage tables) parsed."""
+        return config if isinstance(config, IspConfig) else cls.from_tables(config)
+
+    @classmethod
+    def from_tables(cls, tables: Any, origin: str = "config") -> IspConfig:
+        """Parse the TOML form, a list of ``[[stage]]`` tables; defaults fill the rest."""
+        if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+            raise ParameterError(f"{origin}: expected a list of [[stage]] tables")
+        stages = []
+        for i, table in enumerate(tables):
+            name = table.get("name")
+            where = f"{origin}: stage {i + 1}"
+            if name not in STAGES:
+                raise ParameterError(f"{where}: unknown stage {name!r}; valid: {', '.join(STAGES)}")
+            try:
+                stages.append(STAGES[name].from_table(table))
+            except ParameterError as err:  # "name.key: why" → "where (name).key: why"
+                raise ParameterError(f"{where} ({name}){str(err).removeprefix(name)}") from None
+        return cls(tuple(stages), origin)
+
+    @classmethod
+    def from_toml(cls, text: str, origin: str = "config") -> IspConfig:
+        """Parse TOML text (see :meth:`load`)."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as err:
+            raise ParameterError(f"{origin}: not valid TOML ({err})") from None
+        unknown = sorted(set(data) - {"stage"})
+        if unknown:
+            raise ParameterError(f"{origin}: unknown top-level key {unknown[0]!r}; valid: stage")
+        return cls.from_tables(data.get("stage", []), origin)
+
+    @classmethod
+    def load(cls, path) -> IspConfig:
+        """Read and validate a TOML config file."""
+        try:
+            with open(path, encoding="utf-8") as fh:
+                text = fh.read()
+        except (OSError, UnicodeDecodeError) as err:
+            reason = getattr(err, "strerror", None) or str(err)
+            raise ParameterError(f"{path}: cannot read config ({reason})") from None
+        return cls.from_toml(text, str(path))
+
+    def to_tables(self) -> list[dict]:
+        """The TOML form: one table per stage, every parameter filled in."""
+        return [stage.to_table() for stage in self.stages]
+
+    def to_toml(self) -> str:
+        """TOML text with a comment per parameter; :meth:`load` reads it back."""
+        lines = ["# rawsim ISP config: stages run in this order; set enabled = false to skip one."]
+        for stage in self.stages:
+            lines += ["", "[[stage]]"]
+            params = stage.params()
+            for key, value in stage.to_table().items():
+                comment = f"  # {params[key].metadata['help']}" if key in params else ""
+                lines.append(f"{key} = {_toml_value(value)}{comment}")
+        return "\n".join(lines) + "\n"
+
+    def override(self, **flags) -> IspConfig:
+        """The config with the CLI's flags applied (``wb``, ``white_level``, ``demosaic``,
+        ``highlights``, ``tone``, ``tone_exposure``, ``tone_white``, ``exposure``,
+        ``baseline_exposure``, ``output_space``, ``transfer``); None leaves a value as
+        it is. A flag enables its stage (adding it, if missing, at the end); ``highlights
+        blend`` moves the stage to just after demosaic. Errors name the flag."""
+        tables = self.to_tables()
+        for flag, value in flags.items():
+            if value is None:
+                continue
+            stage, key = _FLAGS[flag]
+            try:  # in the user's terms: the flag and what they typed
+                value = stage.params()[key].metadata["check"](value)
+            except ParameterError as err:
+                why = str(err).removeprefix(f"{value!r}; ")  # the value is said once
+                raise ParameterError(f"--{flag.replace('_', '-')} {value!r}: {why}") from None
+            table = next((t for t in tables if t["name"] == stage.name), None)
+            if table is None:
+                table = {"name": stage.name}
+                tables.append(table)
+            table[key] = value
+            table["enabled"] = True
+            if stage is HighlightsStage and value == "blend":
+                # Blending needs RGB: move the stage to just after demosaic.
+                tables.remove(table)
+                at = next(i for i, t in enumerate(tables) if t["name"] == DemosaicStage.name)
+                tables.insert(at + 1, table)
+        return IspConfig.from_tables(tables, "options")
+
+    def with_disabled(self, *kinds: type[Stage]) -> IspConfig:
+        """The config with the stages of these types disabled (kept, for the record)."""
+        return IspConfig(
+            tuple(replace(s, enabled=False) if isinstance(s, kinds) else s for s in self.stages)
+        )
+
+    @property
+    def enabled(self) -> tuple[Stage, ...]:
+        """The enabled stages, in order."""
+        return tuple(s for s in self.stages if s.enabled)
+
+    def enabled_stage(self, kind: type[Stage]) -> Stage | None:
+        """The enabled stage of this type, or None."""
+        return next((s for s in self.stages if s.enabled and isinstance(s, kind)), None)
+
+    def before_demosaic(self, stage: Stage) -> bool:
+        """Whether ``stage`` comes before the demosaic: it acts on the mosaic."""
+        kinds = [type(s) for s in self.stages]
+        return kinds.index(type(stage)) < kinds.index(DemosaicStage)
+
+
+def _check_order(enabled: tuple[Stage, ...], origin: str) -> None:
+    kinds = [type(s) for s in enabled]
+    for required in (BlackLevelStage, DemosaicStage):
+        if required not in kinds:
+            raise ParameterError(f"{origin}: the ISP needs an enabled {required.name!r} stage")
+    split = kinds.index(DemosaicStage)
+    late = [s.name for s in enabled[split + 1 :] if s.mosaic_only]
+    early = [s.name for s in enabled[:split] if s.rgb_only]
     if late or early:
         bad = (late or early)[0]
         where = "before" if late else "after"
         raise ParameterError(f"{origin}: stage {bad!r} must come {where} 'demosaic'")
-    if names.index("black_level") > split:
+    if kinds.index(BlackLevelStage) > split:
         raise ParameterError(f"{origin}: 'black_level' must come before 'demosaic'")
-    if "orientation" in names and names[-1] != "orientation":
+    if OrientationStage in kinds and kinds[-1] is not OrientationStage:
         raise ParameterError(f"{origin}: 'orientation' must be the last enabled stage")
-    for s in config:
-        if s["name"] == "highlights" and s["enabled"] and s["mode"] == "blend":
-            if names.index("highlights") < split:
-                raise ParameterError(
-                    f"{origin}: highlights mode 'blend' needs RGB: put it after 'demosaic'"
-                )
-
-
-def load_config(path) -> list[dict]:
-    """Read and validate a TOML config file."""
-    try:
-        with open(path, encoding="utf-8") as fh:
-            text = fh.read()
-    except (OSError, UnicodeDecodeError) as err:
-        reason = getattr(err, "strerror", None) or str(err)
-        raise ParameterError(f"{path}: cannot read config ({reason})") from None
-    return load_config_text(text, str(path))
-
-
-def config_to_toml(config: list[dict]) -> str:
-    """TOML text for a config, with a comment per stage; :func:`load_config` reads it back."""
-    lines = ["# rawsim ISP config: stages run in this order; set enabled = false to skip one."]
-    for stage in config:
-        params = STAGES[stage["name"]]
-        lines += [
-            "",
-            "[[stage]]",
-            f'name = "{stage["name"]}"',
-            f"enabled = {str(stage['enabled']).lower()}",
-        ]
-        for key, p in params.items():
-            lines.append(f"{key} = {_toml_value(stage[key])}  # {p.help}")
-    return "\n".join(lines) + "\n"
+    for i, stage in enumerate(enabled):
+        if isinstance(stage, HighlightsStage) and stage.mode == "blend" and i < split:
+            raise ParameterError(
+                f"{origin}: highlights mode 'blend' needs RGB: put it after 'demosaic'"
+            )
 
 
 def _toml_value(value) -> str:
@@ -327,107 +666,95 @@ def _toml_value(value) -> str:
     return repr(value)
 
 
-def override(config: list[dict], **changes) -> list[dict]:
-    """Apply the CLI's flags (``wb``, ``white_level``, ``demosaic``, ``highlights``,
-    ``tone``, ``exposure``, ``output_space``, ``transfer``); None leaves a value as it is.
-    Re-validates."""
-    keys = {
-        "wb": ("white_balance", "mode"),
-        "white_level": ("black_level", "white_level"),
-        "baseline_exposure": ("exposure", "baseline"),
-        "demosaic": ("demosaic", "method"),
-        "highlights": ("highlights", "mode"),
-        "tone": ("tone", "curve"),
-        "tone_exposure": ("tone", "exposure"),
-        "tone_white": ("tone", "white"),
-        "exposure": ("exposure", "ev"),
-        "output_space": ("color_matrix", "output_space"),
-        "transfer": ("transfer", "function"),
-    }
-    out = [dict(s) for s in config]
-    for flag, value in changes.items():
-        if value is None:
-            continue
-        stage, key = keys[flag]
-        try:  # in the user's terms: the flag and what they typed
-            value = STAGES[stage][key].check(value)
-        except ParameterError as err:
-            why = str(err).removeprefix(f"{value!r}; ")  # the value is said once
-            raise ParameterError(f"--{flag.replace('_', '-')} {value!r}: {why}") from None
-        matches = [s for s in out if s["name"] == stage]
-        if not matches:
-            out.append({"name": stage})
-            matches = out[-1:]
-        matches[0][key] = value
-        matches[0]["enabled"] = True
-        if flag == "highlights" and value == "blend":
-            # Blending needs RGB: move the stage to just after demosaic.
-            out.remove(matches[0])
-            at = next(i for i, s in enumerate(out) if s["name"] == "demosaic") + 1
-            out.insert(at, matches[0])
-    return validate_config(out, "options")
+# ------------------------------------------------------------------ the TOML form
+# The same operations on a config's TOML form (a list of stage tables, what the
+# sidecar records), for callers that edit configs as data.
+
+
+def default_config() -> list[dict]:
+    """Every stage with its defaults, in the default order, as tables."""
+    return IspConfig.default().to_tables()
+
+
+def validate_config(config: Any, origin: str = "config") -> list[dict]:
+    """Check a list of stage tables; fill defaults. Errors say what is valid."""
+    return IspConfig.from_tables(config, origin).to_tables()
+
+
+def load_config(path) -> list[dict]:
+    """Read and validate a TOML config file, as tables."""
+    return IspConfig.load(path).to_tables()
 
 
 def load_config_text(text: str, origin: str = "config") -> list[dict]:
-    """Validate TOML text (see :func:`load_config`)."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise ParameterError(f"{origin}: not valid TOML ({err})") from None
-    unknown = sorted(set(data) - {"stage"})
-    if unknown:
-        raise ParameterError(f"{origin}: unknown top-level key {unknown[0]!r}; valid: stage")
-    return validate_config(data.get("stage", []), origin)
+    """Validate TOML text, as tables (see :func:`load_config`)."""
+    return IspConfig.from_toml(text, origin).to_tables()
 
 
+def config_to_toml(config: IspConfig | list[dict]) -> str:
+    """TOML text for a config (see :meth:`IspConfig.to_toml`)."""
+    return IspConfig.of(config).to_toml()
+
+
+def override(config: IspConfig | list[dict], **flags) -> list[dict]:
+    """The CLI's flags applied to a config, as tables (see :meth:`IspConfig.override`)."""
+    return IspConfig.of(config).override(**flags).to_tables()
+
+
+# ------------------------------------------------------------------ one raw
 @dataclass(frozen=True)
-class TransferSpec:
-    """A parsed transfer name: ``srgb``, ``linear`` or ``gamma:G``."""
+class ResolvedIsp:
+    """A config resolved for one raw: what the torch reference and the engine build from.
 
-    kind: str
-    gamma: float = 1.0
+    ``stages``: the enabled stages that act on ``raw`` (:meth:`Stage.acts_on`), in
+    order. ``info``: ``warnings`` and ``monochrome``, then what the stages took from
+    the raw, in stage order, as the sidecar records it: ``white_level`` (DN),
+    ``white_balance`` (R, G, B gains) and ``white_balance_source``, ``color_matrix``
+    (3 × 3, camera → output), ``exposure_stops``.
+    """
 
-    @classmethod
-    def parse(cls, text: str) -> TransferSpec:
-        """Parse ``"srgb"``, ``"linear"`` or ``"gamma:2.2"``."""
-        text = str(text).strip().lower()
-        if text in ("srgb", "linear"):
-            return cls(text)
-        if text.startswith("gamma:"):
-            try:
-                gamma = float(text.split(":", 1)[1])
-            except ValueError:
-                gamma = float("nan")
-            if not gamma > 0:
-                raise ParameterError(f"bad transfer {text!r}: gamma must be a number > 0")
-            return cls("gamma", gamma)
-        raise ParameterError(f"unknown transfer {text!r}; valid: srgb, linear, gamma:G")
+    config: IspConfig
+    raw: RawImage
+    stages: tuple[Stage, ...]
+    info: dict
 
-    def __str__(self) -> str:
-        return f"gamma:{self.gamma:g}" if self.kind == "gamma" else self.kind
+    @property
+    def white_level(self) -> float:
+        """The white level used (DN)."""
+        return self.info["white_level"]
 
-    def encode(self, x):
-        """Linear → display values (torch tensors: :mod:`rawsim.isp.transfer`)."""
-        from rawsim.isp.transfer import gamma_encode, srgb_encode
+    @property
+    def white_balance(self) -> tuple[float, float, float]:
+        """Gains (R, G, B)."""
+        return tuple(self.info["white_balance"])
 
-        if self.kind == "srgb":
-            return srgb_encode(x)
-        if self.kind == "gamma":
-            return gamma_encode(x, self.gamma)
-        return x
+    @property
+    def color_matrix(self) -> np.ndarray:
+        """(3, 3) float64 camera → output-space matrix."""
+        return np.array(self.info["color_matrix"])
 
-    def decode(self, v):
-        """Display → linear values (torch tensors)."""
-        from rawsim.isp.transfer import gamma_decode, srgb_decode
-
-        if self.kind == "srgb":
-            return srgb_decode(v)
-        if self.kind == "gamma":
-            return gamma_decode(v, self.gamma)
-        return v
+    @property
+    def exposure_stops(self) -> float:
+        return self.info["exposure_stops"]
 
 
-def auto_white_balance(raw) -> tuple[float, float, float]:
+def monochrome(raw: RawImage) -> bool:
+    """Grey data: no CFA and one channel (no colour stages)."""
+    return raw.cfa is None and raw.data.shape[-1] == 1
+
+
+def resolve(config: IspConfig | list[dict], raw: RawImage) -> ResolvedIsp:
+    """``config`` (typed, or its tables) for ``raw``: each stage that acts on it
+    records, in order, what it takes from it."""
+    config = IspConfig.of(config)
+    info: dict = {"warnings": list(raw.warnings), "monochrome": monochrome(raw)}
+    stages = tuple(s for s in config.enabled if s.acts_on(raw))
+    for stage in stages:
+        stage.resolve(raw, config, info)
+    return ResolvedIsp(config, raw, stages, info)
+
+
+def auto_white_balance(raw: RawImage) -> tuple[float, float, float]:
     """LibRaw's automatic white balance (``use_auto_wb``), G = 1: grey world over 8 × 8
     blocks of the raw data, from the top-left corner (edge blocks partial), leaving
     out every block that holds a value within 25 DN of the white level; each
@@ -470,21 +797,7 @@ AUTO_CLIP = 0.01
 AUTO_MAX_STOPS = 8.0
 
 
-def exposure_stops(stage: dict, raw, info: dict) -> float:
-    """Stops of an ``exposure`` stage for this raw, recorded in ``info``.
-
-    A number: it, plus the file's DNG BaselineExposure unless ``baseline =
-    "ignore"``. ``auto``: :func:`auto_exposure_stops` (the baseline is then moot).
-    """
-    if stage["ev"] == "auto":
-        stops = auto_exposure_stops(raw, info)
-    else:
-        stops = stage["ev"] + (raw.baseline_exposure if stage["baseline"] == "apply" else 0.0)
-    info["exposure_stops"] = stops
-    return stops
-
-
-def auto_exposure_stops(raw, info: dict) -> float:
+def auto_exposure_stops(raw: RawImage, info: dict) -> float:
     """Stops that bring the image's 99th percentile to 1, as LibRaw's auto-brightness.
 
     Measured on the half-resolution planes (R, mean of the greens, B) after
@@ -510,69 +823,3 @@ def auto_exposure_stops(raw, info: dict) -> float:
         rgb = rgb @ np.asarray(info["color_matrix"], dtype=np.float32).T
     top = float(np.percentile(rgb.reshape(-1, rgb.shape[-1]), 100 * (1 - AUTO_CLIP), axis=0).max())
     return float(np.clip(-np.log2(top), 0.0, AUTO_MAX_STOPS)) if top > 0 else AUTO_MAX_STOPS
-
-
-def white_level(stage: dict, raw, info: dict) -> float:
-    """The white level (DN) of a ``black_level`` stage for this raw: the file's, or with
-    ``white_level = "auto"`` the image's maximum where that lies between 75 % of
-    the file's and the file's (LibRaw's default render: the brightest value becomes
-    white). Recorded in ``info["white_level"]``."""
-    level = float(raw.white_level)
-    if stage.get("white_level", "file") == "auto":
-        top = float(raw.data.max())
-        if ADJUST_MAXIMUM * level < top < level:
-            level = top
-    info["white_level"] = level
-    return level
-
-
-def white_balance(stage: dict, config: list[dict], raw, warnings: list[str], info: dict):
-    """Gains (R, G, B) of a ``white_balance`` stage for this raw, as LibRaw chooses them.
-
-    ``camera``: the camera's multipliers where LibRaw uses them; where they are
-    missing or marked unusable (a first multiplier ≤ 0, e.g. −1 or ``[0, 1, 0, 0]``)
-    LibRaw's automatic white balance, and where only the blue one is missing the
-    daylight multipliers (which LibRaw then keeps). ``daylight``: the multipliers
-    LibRaw starts from. ``auto``: :func:`auto_white_balance`. A fallback is warned
-    and ``info["white_balance_source"]`` says which gains were used and why.
-
-    With highlights clipped (LibRaw's default) the gains are scaled so that the
-    smallest is 1, as LibRaw does: every channel reaches white together and clipped
-    highlights stay neutral. With other highlight modes they keep G = 1.
-    """
-    mode, source = stage["mode"], stage["mode"]
-    if mode == "camera" and raw.as_shot_wb is None:
-        mode = raw.camera_wb_fallback
-        why = f"the camera's multipliers are unusable ({raw.camera_wb_note})"
-        source = f"{mode}: {why}, as LibRaw does"
-        warnings.append(f"camera white balance: {why}; using {mode}, as LibRaw does")
-    if mode == "daylight" and raw.daylight_wb is None:
-        mode, source = "auto", "auto: no daylight multipliers"
-        warnings.append("daylight white balance unknown: using auto (grey world)")
-    if mode == "camera":
-        gains = raw.as_shot_wb
-    elif mode == "daylight":
-        gains = raw.daylight_wb
-    elif mode == "auto":
-        gains = auto_white_balance(raw)
-    else:
-        gains, source = parse_gains(mode), "user"
-    if any(s["name"] == "highlights" and s["enabled"] and s["mode"] == "clip" for s in config):
-        low = min(gains)
-        gains = tuple(float(g / low) for g in gains)
-    info["white_balance"] = list(gains)
-    info["white_balance_source"] = source
-    return gains
-
-
-def camera_to_output(raw, space: str) -> np.ndarray:
-    """(3, 3) camera (white-balanced) → output-space matrix for this raw."""
-    if space == "camera":
-        return np.eye(3)
-    if raw.xyz_to_camera is not None:
-        to_srgb = srgb_from_camera(raw.xyz_to_camera)
-    elif raw.camera_to_srgb is not None:
-        to_srgb = raw.camera_to_srgb
-    else:
-        to_srgb = np.eye(3)
-    return SRGB_TO_XYZ @ to_srgb if space == "xyz" else to_srgb

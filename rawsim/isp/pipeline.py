@@ -1,8 +1,9 @@
 """The configurable forward ISP (torch reference): a config → an :class:`Isp` module.
 
-The config itself (stages, parameters, validation, TOML) is
-:mod:`rawsim.isp.config`, re-exported here; :func:`build_isp` turns a config and
-a :class:`~rawsim.io.raw.RawImage` into an :class:`Isp` module.
+The config itself (typed stages, validation, TOML) and its resolution for one
+raw are :mod:`rawsim.isp.config`; :func:`build_isp` turns a config and a
+:class:`~rawsim.io.raw.RawImage` into an :class:`Isp` module, one torch module
+per stage type (:data:`MODULES`).
 
 Data flow: DN mosaic (B, 1, H, W) — or (B, 3, H, W) for raws without a CFA —
 through black level (→ white = 1), optional mosaic filters, white balance,
@@ -12,31 +13,32 @@ transfer, YCbCr and orientation.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 from torch import nn
 
-from rawsim.errors import ParameterError
 from rawsim.isp.color_matrix import ColorMatrix
-from rawsim.isp.config import (  # noqa: F401 - the config API, also reachable from here
-    COLOUR_ONLY,
-    MOSAIC_ONLY,
-    OUTPUT_SPACES,
-    STAGES,
-    WB_MODES,
-    auto_white_balance,
-    camera_to_output,
-    config_to_toml,
-    default_config,
-    exposure_stops,
-    load_config,
-    load_config_text,
-    override,
-    parse_gains,
-    tone_params,
-    validate_config,
-    white_balance,
-    white_level,
+from rawsim.isp.config import (
+    AntiAliasingStage,
+    BlackLevelStage,
+    ColorMatrixStage,
+    DeadPixelStage,
+    DemosaicStage,
+    DenoiseStage,
+    ExposureStage,
+    HighlightsStage,
+    IspConfig,
+    LensShadingStage,
+    OrientationStage,
+    ResolvedIsp,
+    Stage,
+    ToneStage,
+    TransferStage,
+    WhiteBalanceStage,
+    YCbCrStage,
+    resolve,
 )
 from rawsim.isp.dead_pixel import DeadPixelCorrection
 from rawsim.isp.demosaic import Demosaic
@@ -103,62 +105,45 @@ class Isp(nn.Module):
 STRIP_ROWS = 256
 
 
-def build_isp(config: list[dict], raw) -> Isp:
-    """Build the ISP for ``raw`` (a :class:`~rawsim.io.raw.RawImage`) from a validated config."""
-    warnings: list[str] = list(raw.warnings)
-    info: dict = {"warnings": warnings}
-    stages: list[tuple[str, nn.Module]] = []
-    cfa = raw.cfa
-    mono = cfa is None and raw.data.shape[-1] == 1
-    info["monochrome"] = mono  # grey data: no colour stages
-    for s in config:
-        name = s["name"]
-        if not s["enabled"]:
-            continue
-        if cfa is None and name in MOSAIC_ONLY:
-            continue  # 3-channel or grey data: nothing to demosaic or filter per plane
-        if mono and name in COLOUR_ONLY:
-            continue
-        if name == "black_level":
-            module = Levels(_black_map(raw), white_level(s, raw, info))
-        elif name == "dead_pixel":
-            module = DeadPixelCorrection(cfa, s["threshold"], s["kernel"], s["temperature"])
-        elif name == "lens_shading":
-            module = LensShading(tuple(s["k"]), s["strength"])
-        elif name == "anti_aliasing":
-            module = AntiAliasing(cfa, s["method"], s["sigma"])
-        elif name == "white_balance":
-            module = WhiteBalance(white_balance(s, config, raw, warnings, info), cfa)
-        elif name == "highlights":
-            module = Highlights(s["mode"])
-        elif name == "demosaic":
-            module = Demosaic(cfa, s["method"])
-        elif name == "denoise":
-            module = Denoise(
-                cfa if _before(config, "denoise", "demosaic") else None,
-                s["method"],
-                s["kernel"],
-                s["sigma"],
-                s["sigma_color"],
-            )
-        elif name == "color_matrix":
-            matrix = camera_to_output(raw, s["output_space"])
-            info["color_matrix"] = matrix.tolist()
-            module = ColorMatrix(torch.as_tensor(matrix, dtype=torch.float32))
-        elif name == "exposure":
-            module = Exposure(exposure_stops(s, raw, info))
-        elif name == "tone":
-            module = ToneCurve(*tone_params(s))
-        elif name == "transfer":
-            module = Transfer(s["function"])
-        elif name == "ycbcr":
-            module = ColorSpaceConversion()
-        elif name == "orientation":
-            module = Orientation(raw.orientation)
-        else:  # pragma: no cover - STAGES and this chain list the same names
-            raise ParameterError(f"unknown stage {name!r}; valid: {', '.join(STAGES)}")
-        stages.append((name, module))
-    return Isp(stages, info)
+def build_isp(config: IspConfig | list[dict], raw) -> Isp:
+    """Build the ISP for ``raw`` (a :class:`~rawsim.io.raw.RawImage`) from a config
+    (typed, or its TOML tables)."""
+    return isp_for(resolve(config, raw))
+
+
+def isp_for(resolved: ResolvedIsp) -> Isp:
+    """The :class:`Isp` of a config resolved for one raw (its stages, its values)."""
+    modules = [(s.name, MODULES[type(s)](s, resolved)) for s in resolved.stages]
+    return Isp(modules, resolved.info)
+
+
+#: Stage type → its torch module, from the stage and the config resolved for a raw.
+MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
+    BlackLevelStage: lambda s, r: Levels(_black_map(r.raw), r.white_level),
+    DeadPixelStage: lambda s, r: DeadPixelCorrection(
+        r.raw.cfa, s.threshold, s.kernel, s.temperature
+    ),
+    LensShadingStage: lambda s, r: LensShading(s.k, s.strength),
+    AntiAliasingStage: lambda s, r: AntiAliasing(r.raw.cfa, s.method, s.sigma),
+    WhiteBalanceStage: lambda s, r: WhiteBalance(r.white_balance, r.raw.cfa),
+    HighlightsStage: lambda s, r: Highlights(s.mode),
+    DemosaicStage: lambda s, r: Demosaic(r.raw.cfa, s.method),
+    DenoiseStage: lambda s, r: Denoise(
+        r.raw.cfa if r.config.before_demosaic(s) else None,
+        s.method,
+        s.kernel,
+        s.sigma,
+        s.sigma_color,
+    ),
+    ColorMatrixStage: lambda s, r: ColorMatrix(
+        torch.as_tensor(r.color_matrix, dtype=torch.float32)
+    ),
+    ExposureStage: lambda s, r: Exposure(r.exposure_stops),
+    ToneStage: lambda s, r: ToneCurve(s.curve, s.exposure, s.white_point),
+    TransferStage: lambda s, r: Transfer(s.function),
+    YCbCrStage: lambda s, r: ColorSpaceConversion(),
+    OrientationStage: lambda s, r: Orientation(r.raw.orientation),
+}
 
 
 def _black_map(raw):
@@ -169,8 +154,3 @@ def _black_map(raw):
     if raw.cfa is None:
         return torch.as_tensor(black, dtype=torch.float32).reshape(1, 3, 1, 1)
     return torch.as_tensor(black, dtype=torch.float32).reshape(1, 1, 2, 2)  # a CFA tile
-
-
-def _before(config: list[dict], a: str, b: str) -> bool:
-    names = [s["name"] for s in config]
-    return b in names and names.index(a) < names.index(b)

@@ -12,13 +12,13 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError
-from rawsim.isp.config import TransferSpec  # noqa: F401 - its historical home
 from rawsim.isp.curves import (
     _SRGB_A,
     _SRGB_DECODE_KNEE,
     _SRGB_ENCODE_KNEE,
     _SRGB_GAMMA,
     _SRGB_SLOPE,
+    TransferSpec,
 )
 
 
@@ -56,6 +56,24 @@ def _check_gamma(gamma: float) -> None:
         raise ParameterError(f"gamma must be > 0, got {gamma}")
 
 
+def apply_transfer(x: torch.Tensor, spec: TransferSpec) -> torch.Tensor:
+    """Linear light → display values through ``spec``'s function. Any shape."""
+    if spec.kind == "srgb":
+        return srgb_encode(x)
+    if spec.kind == "gamma":
+        return gamma_encode(x, spec.gamma)
+    return x
+
+
+def invert_transfer(v: torch.Tensor, spec: TransferSpec) -> torch.Tensor:
+    """Display values → linear light through ``spec``'s function. Any shape."""
+    if spec.kind == "srgb":
+        return srgb_decode(v)
+    if spec.kind == "gamma":
+        return gamma_decode(v, spec.gamma)
+    return v
+
+
 class Transfer(nn.Module):
     """Output transfer stage: ``forward`` encodes linear → display, ``reverse`` decodes."""
 
@@ -64,7 +82,7 @@ class Transfer(nn.Module):
         self.spec = TransferSpec.parse(transfer)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.spec.encode(x)
+        return apply_transfer(x, self.spec)
 
     def reverse(self, v: torch.Tensor) -> torch.Tensor:
-        return self.spec.decode(v)
+        return invert_transfer(v, self.spec)

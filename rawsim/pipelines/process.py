@@ -4,16 +4,18 @@ Two forms of one ISP: the compiled engine (:mod:`rawsim.engine.process`) renders
 on the CPU whenever it covers the config (every stage but dead-pixel
 correction, anti-aliasing, denoising and YCbCr, for Bayer raws); otherwise, and
 on CUDA, the torch reference (:mod:`rawsim.isp.pipeline`) does. The engine path
-imports no torch. Both resolve white balance and matrix with the same functions
-(:mod:`rawsim.isp.config`), so their sidecars are identical and their pixels
-agree to rounding (``tests/test_engine_process.py``).
+imports no torch. Both build from one :func:`~rawsim.isp.config.resolve` of the
+typed config for the raw (white level, white balance, matrix, exposure), so
+their sidecars are identical and their pixels agree to rounding
+(``tests/test_engine_process.py``).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,22 +23,28 @@ import numpy as np
 from rawsim._version import __version__
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
-from rawsim.io.atomic import atomic_output
 from rawsim.io.images import OUTPUT_FORMATS, write_image
+from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.io.task import Task
 from rawsim.isp.config import (
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
-    TransferSpec,
-    camera_to_output,
-    config_to_toml,
-    default_config,
-    exposure_stops,
-    tone_params,
-    validate_config,
-    white_balance,
-    white_level,
+    BlackLevelStage,
+    ColorMatrixStage,
+    DemosaicStage,
+    ExposureStage,
+    HighlightsStage,
+    IspConfig,
+    LensShadingStage,
+    OrientationStage,
+    ResolvedIsp,
+    Stage,
+    ToneStage,
+    TransferStage,
+    WhiteBalanceStage,
+    YCbCrStage,
+    resolve,
 )
 from rawsim.isp.curves import (
     _SRGB_A,
@@ -52,28 +60,29 @@ class ProcessOptions:
     """Options of the files job.
 
     Attributes:
-        config: validated ISP config (see :mod:`rawsim.isp.config`).
+        config: the ISP config (see :mod:`rawsim.isp.config`); its TOML form (a
+            list of stage tables) is parsed on construction.
         fmt: output format, one of ``OUTPUT_FORMATS``.
         bits: 8 or 16 (PNG/TIFF/JPEG), 16 (half) or 32 (float) for EXR.
         device: ``cpu``, ``cuda`` or ``auto``.
     """
 
-    config: list = field(default_factory=default_config)
+    config: IspConfig = field(default_factory=IspConfig.default)
     fmt: str = "png"
     bits: int = 8
     device: str = "cpu"
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "config", IspConfig.of(self.config))
+
     def output_suffixes(self) -> dict[str, str]:
         return {"image": OUTPUT_FORMATS[self.fmt], "json": ".process.json"}
 
-    def effective_config(self) -> list[dict]:
+    def effective_config(self) -> IspConfig:
         """EXR is scene-linear: its renders skip the tone curve, transfer and YCbCr."""
         if self.fmt != "exr":
             return self.config
-        return [
-            dict(s, enabled=False) if s["name"] in ("tone", "transfer", "ycbcr") else s
-            for s in self.config
-        ]
+        return self.config.with_disabled(ToneStage, TransferStage, YCbCrStage)
 
 
 def raw_tensor(raw: RawImage, device):
@@ -84,22 +93,25 @@ def raw_tensor(raw: RawImage, device):
     return data[None, None] if raw.cfa is not None else data.permute(2, 0, 1)[None]
 
 
-def render(raw: RawImage, config: list[dict], device="cpu"):
+def render(raw: RawImage, config: IspConfig | list[dict], device="cpu"):
     """The torch reference ISP of ``config`` on ``raw``: (1, 3, H, W) and the resolved values."""
+    return _render(resolve(config, raw), device)
+
+
+def _render(resolved: ResolvedIsp, device):
     import torch
 
-    from rawsim.isp.pipeline import build_isp
+    from rawsim.isp.pipeline import isp_for
 
-    isp = build_isp(validate_config(config), raw).to(device)
+    isp = isp_for(resolved).to(device)
     with torch.no_grad():
-        out = isp(raw_tensor(raw, device))
+        out = isp(raw_tensor(resolved.raw, device))
     return out, isp.info
 
 
 # ------------------------------------------------------------------ engine
-_MOSAIC_STAGES = {"black_level", "lens_shading", "white_balance", "highlights"}
-_RGB_STAGES = {"white_balance", "highlights", "lens_shading", "color_matrix", "exposure"}
-_TAIL_STAGES = ("tone", "transfer")
+#: The stages the output table evaluates, after every other pointwise stage.
+_TAIL_STAGES = (ToneStage, TransferStage)
 #: The engine's smallest image: every tile's halo must mirror inside the image.
 ENGINE_MIN_SIZE = 16
 
@@ -120,64 +132,87 @@ class EnginePlan:
     info: dict
 
 
-def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | None:
+def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
+    black = np.asarray(r.raw.black_level, dtype=np.float64).reshape(4)
+    if np.allclose(black, black[0]):  # the reference's scalar black level
+        divisor = np.full(4, np.float32(r.white_level - black[0]))
+    else:  # its per-site tile, in float32
+        divisor = np.float32(r.white_level) - black.astype(np.float32)
+    return ep.OP_LEVELS, [*black, *divisor]
+
+
+def _highlights_op(ep, stage: HighlightsStage, r: ResolvedIsp):
+    if stage.mode == "clip":
+        return ep.OP_CLIP, []
+    trans = np.array(HIGHLIGHT_TRANSFORM)
+    return ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel()]
+
+
+@dataclass(frozen=True)
+class _EngineOp:
+    """A stage's pointwise op in the kernel: where it may run and its (code, numbers)."""
+
+    on_mosaic: bool
+    on_rgb: bool
+    build: Callable[..., tuple[int, list]]
+
+
+#: Stage type → its pointwise op (``build(ep, stage, resolved)``). Demosaic, orientation
+#: and the tone/transfer table are the kernel's fixed steps; other stages are the
+#: reference's only.
+_ENGINE_OPS: dict[type[Stage], _EngineOp] = {
+    BlackLevelStage: _EngineOp(True, False, _levels_op),
+    LensShadingStage: _EngineOp(True, True, lambda ep, s, r: (ep.OP_SHADING, [*s.k, s.strength])),
+    WhiteBalanceStage: _EngineOp(True, True, lambda ep, s, r: (ep.OP_WB, r.white_balance)),
+    HighlightsStage: _EngineOp(True, True, _highlights_op),
+    ColorMatrixStage: _EngineOp(
+        False, True, lambda ep, s, r: (ep.OP_MATRIX, r.color_matrix.ravel())
+    ),
+    ExposureStage: _EngineOp(
+        False, True, lambda ep, s, r: (ep.OP_EXPOSURE, [2.0**r.exposure_stops])
+    ),
+}
+
+
+def engine_plan(raw: RawImage, config: IspConfig | list[dict], fmt: str) -> EnginePlan | None:
     """The engine's arguments for ``config`` on ``raw``, or None where only the reference can.
 
-    Resolves white balance and matrix exactly as :func:`rawsim.isp.pipeline.build_isp`
-    does (same functions, same ``info``).
+    Builds from the same :func:`~rawsim.isp.config.resolve` as
+    :func:`rawsim.isp.pipeline.build_isp` (same values, same ``info``).
     """
+    return _engine_plan(resolve(config, raw), fmt)
+
+
+def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     from rawsim.engine import process as ep
 
+    raw = resolved.raw
     if raw.cfa is None or min(raw.data.shape[:2]) < ENGINE_MIN_SIZE:
         return None
-    warnings: list[str] = list(raw.warnings)
-    info: dict = {"warnings": warnings, "monochrome": False}
-    stages = [s for s in config if s["enabled"]]
-    names = [s["name"] for s in stages]
-    split = names.index("demosaic")
     pre, post = [], []
-    tail: list[dict] = []
+    tail: list[Stage] = []
     orientation = 1
     method = 0
-    for at, s in enumerate(stages):
-        name = s["name"]
-        ops = pre if at < split else post
-        if name == "demosaic":
-            method = ep.DEMOSAIC_CODES[s["method"]]
-        elif name == "orientation":
+    for stage in resolved.stages:
+        if isinstance(stage, DemosaicStage):
+            method = ep.DEMOSAIC_CODES[stage.method]
+            continue
+        if isinstance(stage, OrientationStage):
             orientation = raw.orientation
-        elif name in _TAIL_STAGES:
-            tail.append(s)
-        elif tail or name not in (_MOSAIC_STAGES if at < split else _RGB_STAGES):
+            continue
+        if isinstance(stage, _TAIL_STAGES):
+            tail.append(stage)
+            continue
+        op = _ENGINE_OPS.get(type(stage))
+        mosaic = resolved.config.before_demosaic(stage)
+        if tail or op is None or not (op.on_mosaic if mosaic else op.on_rgb):
             return None  # a stage the engine lacks, or an RGB stage after tone/transfer
-        elif name == "black_level":
-            black = np.asarray(raw.black_level, dtype=np.float64).reshape(4)
-            if np.allclose(black, black[0]):  # the reference's scalar black level
-                divisor = np.full(4, np.float32(white_level(s, raw, info) - black[0]))
-            else:  # its per-site tile, in float32
-                divisor = np.float32(white_level(s, raw, info)) - black.astype(np.float32)
-            ops.append((ep.OP_LEVELS, [*black, *divisor]))
-        elif name == "white_balance":
-            ops.append((ep.OP_WB, white_balance(s, config, raw, warnings, info)))
-        elif name == "highlights":
-            if s["mode"] == "clip":
-                ops.append((ep.OP_CLIP, []))
-            else:
-                trans = np.array(HIGHLIGHT_TRANSFORM)
-                ops.append((ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel()]))
-        elif name == "lens_shading":
-            ops.append((ep.OP_SHADING, [*s["k"], s["strength"]]))
-        elif name == "color_matrix":
-            matrix = camera_to_output(raw, s["output_space"])
-            info["color_matrix"] = matrix.tolist()
-            ops.append((ep.OP_MATRIX, matrix.ravel()))
-        elif name == "exposure":
-            ops.append((ep.OP_EXPOSURE, [2.0 ** exposure_stops(s, raw, info)]))
-    if tail and tail[0]["name"] == "tone" and tail[0]["exposure"]:
+        (pre if mosaic else post).append(op.build(ep, stage, resolved))
+    if tail and isinstance(tail[0], ToneStage) and tail[0].exposure:
         # A filmic curve's gain runs before the table, which then keeps f(1) = 1.
-        post.append((ep.OP_EXPOSURE, [2.0 ** tail[0]["exposure"]]))
-        tail = [{**tail[0], "exposure": 0.0}, *tail[1:]]
-    elif any(s["name"] == "tone" and s["exposure"] for s in tail):
+        post.append((ep.OP_EXPOSURE, [2.0 ** tail[0].exposure]))
+        tail = [replace(tail[0], exposure=0.0), *tail[1:]]
+    elif any(isinstance(s, ToneStage) and s.exposure for s in tail):
         return None  # a filmic gain after the transfer: the reference's order
     out_mode, lut, gamma = _output_table(tail, fmt)
     if out_mode is None:
@@ -190,7 +225,7 @@ def engine_plan(raw: RawImage, config: list[dict], fmt: str) -> EnginePlan | Non
         lut,
         gamma,
         orientation,
-        info,
+        resolved.info,
     )
 
 
@@ -202,7 +237,7 @@ def _op_arrays(ops) -> tuple[np.ndarray, np.ndarray]:
     return codes, numbers
 
 
-def _output_table(tail: list[dict], fmt: str):
+def _output_table(tail: list[Stage], fmt: str):
     """(mode, table, gamma) for the tone/transfer stages, or Nones.
 
     The table is tone ∘ transfer on [0, 1] in float64, in the config's order; a
@@ -222,19 +257,18 @@ def _output_table(tail: list[dict], fmt: str):
     return mode, x.astype(np.float32), gamma
 
 
-def _tail_curve(tail: list[dict], x: np.ndarray) -> tuple[np.ndarray, float] | None:
+def _tail_curve(tail: list[Stage], x: np.ndarray) -> tuple[np.ndarray, float] | None:
     """Tone and transfer stages on linear values ``x`` in [0, 1]: (values, gamma) with a
     power-law transfer left as its exponent (it must come last; None otherwise)."""
     gamma = 1.0
-    for at, s in enumerate(tail):
-        if s["name"] == "tone":
-            curve, exposure, white = tone_params(s)
-            if curve == "smoothstep":
+    for at, stage in enumerate(tail):
+        if isinstance(stage, ToneStage):
+            if stage.curve == "smoothstep":
                 x = x * x * (3 - 2 * x)
-            elif curve != "none":
-                x = filmic(x, curve, exposure, white)
+            elif stage.curve != "none":
+                x = filmic(x, stage.curve, stage.exposure, stage.white_point)
             continue
-        spec = TransferSpec.parse(s["function"])
+        spec = stage.spec
         if spec.kind == "srgb":
             power = (1 + _SRGB_A) * np.maximum(x, _SRGB_ENCODE_KNEE) ** (1 / _SRGB_GAMMA) - _SRGB_A
             x = np.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
@@ -299,10 +333,10 @@ def use_engine(device: str) -> bool:
 
 
 #: Stages the float path leaves to the torch reference after the engine's linear output.
-_FLOAT_TAIL = ("tone", "transfer", "ycbcr")
+_FLOAT_TAIL = (ToneStage, TransferStage, YCbCrStage)
 
 
-def render_float(raw: RawImage, config: list[dict], device="cpu"):
+def render_float(raw: RawImage, config: IspConfig | list[dict], device="cpu"):
     """``raw`` rendered to unquantised floats, (1, C, H, W), and the resolved values: what
     :func:`render` gives, without gradients.
 
@@ -313,30 +347,33 @@ def render_float(raw: RawImage, config: list[dict], device="cpu"):
     """
     import torch
 
-    from rawsim.isp.pipeline import build_isp
+    from rawsim.isp.pipeline import isp_for
 
-    enabled = [s for s in config if s["enabled"]]
-    names = [s["name"] for s in enabled]
-    at = min((names.index(n) for n in _FLOAT_TAIL if n in names), default=len(names))
-    head, tail = enabled[:at], enabled[at:]
-    plan = engine_plan(raw, head, "exr") if use_engine(str(device)) else None
+    resolved = resolve(config, raw)
+    stages = resolved.stages
+    at = next((i for i, s in enumerate(stages) if isinstance(s, _FLOAT_TAIL)), len(stages))
+    head, tail = replace(resolved, stages=stages[:at]), replace(resolved, stages=stages[at:])
+    plan = _engine_plan(head, "exr") if use_engine(str(device)) else None
     if plan is None:
-        return render(raw, config, device)
+        return _render(resolved, device)
     linear = engine_render(raw, plan, "exr", 32)
     image = torch.from_numpy(linear).permute(2, 0, 1).unsqueeze(0)
     with torch.no_grad():  # orientation is in the engine's part or in the tail, not both
-        out = build_isp(tail, raw)(image)
+        out = isp_for(tail)(image)
     return out, plan.info
 
 
-def render_samples(raw: RawImage, config: list[dict], fmt: str, bits: int, device="cpu"):
+def render_samples(
+    raw: RawImage, config: IspConfig | list[dict], fmt: str, bits: int, device="cpu"
+):
     """``raw`` rendered to (H, W, 3) samples for ``fmt``/``bits``, and the resolved values."""
     from rawsim.io.images import to_samples
 
-    plan = engine_plan(raw, config, fmt) if use_engine(str(device)) else None
+    resolved = resolve(config, raw)
+    plan = _engine_plan(resolved, fmt) if use_engine(str(device)) else None
     if plan is not None:
         return engine_render(raw, plan, fmt, bits), plan.info
-    rgb, info = render(raw, config, device)
+    rgb, info = _render(resolved, device)
     return to_samples(rgb[0], fmt, bits), info
 
 
@@ -362,13 +399,12 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
         return future.result()
 
 
-def describe(raw: RawImage, config: list[dict]) -> dict:
+def describe(raw: RawImage, config: IspConfig | list[dict]) -> dict:
     """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
     camera, CFA, levels, the camera's and daylight multipliers, the white balance
     and matrix it will apply with where they come from, orientation, ISO."""
-    warnings, info = list(raw.warnings), {}
-    stages = {s["name"]: s for s in config if s["enabled"]}
-    mono = raw.cfa is None and raw.data.shape[-1] == 1
+    resolved = resolve(config, raw)
+    info = resolved.info
     out = {
         "file": raw.path,
         "make": raw.make,
@@ -381,20 +417,18 @@ def describe(raw: RawImage, config: list[dict]) -> dict:
         "orientation": raw.orientation,
         "iso": raw.iso,
     }
-    if "black_level" in stages:
-        out["white_level_used"] = white_level(stages["black_level"], raw, info)
-    if not mono:
+    if "white_level" in info:
+        out["white_level_used"] = info["white_level"]
+    if not info["monochrome"]:
         out["camera_multipliers"] = raw.camera_wb_note
         out["daylight_white_balance"] = raw.daylight_wb
-        if "white_balance" in stages:
-            white_balance(stages["white_balance"], config, raw, warnings, info)
+        if "white_balance" in info:
             out["white_balance"] = info["white_balance"]
             out["white_balance_source"] = info["white_balance_source"]
-        if "color_matrix" in stages:
-            space = stages["color_matrix"]["output_space"]
-            out["color_matrix"] = np.round(camera_to_output(raw, space), 6).tolist()
+        if "color_matrix" in info:
+            out["color_matrix"] = np.round(resolved.color_matrix, 6).tolist()
             out["matrix_source"] = raw.matrix_source
-    out["warnings"] = warnings
+    out["warnings"] = info["warnings"]
     return out
 
 
@@ -402,11 +436,11 @@ def describe(raw: RawImage, config: list[dict]) -> dict:
 DARK_RENDER = 1 / 8
 
 
-def _warn_if_dark(samples: np.ndarray, bits: int, config: list[dict], info: dict) -> None:
+def _warn_if_dark(samples: np.ndarray, bits: int, config: IspConfig, info: dict) -> None:
     """Add a warning to ``info`` when the render's 99th percentile (brightest channel, on
     every 4th row and column) is below ``DARK_RENDER`` of full scale in linear light,
     i.e. below that level through the config's tone and transfer."""
-    tail = [s for s in config if s["enabled"] and s["name"] in _TAIL_STAGES]
+    tail = [s for s in config.enabled if isinstance(s, _TAIL_STAGES)]
     curve = _tail_curve(tail, np.array([DARK_RENDER]))
     if curve is None:
         return
@@ -424,17 +458,23 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
         raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
-    config = validate_config(options.effective_config())
+    config = options.effective_config()
     device = resolve_device(options.device)
     raw = _read_while_loading_engine(task.source, device)
     samples, info = render_samples(raw, config, options.fmt, options.bits, device)
     height, width = samples.shape[:2]
-    enabled = {s["name"]: s for s in config if s["enabled"]}
-    if options.fmt != "exr" and enabled.get("exposure", {}).get("ev") != "auto":
+    exposure = config.enabled_stage(ExposureStage)
+    if options.fmt != "exr" and (exposure is None or exposure.ev != "auto"):
         _warn_if_dark(samples, options.bits, config, info)
-    space = enabled["color_matrix"]["output_space"] if "color_matrix" in enabled else "camera"
-    encoded = "transfer" in enabled and enabled["transfer"]["function"] == "srgb"
-    srgb = space == "srgb" and "ycbcr" not in enabled and (options.fmt == "exr" or encoded)
+    matrix = config.enabled_stage(ColorMatrixStage)
+    transfer = config.enabled_stage(TransferStage)
+    encoded = transfer is not None and transfer.function == "srgb"
+    srgb = (
+        matrix is not None
+        and matrix.output_space == "srgb"
+        and config.enabled_stage(YCbCrStage) is None
+        and (options.fmt == "exr" or encoded)
+    )
     meta = {
         "rawsim_version": __version__,
         "input": task.key,
@@ -449,13 +489,12 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         "height": height,
         "format": options.fmt,
         "bits": options.bits,
-        "config": config,
-        "config_toml": config_to_toml(config),
+        "config": config.to_tables(),
+        "config_toml": config.to_toml(),
         **{k: v for k, v in info.items() if k != "white_level"},
         "white_level_used": info.get("white_level", raw.white_level),
     }
-    with atomic_output(task.outputs["image"]) as tmp:
-        write_image(tmp, samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
-    with atomic_output(task.outputs["json"]) as tmp:
-        Path(tmp).write_text(json.dumps(meta, indent=2) + "\n")
+    with atomic_outputs(task.outputs) as tmp:
+        write_image(tmp["image"], samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
+        tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta

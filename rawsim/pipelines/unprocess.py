@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -23,9 +22,9 @@ from rawsim.cfa import PACKED_PLANES
 from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
-from rawsim.io.atomic import atomic_output
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
+from rawsim.io.outputs import atomic_outputs
 from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
@@ -364,7 +363,8 @@ def simulate(
 def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     """Unprocess one image file into the outputs named by ``task``.
 
-    Each output is written atomically. Returns the sidecar's metadata.
+    The outputs are put in place as one set (:func:`~rawsim.io.outputs.atomic_outputs`).
+    Returns the sidecar's metadata.
     """
     decoded = read_image(task.source)
     device = resolve_device(options.device)
@@ -384,27 +384,25 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     info = replace(
         _dng_info(options, params, levels, decoded.orientation), datetime=decoded.datetime
     )
-    if "dng" in task.outputs:
-        with atomic_output(task.outputs["dng"]) as tmp:
-            write_dng(tmp, noisy_np, info)
-    if "clean_dng" in task.outputs:
-        with atomic_output(task.outputs["clean_dng"]) as tmp:
-            write_dng(tmp, clean_np, replace(info, noise_profile=None))
-    if "npz" in task.outputs:
-        mono = options.sensor == "mono"
-        pack = (lambda m: m[None]) if mono else (lambda m: _pack(options.profile.cfa, m))
-        arrays = {"mosaic": pack(noisy_np)}
-        if clean_np is not None:
-            arrays["clean"] = pack(clean_np)
-        with atomic_output(task.outputs["npz"]) as tmp, open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                **arrays,
-                planes=np.array(["Y"] if mono else PACKED_PLANES),
-                metadata=np.array(json.dumps(metadata)),
-            )
-    with atomic_output(task.outputs["json"]) as tmp:
-        Path(tmp).write_text(json.dumps(metadata, indent=2) + "\n")
+    with atomic_outputs(task.outputs) as tmp:
+        if "dng" in tmp:
+            write_dng(tmp["dng"], noisy_np, info)
+        if "clean_dng" in tmp:
+            write_dng(tmp["clean_dng"], clean_np, replace(info, noise_profile=None))
+        if "npz" in tmp:
+            mono = options.sensor == "mono"
+            pack = (lambda m: m[None]) if mono else (lambda m: _pack(options.profile.cfa, m))
+            arrays = {"mosaic": pack(noisy_np)}
+            if clean_np is not None:
+                arrays["clean"] = pack(clean_np)
+            with open(tmp["npz"], "wb") as fh:
+                np.savez(
+                    fh,
+                    **arrays,
+                    planes=np.array(["Y"] if mono else PACKED_PLANES),
+                    metadata=np.array(json.dumps(metadata)),
+                )
+        tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     return metadata
 
 

@@ -237,34 +237,40 @@ def run(
     instead (:mod:`rawsim.run.ray_executor`; ``address`` as ``ray.init`` takes it, None
     for a new local cluster). Results do not depend on ``jobs`` or the executor.
     Temporary files that killed runs left in the local output folders are removed
-    first.
+    first, and again at the end.
     """
     if jobs < 1:
         raise ParameterError(f"--jobs must be ≥ 1, got {jobs}")
+    if executor not in ("local", "ray"):
+        raise ParameterError(f"executor must be local or ray, got {executor!r}")
     folders = {p.parent for t in tasks for p in t.outputs.values() if not remote.is_url(p)}
     for folder in folders:
         remove_stale_temporaries(folder)  # what killed runs left
-    if executor == "ray":
-        from rawsim.run import ray_executor
+    try:
+        if executor == "ray":
+            from rawsim.run import ray_executor
 
-        try:
             yield from ray_executor.run(tasks, job, address, overwrite, debug, kwargs)
-        finally:
-            for folder in folders:  # those of workers killed mid-write
-                remove_stale_temporaries(folder)
-        return
-    if executor != "local":
-        raise ParameterError(f"executor must be local or ray, got {executor!r}")
-    if jobs == 1 or len(tasks) <= 1:
-        for t in tasks:
-            yield _run_one(job, t, overwrite, debug, kwargs)
-        return
+        elif jobs == 1 or len(tasks) <= 1:
+            for t in tasks:
+                yield _run_one(job, t, overwrite, debug, kwargs)
+        else:
+            yield from _run_pool(tasks, job, jobs, overwrite, debug, kwargs)
+    finally:
+        # Again at the end, stopped or not: those of workers killed mid-write, and
+        # those of a killed run whose processes were still exiting at the start.
+        for folder in folders:
+            remove_stale_temporaries(folder)
+
+
+def _run_pool(tasks, job, jobs, overwrite, debug, kwargs) -> Iterator[Result]:
+    """:func:`run` in ``jobs`` worker processes (each with its share of the threads)."""
     threads = max(1, (os.cpu_count() or 1) // jobs)
     pool = ProcessPoolExecutor(
         max_workers=jobs,
         mp_context=_worker_context(),
         initializer=_init_worker,
-        initargs=(threads,),
+        initargs=(threads, os.getpid()),
     )
     try:
         futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
@@ -276,8 +282,6 @@ def run(
                 yield Result(task, "failed", f"{task.source}: worker failed: {err}")
     except BaseException:  # interrupted (or the consumer stopped): no file starts any more
         _terminate(pool)
-        for folder in folders:  # those of workers killed after the grace period
-            remove_stale_temporaries(folder)
         raise
     pool.shutdown()
 

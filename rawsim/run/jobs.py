@@ -8,6 +8,7 @@ batches; it raises :class:`~rawsim.errors.RawsimError` for bad inputs.
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import os
 import signal
@@ -21,7 +22,8 @@ from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
 
 from rawsim.errors import RawsimError, shown
-from rawsim.io import remote
+from rawsim.io import outputs, remote
+from rawsim.io.atomic import running
 from rawsim.io.task import Task
 
 #: Seconds after which a signal that a finalizer swallowed is sent again.
@@ -117,12 +119,28 @@ class Result:
 def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: dict) -> Result:
     """Run ``job`` on ``task``: skipped if all its outputs exist, refused if only some
     do (they are not a finished set of this command's: nothing is overwritten without
-    ``--overwrite``). A job that fails or is interrupted leaves none of the outputs
-    it had begun to write."""
+    ``--overwrite``). An unfinished set that a killed run of rawsim left (its marker
+    says so: :mod:`rawsim.io.outputs`) is not a finished set: it is replaced. A job
+    that fails or is interrupted leaves none of the outputs it had begun to write."""
     try:
         existing = {p for p in task.outputs.values() if remote.exists(p)}
+        left = outputs.unfinished(task.outputs)
     except Exception as err:  # OSError, or a remote file system's own errors
         return Result(task, "failed", f"{shown(task.source)}: cannot check its outputs: {err}")
+    if left is not None:
+        if left["running"]:
+            return Result(
+                task,
+                "failed",
+                f"{shown(task.source)}: its outputs are being written by process {left['pid']} "
+                "(another run into the same folder); let it finish, or stop it and run again",
+            )
+        ours = set(left.get("outputs", ()))  # the names that run was putting in place
+        for p in existing:
+            if outputs.file_name(p) in ours:
+                remote.remove(p)
+        outputs.clear(task.outputs)
+        existing = {p for p in existing if outputs.file_name(p) not in ours}
     if not overwrite and existing:
         if len(existing) == len(task.outputs):
             return Result(task, "skipped", f"{shown(task.source)}: outputs exist (use --overwrite)")
@@ -138,12 +156,14 @@ def _run_one(job: Callable, task: Task, overwrite: bool, debug: bool, kwargs: di
     _in_job = True
     local = task  # the task with local paths (a remote input is downloaded first)
     try:
-        with remote.staged(task) as local:
+        with outputs.staged(task) as local:
             record = job(local, **kwargs)
     except BaseException as err:
         for p in task.outputs.values():  # the outputs this job had written so far
             if p not in existing:
                 remote.remove(p)
+        if not any(remote.exists(p) for p in task.outputs.values()):
+            outputs.clear(task.outputs)  # nothing left of the set: no marker either
         if isinstance(err, Interrupted):
             if _worker:  # terminated by the parent: the temporary files are gone, leave now
                 os._exit(128 + signal.SIGTERM)
@@ -199,9 +219,13 @@ def _worker_context():
 
 #: Whether this process is a pool worker, and whether it is running a job now.
 _worker = False
-
-
 _in_job = False
+#: Seconds between a worker's checks that its parent is still alive.
+PARENT_POLL_S = 0.2
+#: Seconds an orphaned worker gets to unwind its job before it exits regardless.
+ORPHAN_GRACE_S = 1.5
+#: Linux prctl option: the signal this process gets when its parent dies.
+_PR_SET_PDEATHSIG = 1
 
 
 def _worker_terminated(signum, frame) -> None:
@@ -213,10 +237,12 @@ def _worker_terminated(signum, frame) -> None:
     os._exit(128 + signum)
 
 
-def _init_worker(threads: int) -> None:
+def _init_worker(threads: int, parent: int | None = None) -> None:
     """Give each worker its share of the cores, in torch and in the engine, so that
     jobs × threads ≤ cores; leave SIGINT (Ctrl-C reaches the whole process group)
-    to the parent, which terminates the workers with SIGTERM."""
+    to the parent, which terminates the workers with SIGTERM; and stop when the
+    parent (pid ``parent``, default this process's parent now) dies, by any signal
+    (:func:`_die_with_parent`)."""
     global _worker
     _worker = True
     # rawpy warns of OpenMP in forked processes: the parent never ran LibRaw (nor any
@@ -225,7 +251,45 @@ def _init_worker(threads: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
     sys.unraisablehook = _redelivering(sys.unraisablehook)
+    _die_with_parent(os.getppid() if parent is None else parent)
     set_threads(threads)
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGTERM this worker when process ``parent`` dies, even by SIGKILL, which the
+    parent cannot pass on: the running job unwinds (no partial outputs, no
+    temporaries) and the worker exits, within :data:`ORPHAN_GRACE_S`.
+
+    On Linux the kernel sends the signal at once (``prctl(PR_SET_PDEATHSIG)``);
+    everywhere, :func:`stop_with` also watches the parent.
+    """
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    stop_with(parent)
+
+
+#: The processes this one already watches (:func:`stop_with`).
+_watched: set[int] = set()
+
+
+def stop_with(pid: int) -> None:
+    """Stop this process when process ``pid`` (of this machine) is gone: a thread
+    polls it every :data:`PARENT_POLL_S`, then sends this process SIGTERM (the
+    running job unwinds) and, should it not be gone after :data:`ORPHAN_GRACE_S`
+    (stuck in native code), ends it. Once per ``pid``."""
+    if pid in _watched:
+        return
+    _watched.add(pid)
+    threading.Thread(target=_watch, args=(pid,), daemon=True).start()
+
+
+def _watch(pid: int) -> None:
+    while running(pid):
+        time.sleep(PARENT_POLL_S)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(ORPHAN_GRACE_S)
+    os._exit(128 + signal.SIGKILL)
 
 
 def set_threads(threads: int) -> None:

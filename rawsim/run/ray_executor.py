@@ -24,8 +24,9 @@ from collections.abc import Callable, Iterator, Sequence
 
 from rawsim.errors import ParameterError, shown
 from rawsim.io import remote
+from rawsim.io.atomic import HOST
 from rawsim.io.task import Task
-from rawsim.run.jobs import Result, _run_one, set_threads
+from rawsim.run.jobs import Result, _run_one, set_threads, stop_with
 
 _log = logging.getLogger(__name__)
 
@@ -76,11 +77,15 @@ def bundles(tasks: Sequence[Task], cpus: int) -> list[list[Task]]:
     return out + [current] if current else out
 
 
-def _run_bundle(tasks, shared, cwd) -> Iterator[Result]:
+def _run_bundle(tasks, shared, cwd, driver) -> Iterator[Result]:
     """The Ray task: one CPU thread, the driver's working folder (relative paths
     mean the same on a shared file system), then each file in order. ``shared``
-    is (job, overwrite, debug, kwargs), stored once in the object store."""
+    is (job, overwrite, debug, kwargs), stored once in the object store.
+    ``driver`` (host, pid) of a run that started this cluster itself: the task
+    stops when that process dies, whatever killed it (:func:`stop_with`)."""
     job, overwrite, debug, kwargs = shared
+    if driver is not None and driver[0] == HOST:
+        stop_with(driver[1])
     set_threads(1)
     if os.path.isdir(cwd):
         os.chdir(cwd)
@@ -125,11 +130,13 @@ def run(
     remote_bundle = ray.remote(num_cpus=1, max_retries=0)(_run_bundle)
     shared = ray.put((job, overwrite, debug, kwargs))
     cwd = os.getcwd()
+    # A cluster started for this run lives on this machine and dies with it.
+    driver = (HOST, os.getpid()) if started and address is None else None
     pending: dict = {}  # running generator → its files not yet reported, in order
     attempts: dict[str, int] = {}
 
     def submit(group: list[Task]) -> None:
-        pending[remote_bundle.remote(group, shared, cwd)] = list(group)
+        pending[remote_bundle.remote(group, shared, cwd, driver)] = list(group)
 
     try:
         for group in bundles(tasks, cpus):

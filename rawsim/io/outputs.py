@@ -1,0 +1,170 @@
+"""A file's outputs as one set: whole, absent, or recognisably unfinished after any kill.
+
+A job writes each of its outputs (``<stem>.dng``, ``<stem>.clean.dng``,
+``<stem>.npz``, the ``<stem>.json`` sidecar, …) to a temporary file first
+(:func:`atomic_outputs`); only when all are written are they put in place, the
+sidecar last. Putting a set in place is bracketed by a marker, a small hidden
+file beside the outputs (``.rawsim-unfinished-<hash>``, :func:`marker`) that
+names them and the process placing them: written before the first rename (or
+upload) and removed after the last. So after a SIGKILL, which cannot be caught:
+
+* no marker: the outputs present are a finished set, or files rawsim did not
+  write (then a rerun refuses them, as ever);
+* a marker whose process is gone: the outputs it names are an unfinished set of
+  rawsim's own, which a rerun replaces (:func:`unfinished`).
+
+The marker holds JSON: ``{"host": …, "pid": …, "outputs": [names]}`` (the host as
+:mod:`rawsim.io.atomic` names it in temporaries). A clean run leaves none.
+Remote outputs (fsspec URLs) follow the same rules: :func:`staged` uploads the
+marker, then each output, the sidecar last, then deletes the marker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path, PurePosixPath
+
+from rawsim.io import remote
+from rawsim.io.atomic import HOST, running, temporary_path
+from rawsim.io.task import Task
+
+MARKER_PREFIX = ".rawsim-unfinished-"
+
+
+def _in_order(outputs: Mapping[str, Path | str]) -> list[tuple[str, Path | str]]:
+    """The outputs in the order they are put in place: the sidecar (``json``) last,
+    so that a set with its sidecar is complete even to a reader without markers."""
+    return sorted(outputs.items(), key=lambda kv: kv[0] == "json")
+
+
+def marker(outputs: Mapping[str, Path | str]) -> Path | str:
+    """Where the marker of the set ``outputs`` lives: beside its sidecar (or its first
+    output), named by a hash of the outputs' names, so any name length fits."""
+    anchor = outputs.get("json") or next(iter(outputs.values()))
+    names = "\0".join(sorted(file_name(p) for p in outputs.values()))
+    name = MARKER_PREFIX + hashlib.sha256(os.fsencode(names)).hexdigest()[:16]
+    if remote.is_url(anchor):
+        return remote.join(str(anchor).rsplit("/", 1)[0], name)
+    return Path(anchor).parent / name
+
+
+def file_name(location: Path | str) -> str:
+    return PurePosixPath(str(location)).name if remote.is_url(location) else Path(location).name
+
+
+def unfinished(outputs: Mapping[str, Path | str]) -> dict | None:
+    """The marker of ``outputs``, if a run left one: ``{"host", "pid", "outputs",
+    "running"}``, ``running`` telling whether its process is alive on this machine
+    (False for another machine's, which cannot be asked). None if there is none."""
+    location = marker(outputs)
+    try:
+        if remote.is_url(location):
+            fs, path = remote.filesystem(location)
+            text = fs.cat_file(path).decode()
+        else:
+            text = Path(location).read_text()
+    except FileNotFoundError:
+        return None
+    try:
+        info = json.loads(text)
+        info["pid"] = int(info["pid"])
+    except (ValueError, KeyError, TypeError):  # cut short by a kill while it was written
+        info = {"host": "", "pid": 0}
+    info["running"] = info.get("host") == HOST and running(info["pid"])
+    return info
+
+
+def clear(outputs: Mapping[str, Path | str]) -> None:
+    """Remove the marker of ``outputs`` (if any)."""
+    remote.remove(marker(outputs))
+
+
+@contextmanager
+def placing(outputs: Mapping[str, Path | str]) -> Iterator[None]:
+    """Context: the set ``outputs`` is being put in place. The marker is written
+    before the block and removed after it succeeds; if the block fails, it stays
+    until the caller has removed what the block placed (then :func:`clear`)."""
+    location = marker(outputs)
+    names = [file_name(p) for p in outputs.values()]
+    text = json.dumps({"host": HOST, "pid": os.getpid(), "outputs": names})
+    if remote.is_url(location):
+        fs, path = remote.filesystem(location)
+        fs.pipe_file(path, text.encode())
+    else:
+        tmp = temporary_path(Path(location))
+        tmp.write_text(text)
+        os.replace(tmp, location)
+    yield
+    clear(outputs)
+
+
+def _place(tmp: Path, path: Path) -> None:
+    """Put one finished output in place (a rename: whole or not at all)."""
+    os.replace(tmp, path)
+
+
+@contextmanager
+def atomic_outputs(outputs: Mapping[str, Path]) -> Iterator[dict[str, Path]]:
+    """Yield a temporary path in each output's folder (kind → path, keeping the
+    suffix for writers that choose a format by it); when the block succeeds, put
+    them all in place as one set (:func:`placing`), the sidecar last.
+
+    On any error every temporary is removed; outputs already renamed stay for the
+    caller (:func:`rawsim.run.jobs._run_one` removes the ones it wrote).
+    """
+    paths = {kind: Path(p) for kind, p in outputs.items()}
+    temporaries: dict[str, Path] = {}
+    try:
+        for kind, path in paths.items():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            temporaries[kind] = temporary_path(path)
+        yield dict(temporaries)
+        with placing(paths):
+            for kind, path in _in_order(paths):
+                _place(temporaries.pop(kind), path)
+    finally:
+        for tmp in temporaries.values():
+            tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def staged(task: Task) -> Iterator[Task]:
+    """Yield ``task`` with local paths: a remote source is downloaded into a scratch
+    folder and remote outputs point there, keeping their names. When the job
+    returns, the remote outputs it wrote are uploaded as one set (:func:`placing`,
+    the sidecar last); the scratch folder is removed in every case."""
+    if not remote.is_url(task.source) and not any(map(remote.is_url, task.outputs.values())):
+        yield task
+        return
+    scratch = Path(tempfile.mkdtemp(prefix="rawsim-"))
+    try:
+        source = task.source
+        if remote.is_url(source):
+            fs, path = remote.filesystem(source)
+            source = scratch / "in" / PurePosixPath(path).name
+            source.parent.mkdir()
+            fs.get_file(path, os.fspath(source))
+        local = {
+            k: scratch / "out" / PurePosixPath(p).name if remote.is_url(p) else p
+            for k, p in task.outputs.items()
+        }
+        yield replace(task, source=source, outputs=local)
+        uploads = {
+            kind: target
+            for kind, target in task.outputs.items()
+            if remote.is_url(target) and local[kind].exists()
+        }
+        if uploads:
+            with placing(task.outputs):
+                for kind, target in _in_order(uploads):
+                    fs, path = remote.filesystem(target)
+                    fs.put_file(os.fspath(local[kind]), path)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
