@@ -68,9 +68,7 @@ class CFA:
             if pattern not in BAYER_PATTERNS:
                 raise ParameterError(self._unknown())
         elif (
-            len({len(r) for r in rows}) != 1
-            or not rows[0]
-            or set("".join(rows)) != {"R", "G", "B"}
+            len({len(r) for r in rows}) != 1 or not rows[0] or set("".join(rows)) != {"R", "G", "B"}
         ):
             raise ParameterError(self._unknown())
         object.__setattr__(self, "pattern", pattern)

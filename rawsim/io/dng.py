@@ -92,9 +92,10 @@ def dng_tags(info: DngInfo) -> list[tuple]:
         (_EXIF_PLACEHOLDER, "I", 1, 0, True),  # becomes the ExifIFD pointer, see below
     ]
     if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
+        pattern = tuple(info.cfa.dng_pattern)
         tags += [
             (33421, "H", 2, info.cfa.dng_repeat, True),  # CFARepeatPatternDim: 2×2, 6×6
-            (33422, "B", len(info.cfa.dng_pattern), tuple(info.cfa.dng_pattern), True),  # CFAPattern
+            (33422, "B", len(pattern), pattern, True),  # CFAPattern
             (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
             (50711, "H", 1, 1, True),  # CFALayout: rectangular
             (50721, "2i", 9, _rationals(matrix, True), True),  # ColorMatrix1
