@@ -29,7 +29,9 @@ class DngInfo:
 
     Attributes:
         cfa: the mosaic's CFA pattern, or None for a monochrome sensor (one
-            sample per pixel, LinearRaw, no colour tags).
+            sample per pixel, LinearRaw, no colour tags). A 6×6 pattern
+            (X-Trans) is written with CFARepeatPatternDim 6×6, which LibRaw
+            reads as an X-Trans raw.
         black_level, white_level: DN.
         xyz_to_camera: (3, 3) D65 XYZ → camera matrix (ColorMatrix1).
         as_shot_neutral: camera response to the scene white, 1 / white-balance gains.
@@ -90,9 +92,10 @@ def dng_tags(info: DngInfo) -> list[tuple]:
         (_EXIF_PLACEHOLDER, "I", 1, 0, True),  # becomes the ExifIFD pointer, see below
     ]
     if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
+        pattern = tuple(info.cfa.dng_pattern)
         tags += [
-            (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
-            (33422, "B", 4, tuple(info.cfa.dng_pattern), True),  # CFAPattern
+            (33421, "H", 2, info.cfa.dng_repeat, True),  # CFARepeatPatternDim: 2×2, 6×6
+            (33422, "B", len(pattern), pattern, True),  # CFAPattern
             (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
             (50711, "H", 1, 1, True),  # CFALayout: rectangular
             (50721, "2i", 9, _rationals(matrix, True), True),  # ColorMatrix1

@@ -269,6 +269,13 @@ def read_raw(path: str | Path) -> RawImage:
             cfa = CFA.from_rawpy(pattern, desc)
         except ParameterError as err:
             raise UnsupportedInputError(f"{path}: {err}") from None
+        if not cfa.is_bayer:
+            # rawsim.isp.xtrans / rawsim.engine.xtrans demosaic it; the process
+            # pipeline (levels, white balance, planners) is still 2×2-only.
+            raise UnsupportedInputError(
+                f"{path}: a {cfa.period[0]}×{cfa.period[1]} {cfa.name} mosaic: the process "
+                "pipeline takes 2×2 Bayer mosaics only (not supported yet)"
+            )
         h, w = data.shape
         if h < 2 or w < 2:
             raise UnsupportedInputError(f"{path}: image is too small ({w}×{h})")

@@ -1,0 +1,213 @@
+"""X-Trans: the 6×6 CFA value, its demosaics (torch and engine) and LibRaw's view of both."""
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+import rawpy
+import torch
+
+from rawsim.cfa import BAYER_PATTERNS, CFA, XTRANS, phase_reflect_index
+from rawsim.engine import xtrans as engine
+from rawsim.errors import ParameterError
+from rawsim.io.dng import DngInfo, write_dng
+from rawsim.isp import xtrans
+from rawsim.isp.xtrans import XTransDemosaic, demosaic_xtrans
+from tests.conftest import DATA
+
+XT = CFA("XTRANS")
+
+
+def _dng(path, mosaic: np.ndarray, cfa=XT):
+    info = DngInfo(cfa, 0, 65535, ((1, 0, 0), (0, 1, 0), (0, 0, 1)), (1, 1, 1), "t", "t", "t", 100)
+    write_dng(path, np.round(np.clip(mosaic, 0, 1) * 65535).astype(np.uint16), info)
+
+
+def _libraw(path, quality: int) -> torch.Tensor:
+    """LibRaw's demosaic of a DNG, raw colour, linear, no scaling: (1, 3, H, W) in [0, 1]."""
+    with rawpy.imread(str(path)) as raw:
+        y = raw.postprocess(
+            demosaic_algorithm=rawpy.DemosaicAlgorithm(quality),
+            output_color=rawpy.ColorSpace.raw,
+            gamma=(1, 1),
+            no_auto_bright=True,
+            user_wb=[1, 1, 1, 1],
+            output_bps=16,
+            user_flip=0,
+            adjust_maximum_thr=0,
+        )
+    return torch.from_numpy(y.astype(np.float32) / 65535).permute(2, 0, 1)[None]
+
+
+def _photo(name="coffee.png") -> torch.Tensor:
+    """A vendored photo, linearised, mirrored 2×2 to reach LibRaw's X-Trans minimum (≥ 600 px)."""
+    x = oiio.ImageBuf(str(DATA / "srgb" / name)).get_pixels(oiio.FLOAT)[:, :, :3]
+    x = torch.from_numpy(np.ascontiguousarray(x)).permute(2, 0, 1)[None]
+    x = torch.cat([x, x.flip(-1)], -1)
+    return torch.cat([x, x.flip(-2)], -2) ** 2.2
+
+
+def cpsnr(y: torch.Tensor, x: torch.Tensor, border: int = 12) -> float:
+    a = (y.clamp(0, 1) * 255).round()[..., border:-border, border:-border].double()
+    b = (x * 255).round()[..., border:-border, border:-border].double()
+    return float(10 * torch.log10(255**2 / ((a - b) ** 2).mean()))
+
+
+# ----------------------------------------------------------------- the CFA
+def test_xtrans_layout_is_what_libraw_reads(tmp_path):
+    path = tmp_path / "x.dng"
+    _dng(path, np.random.default_rng(0).random((60, 72)))
+    with rawpy.imread(str(path)) as raw:
+        pattern, desc = raw.raw_pattern.copy(), raw.color_desc
+    assert pattern.shape == (6, 6)
+    assert CFA.from_rawpy(pattern, desc) == XT
+    letters = ["".join(desc.decode()[i] for i in row) for row in pattern]
+    assert "/".join(letters) == XTRANS  # CFAPattern, row-major, is LibRaw's xtrans array
+
+
+def test_xtrans_value():
+    assert XT.pattern == XTRANS and XT.name == "XTRANS" and XT.period == (6, 6)
+    assert not XT.is_bayer and all(CFA(p).is_bayer for p in BAYER_PATTERNS)
+    assert CFA("xtrans") == CFA(XTRANS.lower()) == XT
+    assert CFA("RG/GB").pattern == "RGGB"  # a 2×2 layout keeps its Bayer name
+    counts = np.bincount(XT.colors)
+    assert counts.tolist() == [8, 20, 8]
+    for y in range(6):  # every row and column holds R and B; every 3×3 all three
+        assert {XT.color_at(y, x) for x in range(6)} == {0, 1, 2}
+        assert {XT.color_at(x, y) for x in range(6)} == {0, 1, 2}
+    for y in range(6):
+        for x in range(6):
+            assert {XT.color_at(y + a, x + b) for a in (-1, 0, 1) for b in (-1, 0, 1)} == {0, 1, 2}
+    assert XT.dng_repeat == (6, 6) and len(XT.dng_pattern) == 36
+
+
+def test_bad_patterns_and_bayer_only_operations():
+    assert CFA("RGB/GGG").period == (2, 3)  # any layout holding R, G and B
+    with pytest.raises(ParameterError, match="valid: RGGB, BGGR, GRBG, GBRG, XTRANS"):
+        CFA("RG/GR")  # no blue
+    with pytest.raises(ParameterError, match="valid"):
+        CFA("RGB/GB")  # ragged
+    with pytest.raises(ParameterError, match="Bayer patterns only.*6×6"):
+        XT.pack(torch.rand(1, 1, 12, 12))
+    with pytest.raises(ParameterError, match="Bayer patterns only"):
+        XT.site_masks(12, 12)
+
+
+def test_mosaic_unmosaic_any_size(rng):
+    rgb = torch.rand(2, 3, 13, 17, generator=rng)
+    m = XT.mosaic(rgb)
+    assert m.shape == (2, 1, 13, 17)
+    cmap = XT.color_map(13, 17)
+    assert torch.equal(m, rgb.gather(1, cmap.expand(2, 1, 13, 17)))
+    masks = XT.masks(13, 17)
+    assert masks.sum(0).eq(1).all()
+    assert torch.equal(XT.mosaic(XT.unmosaic(m)), m)
+    sparse = XT.unmosaic(m)
+    assert torch.equal(sparse[:, masks.bool()], rgb[:, masks.bool()])
+    assert torch.equal(XT.tile(torch.tensor([1.0, 2.0, 3.0]))[0], 1.0 + cmap[0, 0, :6, :6])
+
+
+def test_phase_reflect_index():
+    for n, period in ((20, 6), (31, 6), (10, 2)):
+        idx = phase_reflect_index(n, 6, period)
+        v = np.arange(-6, n + 6)
+        assert np.array_equal(idx % period, v % period) and idx.min() >= 0 and idx.max() < n
+    assert np.array_equal(phase_reflect_index(10, 2, 2), [2, 1, *range(10), 8, 7])  # reflect
+
+
+# -------------------------------------------------------------- demosaics
+@pytest.mark.parametrize("method", xtrans.XTRANS_DEMOSAIC_METHODS)
+def test_flat_colour_exact_and_sites_kept(method, rng):
+    x = torch.ones(2, 3, 30, 25) * torch.tensor([0.2, 0.5, 0.7]).view(1, 3, 1, 1)
+    assert torch.allclose(demosaic_xtrans(XT.mosaic(x), XT, method), x, atol=1e-6)
+    m = torch.rand(1, 1, 30, 31, generator=rng)
+    assert torch.allclose(XT.mosaic(demosaic_xtrans(m, XT, method)), m, atol=1e-6)
+
+
+def test_bilinear_matches_libraw_quality_0(tmp_path):
+    x = _photo()
+    m = XT.mosaic(x)
+    path = tmp_path / "x.dng"
+    _dng(path, m[0, 0].numpy())
+    ref = _libraw(path, 0)[..., 2:-2, 2:-2]  # LibRaw does its 1-pixel border separately
+    q = torch.round(m * 65535) / 65535  # the 16-bit codes LibRaw reads
+    ours = demosaic_xtrans(q, XT, "bilinear")[..., 2:-2, 2:-2]
+    # LibRaw normalises by ⌊256 / Σw⌋ / 256 and truncates: ≤ 1.6 % low, and one code
+    diff = ours - ref
+    assert float(diff.min()) >= -1.5 / 65535
+    assert bool((diff <= 0.0165 * ours + 1.5 / 65535).all())
+    local = torch.nn.functional.avg_pool2d
+    mse = float(((local(ours, 8) - local(ref, 8)) ** 2).mean())
+    assert 10 * np.log10(1 / mse) > 45
+
+
+@pytest.fixture(scope="module")
+def linear_photo_scores(tmp_path_factory):
+    """CPSNR of LibRaw's linear, 1-pass and 3-pass Markesteijn and of ours on a linear photo."""
+    x = _photo()
+    m = XT.mosaic(x)
+    path = tmp_path_factory.mktemp("xt") / "x.dng"
+    _dng(path, m[0, 0].numpy())
+    scores = {f"libraw{q}": cpsnr(_libraw(path, q), x) for q in (0, 1, 3)}
+    for method in xtrans.XTRANS_DEMOSAIC_METHODS:
+        scores[method] = cpsnr(demosaic_xtrans(m, XT, method), x)
+    return scores
+
+
+def test_icd_beats_libraw_one_pass_markesteijn(linear_photo_scores):
+    s = linear_photo_scores
+    assert abs(s["bilinear"] - s["libraw0"]) < 0.3, s  # the same demosaic as quality 0
+    assert s["icd"] > s["libraw1"] + 0.5, s
+
+
+@pytest.mark.parametrize("method", xtrans.XTRANS_DEMOSAIC_METHODS)
+@pytest.mark.parametrize("shape", [(53, 61), (48, 96)])
+def test_engine_equals_torch(method, shape, rng):
+    x = torch.rand(1, 3, *shape, generator=rng) * torch.linspace(0.2, 1.5, shape[1])
+    m = XT.mosaic(x)
+    ref = demosaic_xtrans(m, XT, method)[0].numpy()
+    ours = engine.demosaic_xtrans(m[0, 0].numpy(), XT, method)
+    assert ours.shape == ref.shape and ours.dtype == np.float32
+    assert np.abs(ours - ref).max() <= 1e-5 * max(1.0, float(np.abs(ref).max()))
+
+
+def test_engine_constants_match_the_reference():
+    assert engine.XTRANS_DEMOSAIC_METHODS == xtrans.XTRANS_DEMOSAIC_METHODS
+    assert engine.ICD_ITERATIONS == xtrans.ICD_ITERATIONS
+    assert engine.GRAD_EPS == np.float32(xtrans.GRAD_EPS)
+    assert engine._N3.tolist() == [list(n) for n in xtrans.NEIGHBOURS_3]
+    assert engine._N5.tolist() == [list(n) for n in xtrans.NEIGHBOURS_5]
+    assert engine._K3.tolist() == list(xtrans.EDGE_WEIGHTS_3)
+    assert np.array_equal(engine._K5, np.float32(xtrans.INV_DIST_5))
+    for method in xtrans.XTRANS_DEMOSAIC_METHODS:
+        assert engine.padding(XT, method) == xtrans.padding(XT, method)
+
+
+@pytest.mark.parametrize(
+    ("method", "iterations"), [("bilinear", 1), ("icd", 1)], ids=["bilinear", "icd"]
+)
+def test_gradcheck(method, iterations):
+    m = torch.rand(1, 1, 12, 12, dtype=torch.float64, requires_grad=True) + 0.1
+    assert torch.autograd.gradcheck(
+        lambda v: demosaic_xtrans(v, XT, method, iterations), (m,), atol=1e-5
+    )
+
+
+def test_errors_and_module():
+    with pytest.raises(ParameterError, match="valid: icd, bilinear"):
+        demosaic_xtrans(torch.rand(1, 1, 30, 30), XT, "menon")
+    with pytest.raises(ParameterError, match="1 channel"):
+        demosaic_xtrans(torch.rand(1, 3, 30, 30), XT)
+    with pytest.raises(ParameterError, match="NaN"):
+        demosaic_xtrans(torch.full((1, 1, 30, 30), float("nan")), XT)
+    with pytest.raises(ParameterError, match="at least 18×18"):
+        demosaic_xtrans(torch.rand(1, 1, 17, 40), XT)
+    with pytest.raises(ParameterError, match="NaN"):
+        engine.demosaic_xtrans(np.full((30, 30), np.nan, np.float32), XT)
+    with pytest.raises(ParameterError, match="at least"):
+        engine.demosaic_xtrans(np.zeros((10, 30), np.float32), XT)
+    with pytest.raises(ParameterError, match=r"\(H, W\)"):
+        engine.demosaic_xtrans(np.zeros((1, 30, 30), np.float32), XT)
+    module = XTransDemosaic(XT, "bilinear")
+    x = torch.rand(1, 3, 24, 24)
+    assert torch.equal(module.reverse(x), XT.mosaic(x))
+    assert torch.equal(module(XT.mosaic(x)), demosaic_xtrans(XT.mosaic(x), XT, "bilinear"))
