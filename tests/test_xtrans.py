@@ -170,18 +170,6 @@ def test_engine_equals_torch(method, shape, rng):
     assert np.abs(ours - ref).max() <= 1e-5 * max(1.0, float(np.abs(ref).max()))
 
 
-def test_engine_constants_match_the_reference():
-    assert engine.XTRANS_DEMOSAIC_METHODS == xtrans.XTRANS_DEMOSAIC_METHODS
-    assert engine.ICD_ITERATIONS == xtrans.ICD_ITERATIONS
-    assert engine.GRAD_EPS == np.float32(xtrans.GRAD_EPS)
-    assert engine._N3.tolist() == [list(n) for n in xtrans.NEIGHBOURS_3]
-    assert engine._N5.tolist() == [list(n) for n in xtrans.NEIGHBOURS_5]
-    assert engine._K3.tolist() == list(xtrans.EDGE_WEIGHTS_3)
-    assert np.array_equal(engine._K5, np.float32(xtrans.INV_DIST_5))
-    for method in xtrans.XTRANS_DEMOSAIC_METHODS:
-        assert engine.padding(XT, method) == xtrans.padding(XT, method)
-
-
 @pytest.mark.parametrize(
     ("method", "iterations"), [("bilinear", 1), ("icd", 1)], ids=["bilinear", "icd"]
 )

@@ -16,31 +16,29 @@ from numba import njit, prange
 from rawsim.cfa import CFA, phase_reflect_index
 from rawsim.engine import configure
 from rawsim.errors import ParameterError, check_choice
+from rawsim.isp.xtrans_stencils import (
+    EDGE_WEIGHTS_3,
+    GRAD_EPS,
+    ICD_ITERATIONS,
+    INV_DIST_5,
+    NEIGHBOURS_3,
+    NEIGHBOURS_5,
+    XTRANS_DEMOSAIC_METHODS,
+    padding,
+)
 
 configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
-#: The same names, defaults and constants as :mod:`rawsim.isp.xtrans` (a test checks).
-XTRANS_DEMOSAIC_METHODS = ("icd", "bilinear")
-ICD_ITERATIONS = 3
-GRAD_EPS = np.float32(1e-4)
-_N3 = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)])
-_K3 = np.array([2.0 if dy == 0 or dx == 0 else 1.0 for dy, dx in _N3], np.float32)
-_N5 = np.array([(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3) if (dy, dx) != (0, 0)])
-_K5 = np.array([1.0 / (dy * dy + dx * dx) for dy, dx in _N5]).astype(np.float32)
+#: The stencils of :mod:`rawsim.isp.xtrans_stencils` as the kernels index them.
+_N3 = np.array(NEIGHBOURS_3)
+_K3 = np.array(EDGE_WEIGHTS_3, np.float32)
+_N5 = np.array(NEIGHBOURS_5)
+_K5 = np.array(INV_DIST_5).astype(np.float32)
+_EPS = np.float32(GRAD_EPS)
 _HALF = np.float32(0.5)
 _ONE = np.float32(1.0)
-
-
-def reach(method: str, iterations: int = ICD_ITERATIONS) -> int:
-    check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
-    return 1 if method == "bilinear" else 1 + 3 * iterations
-
-
-def padding(cfa: CFA, method: str, iterations: int = ICD_ITERATIONS) -> int:
-    step = int(np.lcm(*cfa.period))
-    return -(-reach(method, iterations) // step) * step
 
 
 @njit(parallel=True, **_JIT)
@@ -107,7 +105,7 @@ def _l1(est, y, x, i, j):
 
 @njit(inline="always", **_JIT)
 def _inv_sq(g):
-    t = g + GRAD_EPS
+    t = g + _EPS
     return _ONE / (t * t)
 
 
