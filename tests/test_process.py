@@ -266,6 +266,33 @@ def test_no_cfa_dng_renders_as_three_channels():
     assert 0.01 < float(out.mean()) < 0.9
 
 
+def test_a_raw_that_is_not_a_flat_mosaic_and_has_no_matrix_is_rendered(tmp_path):
+    """LibRaw gives such raws (3-sample LinearRaw; the Kodak C330) as full images and
+    refuses ``raw_colors`` ("RAW image is not flat"): no internal error in info or
+    process, camera RGB as sRGB, said in a warning."""
+    import tifffile
+
+    path = tmp_path / "no_matrix.dng"
+    shutil.copy(RAW / "canon_eos6d_linear_raw_no_cfa.dng", path)
+    with tifffile.TiffFile(path, mode="r+b") as tif:  # no matrix, a camera LibRaw lacks
+        tags = tif.pages.first.tags
+        for code in (50721, 50722, 50964, 50965):  # ColorMatrix1/2, ForwardMatrix1/2
+            tags[code].overwrite([0, 1] * 9)
+        for code, name in ((271, "Nomake"), (272, "Nomodel X1"), (50708, "Nomodel X1")):
+            tags[code].overwrite(name)
+    with rawpy.imread(str(path)) as libraw:  # what makes it this case
+        assert libraw.raw_pattern is None and not libraw.rgb_xyz_matrix.any()
+        with pytest.raises(RuntimeError, match="not flat"):
+            _ = libraw.raw_colors
+    info = CliRunner().invoke(cli, ["info", str(path)])
+    assert info.exit_code == 0, info.output
+    assert "camera RGB treated as sRGB" in info.output
+    done = CliRunner().invoke(cli, ["process", str(path), "-o", str(tmp_path / "out")])
+    assert done.exit_code == 0, done.output
+    assert "no colour matrix for this camera" in done.output
+    assert (tmp_path / "out" / "no_matrix.png").exists()
+
+
 def test_round_trip_unprocess_then_process(tmp_path):
     """--clean DNG → rawsim process with the same profile returns the photo."""
     results = {}

@@ -233,7 +233,10 @@ def read_raw(path: str | Path) -> RawImage:
             iso = float(raw.other.iso_speed)
             colors = int(raw.num_colors)
             measured = None
-            if np.allclose(xyz, 0) and np.allclose(cam_srgb, 0) and colors == 3 and not mono:
+            no_matrix = np.allclose(xyz, 0) and np.allclose(cam_srgb, 0)
+            # Measured on a mosaic only: LibRaw has no raw_colors for other data
+            # ("RAW image is not flat", e.g. 3-sample LinearRaw, Kodak C330).
+            if no_matrix and colors == 3 and not mono and pattern is not None:
                 measured = _measured_rgb_cam(raw)
     except UnsupportedInputError:
         raise
