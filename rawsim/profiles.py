@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from rawsim.cfa import CFA
+from rawsim.cfa import BAYER_PATTERNS, CFA
 from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
@@ -276,9 +276,14 @@ class _Reader:
 
     def cfa(self, key: str) -> CFA:
         try:
-            return CFA(self.string(key))
+            cfa = CFA(self.string(key))
         except ParameterError as err:
             self.fail(key, str(err))
+        if not cfa.is_bayer:  # the unprocess pipeline mosaics 2×2 Bayer patterns only
+            self.fail(
+                key, f"{cfa.name} is not supported yet; use one of {', '.join(BAYER_PATTERNS)}"
+            )
+        return cfa
 
     def curve(self, key: str, kind: str):
         model = self.string(f"{key}.model")
