@@ -43,7 +43,12 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     help="file (default), or auto: the image's maximum if above 75% of the file's "
     "(LibRaw's default render).",
 )
-@click.option("--demosaic", type=click.Choice(DEMOSAICS), help="Demosaic method.")
+@click.option(
+    "--demosaic",
+    type=click.Choice(DEMOSAICS),
+    help="Demosaic method. On X-Trans (6×6) raws, bilinear stays bilinear and the "
+    "others become icd, rawsim's X-Trans interpolation.",
+)
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
 @click.option(

@@ -278,18 +278,22 @@ class CFA:
 
 
 def apply_tile(x: torch.Tensor, tile: torch.Tensor, op) -> torch.Tensor:
-    """``op(x, tile)`` with a (…, 2, 2) per-site tile laid over every 2×2 block of ``x``.
+    """``op(x, tile)`` with a (…, ph, pw) per-site tile (one CFA period) laid over
+    ``x`` from its top-left pixel.
 
-    ``x`` is (B, C, H, W) with even H, W; the tile broadcasts through a reshaped
-    view, so no full-size map is built. Bayer (2×2) tiles only.
+    ``x`` is (B, C, H, W). A 2×2 (Bayer) tile needs even H, W and broadcasts through
+    a reshaped view, so no full-size map is built; a larger period (X-Trans, 6×6)
+    is repeated over the image and cut at its right and bottom edges.
     """
-    if tile.shape[-2:] != (2, 2):
-        raise ParameterError(f"apply_tile takes a 2×2 Bayer tile, got {tuple(tile.shape[-2:])}")
+    ph, pw = tile.shape[-2:]
     b, c, h, w = x.shape
-    _check_even(h, w)
-    blocks = x.reshape(b, c, h // 2, 2, w // 2, 2)
-    t = tile.to(x).reshape(*tile.shape[:-2], 1, 2, 1, 2)
-    return op(blocks, t).reshape(b, c, h, w)
+    if (ph, pw) == (2, 2):
+        _check_even(h, w)
+        blocks = x.reshape(b, c, h // 2, 2, w // 2, 2)
+        t = tile.to(x).reshape(*tile.shape[:-2], 1, 2, 1, 2)
+        return op(blocks, t).reshape(b, c, h, w)
+    reps = (1,) * (tile.ndim - 2) + (-(-h // ph), -(-w // pw))
+    return op(x, tile.to(x).repeat(*reps)[..., :h, :w])
 
 
 def phase_reflect_index(n: int, pad: int, period: int):

@@ -14,7 +14,8 @@ real files are handled here, the way LibRaw handles them:
   rendered without demosaicking;
 * monochrome files (one colour, no filter): read as (H, W, 1) grey data and
   rendered without demosaicking or colour stages;
-* non-Bayer mosaics (X-Trans, four-colour): rejected as not supported yet.
+* mosaics of any periodic R/G/B pattern (2×2 Bayer, 6×6 X-Trans): read with
+  their CFA and per-site black levels; four-colour filters (CMYG, RGBE): refused.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ class RawImage:
             the file has no CFA (``cfa`` is None): C = 3, or 1 for a monochrome
             sensor. uint16.
         cfa: the Bayer pattern, None for 3-channel or monochrome data.
-        black_level: (2, 2) black per CFA tile site (DN), or (C,) per channel.
+        black_level: (ph, pw) black per site of one CFA period (DN; 2×2 Bayer, 6×6
+            X-Trans), or (C,) per channel.
         white_level: saturation level (DN).
         as_shot_wb: camera white-balance gains (R, G, B), G = 1, or None where LibRaw
             would not use the camera's multipliers.
@@ -211,16 +213,13 @@ def read_raw(path: str | Path) -> RawImage:
             mono = int(raw.num_colors) == 1 and raw.raw_image_visible.ndim == 2
             if mono:
                 pattern = None
-            if pattern is not None and np.asarray(pattern).shape == (2, 2):
-                # The colours of the visible area's first tile (its origin may be odd).
-                pattern = raw.raw_colors_visible[:2, :2]
+            if pattern is not None:
+                # The colours of the visible area's first period (its origin may be
+                # anywhere in the pattern).
+                ph, pw = np.asarray(pattern).shape
+                pattern = raw.raw_colors_visible[:ph, :pw]
             desc = raw.color_desc.decode(errors="replace")
             visible = raw.raw_image_visible
-            if pattern is not None and np.asarray(pattern).shape != (2, 2):
-                raise UnsupportedInputError(
-                    f"{path}: {np.asarray(pattern).shape[0]}×{np.asarray(pattern).shape[1]} "
-                    "mosaics (e.g. Fujifilm X-Trans) are not supported yet"
-                )
             data = np.array(visible, dtype=np.uint16, copy=True)
             black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
             white = float(raw.white_level)
@@ -266,25 +265,19 @@ def read_raw(path: str | Path) -> RawImage:
         if colors != 3 or sorted(set(desc[int(i)] for i in pattern.flatten())) != ["B", "G", "R"]:
             raise UnsupportedInputError(
                 f"{path}: colour filter {desc!r} with pattern {pattern.tolist()} is not "
-                "an RGB Bayer mosaic (not supported yet)"
+                "an R, G, B mosaic (four-colour filters are not supported)"
             )
         try:
             cfa = CFA.from_rawpy(pattern, desc)
         except ParameterError as err:
             raise UnsupportedInputError(f"{path}: {err}") from None
-        if not cfa.is_bayer:
-            # rawsim.isp.xtrans / rawsim.engine.xtrans demosaic it; the process
-            # pipeline (levels, white balance, planners) is still 2×2-only.
-            raise UnsupportedInputError(
-                f"{path}: a {cfa.period[0]}×{cfa.period[1]} {cfa.name} mosaic: the process "
-                "pipeline takes 2×2 Bayer mosaics only (not supported yet)"
-            )
         h, w = data.shape
-        if h < 2 or w < 2:
+        ph, pw = cfa.period
+        if h < 2 * ph or w < 2 * pw:
             raise UnsupportedInputError(f"{path}: image is too small ({w}×{h})")
-        # LibRaw's visible area may start on any site: keep whole 2×2 tiles.
-        data = np.ascontiguousarray(data[: h - h % 2, : w - w % 2])
-        black_level = black[pattern.astype(int)]  # per tile site
+        if cfa.is_bayer:  # LibRaw's visible area may start on any site: whole 2×2 tiles
+            data = np.ascontiguousarray(data[: h - h % 2, : w - w % 2])
+        black_level = black[pattern.astype(int)]  # per site of one period
     if not np.isfinite(white) or not np.isfinite(black_level).all():
         raise UnsupportedInputError(f"{path}: black or white level is not a number")
     if not white > float(np.max(black_level)):

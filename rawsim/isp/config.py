@@ -44,6 +44,10 @@ if TYPE_CHECKING:
     from rawsim.io.raw import RawImage
 
 DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
+#: What each demosaic method becomes on an X-Trans (6×6) mosaic: ``bilinear`` stays
+#: LibRaw's same-colour average; the Bayer interpolations all become ``icd``
+#: (:mod:`rawsim.isp.xtrans`).
+XTRANS_METHOD = {"wcd": "icd", "menon": "icd", "malvar": "icd", "bilinear": "bilinear"}
 HIGHLIGHT_MODES = ("clip", "blend")
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
@@ -772,9 +776,11 @@ def auto_white_balance(raw: RawImage) -> tuple[float, float, float]:
         planes = [(above[..., c], np.ones((h, w))) for c in range(3)]
     else:
         over = data > raw.white_level - 25
-        black = np.tile(np.asarray(raw.black_level, np.float64), (h // 2, w // 2))
+        ph, pw = raw.cfa.period
+        reps = (-(-h // ph), -(-w // pw))
+        black = np.tile(np.asarray(raw.black_level, np.float64).reshape(ph, pw), reps)[:h, :w]
         above = np.maximum(data - black, 0.0)
-        colors = np.tile(np.asarray(raw.cfa.colors).reshape(2, 2), (h // 2, w // 2))
+        colors = np.tile(np.asarray(raw.cfa.colors).reshape(ph, pw), reps)[:h, :w]
         planes = [(above * (colors == c), (colors == c).astype(np.float64)) for c in range(3)]
     keep = blocks(over.astype(np.float64)) == 0
     mul = []
@@ -811,11 +817,18 @@ def auto_exposure_stops(raw: RawImage, info: dict) -> float:
     span = float(info.get("white_level", raw.white_level)) - float(black.mean())
     if raw.cfa is None:
         rgb = (data - black) / span
-    else:
+    elif raw.cfa.is_bayer:
         h, w = data.shape[0] // 2 * 2, data.shape[1] // 2 * 2
         black = np.broadcast_to(black, (2, 2))
         planes = [(data[i:h:2, j:w:2] - black[i, j]) / span for i, j in raw.cfa.packed_sites]
         rgb = np.stack([planes[0], (planes[1] + planes[2]) / 2, planes[3]], axis=-1)
+    else:  # each colour's mean over every whole period of the pattern
+        ph, pw = raw.cfa.period
+        h, w = data.shape[0] // ph * ph, data.shape[1] // pw * pw
+        above = (data[:h, :w] - np.tile(black.reshape(ph, pw), (h // ph, w // pw))) / span
+        periods = above.reshape(h // ph, ph, w // pw, pw).transpose(0, 2, 1, 3)
+        colors = np.asarray(raw.cfa.colors).reshape(ph, pw)
+        rgb = np.stack([periods[:, :, colors == c].mean(axis=2) for c in range(3)], axis=-1)
     rgb = np.maximum(rgb, 0.0)
     if rgb.shape[-1] == 3 and "white_balance" in info:
         rgb = np.minimum(rgb * np.asarray(info["white_balance"], dtype=np.float32), 1.0)

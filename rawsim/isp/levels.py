@@ -60,16 +60,17 @@ class Levels(nn.Module):
 
     ``black`` is a number, a tensor broadcastable to the data, or a (…, 2, 2) CFA
     tile of per-site levels, repeated over the data (whose first row and column
-    are the tile's).
+    are the tile's); a tile of another period (X-Trans: (…, 6, 6)) with
+    ``period`` set to it.
     """
 
-    def __init__(self, black, white) -> None:
+    def __init__(self, black, white, period: tuple[int, int] = (2, 2)) -> None:
         super().__init__()
         _check_levels(black, white)
-        self.black, self.white = black, white
+        self.black, self.white, self.period = black, white, tuple(period)
 
     def _tiled(self) -> bool:
-        return isinstance(self.black, torch.Tensor) and self.black.shape[-2:] == (2, 2)
+        return isinstance(self.black, torch.Tensor) and self.black.shape[-2:] == self.period
 
     def forward(self, dn: torch.Tensor) -> torch.Tensor:
         if self._tiled():

@@ -19,8 +19,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from rawsim.cfa import CFA
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
+    XTRANS_METHOD,
     AntiAliasingStage,
     BlackLevelStage,
     ColorMatrixStage,
@@ -51,6 +53,7 @@ from rawsim.isp.orientation import Orientation
 from rawsim.isp.tone import ToneCurve
 from rawsim.isp.transfer import Transfer
 from rawsim.isp.white_balance import WhiteBalance
+from rawsim.isp.xtrans import XTransDemosaic
 from rawsim.isp.ycbcr import ColorSpaceConversion
 
 
@@ -63,17 +66,24 @@ class Isp(nn.Module):
     runs once at the end.
     """
 
-    def __init__(self, stages: list[tuple[str, nn.Module]], info: dict) -> None:
+    def __init__(self, stages: list[tuple[str, nn.Module]], info: dict, period: int = 2) -> None:
         super().__init__()
         self.names = [n for n, _ in stages]
         self.stages = nn.ModuleList([m for _, m in stages])
         self.info = info
+        self.period = period
 
     @property
     def halo(self) -> int:
-        """Rows of context a strip needs on each side (even, so strips keep the CFA phase)."""
+        """Rows of context a strip needs on each side (whole CFA periods, so strips
+        keep the CFA phase)."""
         total = sum(getattr(m, "radius", 0) for m in self.stages)
-        return total + total % 2
+        return -(-total // self.period) * self.period
+
+    @property
+    def strip_rows(self) -> int:
+        """:data:`STRIP_ROWS`, cut to whole CFA periods."""
+        return STRIP_ROWS - STRIP_ROWS % self.period
 
     def _run(self, x: torch.Tensor, region: tuple[int, int]) -> torch.Tensor:
         for m in self.stages:
@@ -84,15 +94,16 @@ class Isp(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h = x.shape[-2]
-        if torch.is_grad_enabled() or h <= 2 * STRIP_ROWS:
+        strip = self.strip_rows
+        if torch.is_grad_enabled() or h <= 2 * strip:
             out = self._run(x, (0, h))
         else:
             out = None
             halo = self.halo
-            for top in range(0, h, STRIP_ROWS):
-                lo, hi = max(0, top - halo), min(h, top + STRIP_ROWS + halo)
+            for top in range(0, h, strip):
+                lo, hi = max(0, top - halo), min(h, top + strip + halo)
                 part = self._run(x[..., lo:hi, :], (lo, h))
-                rows = part[..., top - lo : top - lo + min(STRIP_ROWS, h - top), :]
+                rows = part[..., top - lo : top - lo + min(strip, h - top), :]
                 if out is None:
                     out = rows.new_empty(*rows.shape[:-2], h, rows.shape[-1])
                 out[..., top : top + rows.shape[-2], :] = rows
@@ -114,12 +125,15 @@ def build_isp(config: IspConfig | list[dict], raw) -> Isp:
 def isp_for(resolved: ResolvedIsp) -> Isp:
     """The :class:`Isp` of a config resolved for one raw (its stages, its values)."""
     modules = [(s.name, MODULES[type(s)](s, resolved)) for s in resolved.stages]
-    return Isp(modules, resolved.info)
+    cfa = resolved.raw.cfa
+    return Isp(modules, resolved.info, int(np.lcm(*cfa.period)) if cfa else 2)
 
 
 #: Stage type → its torch module, from the stage and the config resolved for a raw.
 MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
-    BlackLevelStage: lambda s, r: Levels(_black_map(r.raw), r.white_level),
+    BlackLevelStage: lambda s, r: Levels(
+        _black_map(r.raw), r.white_level, r.raw.cfa.period if r.raw.cfa else (2, 2)
+    ),
     DeadPixelStage: lambda s, r: DeadPixelCorrection(
         r.raw.cfa, s.threshold, s.kernel, s.temperature
     ),
@@ -127,7 +141,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     AntiAliasingStage: lambda s, r: AntiAliasing(r.raw.cfa, s.method, s.sigma),
     WhiteBalanceStage: lambda s, r: WhiteBalance(r.white_balance, r.raw.cfa),
     HighlightsStage: lambda s, r: Highlights(s.mode),
-    DemosaicStage: lambda s, r: Demosaic(r.raw.cfa, s.method),
+    DemosaicStage: lambda s, r: _demosaic(r.raw.cfa, s.method),
     DenoiseStage: lambda s, r: Denoise(
         r.raw.cfa if r.config.before_demosaic(s) else None,
         s.method,
@@ -146,6 +160,14 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
 }
 
 
+def _demosaic(cfa: CFA, method: str) -> nn.Module:
+    """The demosaic stage of ``cfa``: a Bayer method as configured, or for other
+    patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`)."""
+    if cfa.is_bayer:
+        return Demosaic(cfa, method)
+    return XTransDemosaic(cfa, XTRANS_METHOD[method])
+
+
 def _black_map(raw):
     """The black level as a number, or a tensor broadcastable to the data (B, C, H, W)."""
     black = np.asarray(raw.black_level, dtype=np.float64)
@@ -153,4 +175,4 @@ def _black_map(raw):
         return float(black.flat[0])
     if raw.cfa is None:
         return torch.as_tensor(black, dtype=torch.float32).reshape(1, 3, 1, 1)
-    return torch.as_tensor(black, dtype=torch.float32).reshape(1, 1, 2, 2)  # a CFA tile
+    return torch.as_tensor(black, dtype=torch.float32).reshape(1, 1, *raw.cfa.period)  # a tile

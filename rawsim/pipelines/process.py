@@ -187,8 +187,8 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     from rawsim.engine import process as ep
 
     raw = resolved.raw
-    if raw.cfa is None or min(raw.data.shape[:2]) < ENGINE_MIN_SIZE:
-        return None
+    if raw.cfa is None or not raw.cfa.is_bayer or min(raw.data.shape[:2]) < ENGINE_MIN_SIZE:
+        return None  # the torch reference renders these (X-Trans: rawsim.isp.xtrans)
     pre, post = [], []
     tail: list[Stage] = []
     orientation = 1
