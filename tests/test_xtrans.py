@@ -297,3 +297,23 @@ def test_cli_processes_and_describes_xtrans(camera_dng, tmp_path):
     done = CliRunner().invoke(cli, ["process", str(path), "-o", str(tmp_path), "--format", "tiff"])
     assert done.exit_code == 0, done.output
     assert (tmp_path / "xtrans.tif").exists()
+
+
+def test_the_stage_runs_the_compiled_twin_without_gradients(rng, monkeypatch):
+    from rawsim.engine import xtrans as kernels
+
+    x = torch.rand(2, 3, 48, 60, generator=rng)
+    m = XT.mosaic(x)
+    stage = XTransDemosaic(XT)
+    calls = []
+    original = kernels.demosaic_xtrans
+    monkeypatch.setattr(
+        kernels, "demosaic_xtrans", lambda *a: calls.append(a[0].shape) or original(*a)
+    )
+    with torch.no_grad():
+        fast = stage(m)
+    assert calls == [(48, 60), (48, 60)]  # each sample of the batch, compiled
+    reference = demosaic_xtrans(m, XT)
+    with torch.no_grad():  # float64 stays on torch
+        assert torch.equal(stage(m.double()), demosaic_xtrans(m.double(), XT))
+    assert torch.allclose(fast, reference, rtol=1e-5, atol=1e-6)
