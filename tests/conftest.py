@@ -57,3 +57,29 @@ def require_tool(name: str) -> str:
             pytest.fail(f"{name} is not installed (.ci/run installs it)")
         pytest.skip(f"{name} not installed")
     return path
+
+
+def cpsnr(y: torch.Tensor, x: torch.Tensor, border: int = 10) -> float:
+    """CPSNR on the 8-bit scale, ``border`` pixels cropped (the standard demosaic test)."""
+    a = (y.clamp(0, 1) * 255).round()[..., border:-border, border:-border].double()
+    b = (x * 255).round()[..., border:-border, border:-border].double()
+    return float(10 * torch.log10(255**2 / ((a - b) ** 2).mean()))
+
+
+def libraw_linear(path, algorithm) -> torch.Tensor:
+    """LibRaw's demosaic (a ``rawpy.DemosaicAlgorithm``) of a raw in raw colour, linear,
+    unscaled: (1, 3, H, W) in [0, 1]."""
+    import rawpy
+
+    with rawpy.imread(str(path)) as raw:
+        y = raw.postprocess(
+            demosaic_algorithm=algorithm,
+            output_color=rawpy.ColorSpace.raw,
+            gamma=(1, 1),
+            no_auto_bright=True,
+            user_wb=[1, 1, 1, 1],
+            output_bps=16,
+            user_flip=0,
+            adjust_maximum_thr=0,
+        )
+    return torch.from_numpy(y.astype(np.float32) / 65535).permute(2, 0, 1)[None]

@@ -10,7 +10,7 @@ from rawsim.cfa import CFA
 from rawsim.errors import ParameterError
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.isp.demosaic import DEMOSAIC_METHODS, Demosaic, demosaic, demosaic_menon
-from tests.conftest import DATA
+from tests.conftest import DATA, cpsnr, libraw_linear
 
 PHOTOS = ["astronaut.png", "coffee.png", "chelsea.png", "rocket.jpg"]
 
@@ -19,13 +19,6 @@ def _photo(name: str) -> torch.Tensor:
     x = oiio.ImageBuf(str(DATA / "srgb" / name)).get_pixels(oiio.FLOAT)[:, :, :3]
     h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
     return torch.from_numpy(np.ascontiguousarray(x[:h, :w])).permute(2, 0, 1)[None]
-
-
-def cpsnr(y: torch.Tensor, x: torch.Tensor) -> float:
-    """CPSNR on the 8-bit scale, 10-pixel border cropped (the standard demosaic test)."""
-    a = (y.clamp(0, 1) * 255).round()[..., 10:-10, 10:-10].double()
-    b = (x * 255).round()[..., 10:-10, 10:-10].double()
-    return float(10 * torch.log10(255**2 / ((a - b) ** 2).mean()))
 
 
 @pytest.fixture(scope="module")
@@ -84,18 +77,7 @@ def test_wcd_beats_libraw_on_the_same_photos(tmp_path, photos, quality):
         )
         write_dng(path, np.round(m * 65535).astype(np.uint16), info)
         for alg in ("AHD", "AAHD", "DCB", "DHT"):
-            with rawpy.imread(str(path)) as raw:
-                y = raw.postprocess(
-                    demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, alg),
-                    output_color=rawpy.ColorSpace.raw,
-                    gamma=(1, 1),
-                    no_auto_bright=True,
-                    user_wb=[1, 1, 1, 1],
-                    output_bps=16,
-                    user_flip=0,
-                    adjust_maximum_thr=0,
-                )
-            y = torch.from_numpy(y.astype(np.float32) / 65535).permute(2, 0, 1)[None]
+            y = libraw_linear(path, getattr(rawpy.DemosaicAlgorithm, alg))
             libraw.setdefault(alg, []).append(cpsnr(y, x))
     best = max(float(np.mean(v)) for v in libraw.values())
     ours = float(
