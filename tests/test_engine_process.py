@@ -25,16 +25,21 @@ XYZ_TO_CAMERA = np.array(
 
 
 def synthetic_raw(pattern="RGGB", h=78, w=142, orientation=1, seed=0) -> RawImage:
-    """A 14-bit mosaic with edges, texture, noise and clipped highlights; per-site black."""
+    """A 14-bit mosaic with edges, texture, noise and clipped highlights; per-site black
+    (per colour for patterns other than Bayer, as LibRaw gives them)."""
     rng = np.random.default_rng(seed)
     y, x = np.mgrid[0:h, 0:w]
     scene = 0.35 + 0.25 * np.sin(x / 5.0) * np.cos(y / 7.0) + 0.3 * ((x + 2 * y) % 37 < 9)
     scene += 0.5 * ((x - w / 2) ** 2 + (y - h / 2) ** 2 < (h / 5) ** 2)  # a clipped disc
-    black = np.array([[512.0, 514.0], [510.0, 516.0]])
+    cfa = CFA(pattern)
+    if cfa.is_bayer:
+        black = np.array([[512.0, 514.0], [510.0, 516.0]])
+    else:
+        black = np.array([512.0, 514.0, 510.0])[np.array(cfa.colors)].reshape(cfa.period)
     dn = 512 + scene * 15000 + rng.normal(0, 30, (h, w))
     return RawImage(
         data=np.clip(np.round(dn), 0, 16383).astype(np.uint16),
-        cfa=CFA(pattern),
+        cfa=cfa,
         black_level=black,
         white_level=16383.0,
         as_shot_wb=(2.1, 1.0, 1.6),
@@ -76,6 +81,50 @@ def test_every_demosaic_and_pattern(method, pattern):
     config = override(default_config(), demosaic=method)
     _assert_close(*_both(raw, config))  # display-referred 16-bit codes
     _assert_close(*_both(raw, config, "exr", 32))  # scene-linear floats
+
+
+#: Patterns other than Bayer: X-Trans, and a 3×3 layout (every periodic R/G/B CFA).
+PERIODIC = ("XTRANS", "GRG/BGB/GRG")
+
+
+@pytest.mark.parametrize("pattern", PERIODIC)
+@pytest.mark.parametrize("method", ["bilinear", "wcd"])  # wcd is icd on these patterns
+def test_periodic_patterns(method, pattern):
+    raw = synthetic_raw(pattern, h=83, w=151)  # not whole periods: ragged tiles, edges
+    for changes in ({}, dict(highlights="blend", wb="auto"), dict(tone="aces", exposure=1.5)):
+        config = override(default_config(), demosaic=method, **changes)
+        _assert_close(*_both(raw, config))
+        _assert_close(*_both(raw, config, "exr", 32))
+
+
+@pytest.mark.parametrize("orientation", [1, 6, 3])
+def test_xtrans_orientation_shading_and_tiles(orientation):
+    """X-Trans with lens shading on the mosaic (site by site, no table), every tile
+    size and thread count: the reference's values and the same bits."""
+    raw = synthetic_raw("XTRANS", h=90, w=130, orientation=orientation)
+    config = override(default_config(), demosaic="wcd")
+    shading = next(s for s in config if s["name"] == "lens_shading")
+    shading["enabled"] = True
+    config.insert(1, config.pop(config.index(shading)))  # before the demosaic
+    base, ref = _both(raw, config)
+    _assert_close(base, ref)
+    plan = engine_plan(raw, config, "tiff")
+    threads = numba.get_num_threads()
+    try:
+        for tile in ((6, 6), (12, 30), (96, 504)):
+            for n in sorted({1, threads}):
+                numba.set_num_threads(n)
+                assert np.array_equal(engine_render(raw, plan, "tiff", 16, tile), base)
+    finally:
+        numba.set_num_threads(threads)
+
+
+def test_xtrans_black_that_differs_within_a_colour_falls_back():
+    raw = synthetic_raw("XTRANS")
+    black = raw.black_level.copy()
+    black[0, 0] += 1  # one green site of the period
+    assert engine_plan(replace(raw, black_level=black), default_config(), "tiff") is None
+    assert engine_plan(replace(raw, data=raw.data[:17]), default_config(), "tiff") is None
 
 
 OPTIONS = [

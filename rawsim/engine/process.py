@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit, prange
 
 from rawsim.engine import configure
+from rawsim.engine import xtrans as xt
 
 configure()
 
@@ -837,6 +838,104 @@ def process_kernel(
                 _menon(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
             else:
                 _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
+            _finish(
+                rgb,
+                post_ops,
+                post_f,
+                out_mode,
+                lut,
+                gamma,
+                scale,
+                orient,
+                out,
+                r0,
+                r1,
+                c0,
+                c1,
+                h,
+                w,
+            )
+
+
+# ------------------------------------------------------ other periodic CFAs
+@njit(**_JIT)
+def _load_planes(raw, m, rows, cols, r0, c0, cmap, table, ops, opf, h, w):
+    """Mosaic stages of the tile whose first output site is (r0, c0), into its phase
+    planes ``m`` (see :mod:`rawsim.engine.xtrans`): raw DN (uint16) → white = 1.
+
+    Each buffer site takes the value of its source site (``rows``/``cols``, the
+    image's sites and their phase-preserving reflection): the reference runs these
+    stages before it extends the mosaic. Levels and white balance are per colour
+    (``cmap``, the colour of each phase); through ``table`` (one row per colour,
+    :func:`mosaic_table`) when it has rows, else site by site.
+    """
+    _, ph, pw, ny, nx = m.shape
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+    for pr in range(ph):
+        for y in range(ny):
+            sy = rows[r0 + y * ph + pr]
+            src = raw[sy]
+            for pc in range(pw):
+                dst = m[0, pr, pc, y]
+                color = cmap[pr, pc]
+                if table.shape[0]:
+                    tab = table[color]
+                    for x in range(nx):
+                        dst[x] = tab[src[cols[c0 + x * pw + pc]]]
+                    continue
+                for x in range(nx):
+                    sx = cols[c0 + x * pw + pc]
+                    v = np.float32(src[sx])
+                    dst[x] = _mosaic_value(v, color, color, sy, sx, cy, cx, ops, opf)
+
+
+@njit(parallel=True, **_JIT)
+def periodic_kernel(
+    raw,
+    rows,
+    cols,
+    geometry,
+    table,
+    pre_ops,
+    pre_f,
+    post_ops,
+    post_f,
+    out_mode,
+    lut,
+    gamma,
+    scale,
+    orient,
+    out,
+    threads,
+    tile_rows,
+    tile_cols,
+    halo_rows,
+    halo_cols,
+):
+    """:func:`process_kernel` for any periodic CFA (X-Trans): the mosaic stages per
+    colour, the demosaic of :mod:`rawsim.engine.xtrans` (``geometry``: its
+    ``Planes.args()``) in phase planes, then the same RGB stages and output.
+
+    ``rows``/``cols``: :func:`rawsim.engine.xtrans.tile_index` of the image for tiles of
+    ``tile_rows`` × ``tile_cols`` (whole periods) and halos ``halo_rows``/``halo_cols``.
+    Levels ops hold black and white − black per colour (R, G, B) in their site slots.
+    """
+    h, w = raw.shape
+    cmap = geometry[0]
+    ph, pw = cmap.shape
+    n_r, n_c = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
+    tiles = n_r * n_c
+    threads = max(1, min(tiles, threads))
+    ny, nx = (tile_rows + 2 * halo_rows) // ph, (tile_cols + 2 * halo_cols) // pw
+    for t in prange(threads):
+        m, est, buf, scratch = xt.new_buffers(ph, pw, ny, nx)
+        rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
+        for tile in range(t, tiles, threads):
+            r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
+            r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
+            _load_planes(raw, m, rows, cols, r0, c0, cmap, table, pre_ops, pre_f, h, w)
+            result = xt.demosaic_planes(m, est, buf, scratch, geometry)
+            xt.planes_to_image(result, halo_rows, halo_cols, r1 - r0, c1 - c0, rgb, HALO, HALO)
             _finish(
                 rgb,
                 post_ops,

@@ -1,11 +1,24 @@
 """X-Trans (any periodic CFA) demosaics as compiled kernels: the twin of
 :mod:`rawsim.isp.xtrans` (read its module doc for the methods).
 
-The mosaic is extended once by the same phase-preserving reflection
-(:func:`rawsim.cfa.phase_reflect_index`); each stage is then a row-parallel
-(``prange``) pass over the extended image, computed where its consumers need it
-(the valid region shrinks by each stage's reach). Arithmetic is float32 in the
-reference's order of operations, so the two agree to rounding. No torch here.
+The image is cut into tiles of whole CFA periods, parallel over tiles, and each
+tile is demosaicked in **phase planes**: for a period of ph × pw sites, a tile
+buffer is held as ph·pw planes, plane (pr, pc) holding the sites (ph·Y + pr,
+pw·X + pc). Every site of a plane has the same colour and the same neighbours
+(each neighbour in a fixed plane at an offset of at most one plane row or
+column), so each step is a branch-free loop over a plane row with unit
+strides, which LLVM vectorises; in the image's own layout the colour and
+the neighbour lists change from pixel to pixel.
+
+Borders: the tile buffer is filled through :func:`tile_index` (the image's
+sites, then the phase-preserving reflection of :func:`rawsim.cfa.phase_reflect_index`
+that the reference extends the mosaic with), so edge tiles agree with the
+reference. The outermost plane row and column of a buffer are read but never
+computed; a halo of :func:`halo` sites covers that margin and the reach of the
+steps.
+
+Arithmetic is float32 in the reference's order of operations (each sum in the
+order of its neighbour list), so the two agree to rounding. No torch here.
 """
 
 from __future__ import annotations
@@ -31,29 +44,107 @@ configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
-#: The stencils of :mod:`rawsim.isp.xtrans_stencils` as the kernels index them.
-_N3 = np.array(NEIGHBOURS_3)
 _K3 = np.array(EDGE_WEIGHTS_3, np.float32)
-_N5 = np.array(NEIGHBOURS_5)
 _K5 = np.array(INV_DIST_5).astype(np.float32)
 _EPS = np.float32(GRAD_EPS)
 _HALF = np.float32(0.5)
 _ONE = np.float32(1.0)
 
-
-@njit(parallel=True, **_JIT)
-def _extend(mosaic, rows, cols, out):
-    for i in prange(rows.size):
-        src = mosaic[rows[i]]
-        dst = out[i]
-        for j in range(cols.size):
-            dst[j] = src[cols[j]]
+#: Output rows and columns of a tile in whole periods (6×6: 96 × 504 sites).
+TILE_PERIODS = (16, 84)
+METHOD_CODES = {"bilinear": 0, "icd": 1}
 
 
-def _neighbour_lists(cmap: np.ndarray, offsets: np.ndarray, colors) -> tuple:
-    """For each site phase (r, c) and each colour in ``colors``: the indices into
-    ``offsets`` of the neighbours of that colour, ascending (the reference's
-    summation order), padded with −1; and their counts."""
+# ------------------------------------------------------------- the geometry
+class Planes:
+    """The phase-plane geometry of one CFA for one demosaic: neighbour tables,
+    same-colour lists and the halo, as the kernels take them (see :meth:`args`)."""
+
+    def __init__(self, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS) -> None:
+        check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
+        if iterations < 1:
+            raise ParameterError(f"iterations must be at least 1, got {iterations}")
+        self.cfa, self.method, self.iterations = cfa, method, iterations
+        ph, pw = cfa.period
+        self.cmap = np.array(cfa.colors, np.int64).reshape(ph, pw)
+        self.nb3 = _plane_offsets(ph, pw, NEIGHBOURS_3)
+        self.nb5 = _plane_offsets(ph, pw, NEIGHBOURS_5)
+        self.lists3, self.counts3 = _same_colour(self.cmap, NEIGHBOURS_3, (0, 1, 2))
+        self.lists5, self.counts5 = _same_colour(self.cmap, NEIGHBOURS_5, (0, 2))
+        self.den3 = _weight_sums(self.lists3, self.counts3, _K3)
+        # The margin of planes read but not computed, per axis, and the halo (sites):
+        # the margin plus the reach of the steps after the bilinear start, in periods.
+        self.margin = tuple(int(np.abs(self.nb5[..., 2 + a]).max()) for a in (0, 1))
+        after = 0 if method == "bilinear" else 3 * iterations
+        self.halo = tuple(
+            -(-(m * p + after) // p) * p for m, p in zip(self.margin, cfa.period, strict=True)
+        )
+        # Sites beyond the image are its phase-preserving reflection within the
+        # reference's padding; further out (never reaching an output) the same phase
+        # moved back inside it.
+        self.pad = padding(cfa, method, iterations)
+
+    def args(self) -> tuple:
+        """The kernels' geometry arguments, in their order."""
+        return (
+            self.cmap,
+            self.nb3,
+            self.nb5,
+            self.lists3,
+            self.counts3,
+            self.lists5,
+            self.counts5,
+            self.den3,
+            np.array(self.margin, np.int64),
+            METHOD_CODES[self.method],
+            self.iterations,
+        )
+
+    def tile_shape(self, periods: tuple[int, int] = TILE_PERIODS) -> tuple[int, int]:
+        """(rows, cols) of the output of one tile."""
+        return tuple(n * p for n, p in zip(periods, self.cfa.period, strict=True))
+
+    def buffer_planes(self, tile: tuple[int, int]) -> tuple[int, int]:
+        """(NY, NX): plane rows and columns of a tile buffer (tile plus halo each side)."""
+        return tuple(
+            (t + 2 * h) // p for t, h, p in zip(tile, self.halo, self.cfa.period, strict=True)
+        )
+
+    def index(self, n: int, axis: int, tile: int) -> np.ndarray:
+        """:func:`tile_index` of this geometry along ``axis`` (0 rows, 1 columns)."""
+        return tile_index(n, self.pad, self.halo[axis], self.cfa.period[axis], tile)
+
+
+def tile_index(n: int, pad: int, halo: int, period: int, tile: int) -> np.ndarray:
+    """Source index (int64) of every position −halo … ⌈n / tile⌉·tile + halo − 1 of a
+    line of ``n`` CFA sites cut into tiles: the identity inside, the reference's
+    :func:`~rawsim.cfa.phase_reflect_index` within ``pad`` outside, and beyond that a
+    site of the same phase (a multiple of ``period`` back towards the line)."""
+    ext = phase_reflect_index(n, pad, period)  # positions −pad … n + pad − 1
+    v = np.arange(-halo, -(-n // tile) * tile + halo)
+    inside = np.clip(v, -pad, n + pad - 1)
+    inside = inside + np.mod(v - inside, period)  # back to v's phase
+    inside = np.where(inside > n + pad - 1, inside - period, inside)
+    return ext[inside + pad].astype(np.int64)
+
+
+def _plane_offsets(ph: int, pw: int, offsets) -> np.ndarray:
+    """(ph, pw, K, 4): for each phase and each neighbour offset (dy, dx), the
+    neighbour's plane (qr, qc) and plane offset (oy, ox)."""
+    table = np.empty((ph, pw, len(offsets), 4), np.int64)
+    for r in range(ph):
+        for c in range(pw):
+            for k, (dy, dx) in enumerate(offsets):
+                oy, qr = divmod(r + dy, ph)
+                ox, qc = divmod(c + dx, pw)
+                table[r, c, k] = (qr, qc, oy, ox)
+    return table
+
+
+def _same_colour(cmap: np.ndarray, offsets, colors) -> tuple[np.ndarray, np.ndarray]:
+    """For each phase and each colour in ``colors``: the indices into ``offsets`` of
+    that colour's neighbours, ascending (the reference's summation order), padded
+    with −1; and their counts."""
     ph, pw = cmap.shape
     lists = np.full((ph, pw, len(colors), len(offsets)), -1, np.int64)
     counts = np.zeros((ph, pw, len(colors)), np.int64)
@@ -70,113 +161,253 @@ def _neighbour_lists(cmap: np.ndarray, offsets: np.ndarray, colors) -> tuple:
     return lists, counts
 
 
-@njit(parallel=True, **_JIT)
-def _bilinear(m, cmap, lists, counts, est, q):
-    """3×3 same-colour means into ``est`` (3, H, W) over rows/cols [q, H − q)."""
-    h, w = m.shape
+def _weight_sums(lists, counts, weights) -> np.ndarray:
+    """Σ of the listed weights per phase and colour, summed in float32 in list order."""
+    out = np.ones(counts.shape, np.float32)
+    for idx in np.ndindex(*counts.shape):
+        if counts[idx]:
+            total = np.float32(0.0)
+            for k in lists[idx][: counts[idx]]:
+                total = np.float32(total + weights[k])
+            out[idx] = total
+    return out
+
+
+# ------------------------------------------------------------------ kernels
+@njit(inline="always", **_JIT)
+def _row(p, c, qr, qc, y, x0, n):
+    """Plane (qr, qc) of channel ``c`` of ``p``, row ``y``, columns [x0, x0 + n)."""
+    return p[c, qr, qc, y, x0 : x0 + n]
+
+
+@njit(**_JIT)
+def init_own(m, est, out, cmap):
+    """Each site's own colour is its sample, in both estimate buffers (set once a tile)."""
     ph, pw = cmap.shape
-    for i in prange(q, h - q):
-        pr = i % ph
-        pc = q % pw
-        for j in range(q, w - q):
+    for pr in range(ph):
+        for pc in range(pw):
+            own = cmap[pr, pc]
+            est[own, pr, pc] = m[0, pr, pc]
+            out[own, pr, pc] = m[0, pr, pc]
+
+
+@njit(**_JIT)
+def _bilinear(m, est, cmap, nb3, lists3, counts3, den3, margin):
+    """3×3 same-colour means (LibRaw's ``lin_interpolate``, normalised exactly)."""
+    _, ph, pw, ny, nx = m.shape
+    my, mx = margin[0], margin[1]
+    n = nx - 2 * mx
+    for pr in range(ph):
+        for pc in range(pw):
             own = cmap[pr, pc]
             for c in range(3):
                 if c == own:
-                    est[c, i, j] = m[i, j]
                     continue
-                num = np.float32(0.0)
-                den = np.float32(0.0)
-                for s in range(counts[pr, pc, c]):
-                    k = lists[pr, pc, c, s]
-                    num = num + _K3[k] * m[i + _N3[k, 0], j + _N3[k, 1]]
-                    den = den + _K3[k]
-                est[c, i, j] = num / den
-            pc += 1
-            if pc == pw:
-                pc = 0
+                den = den3[pr, pc, c]
+                for y in range(my, ny - my):
+                    dst = _row(est, c, pr, pc, y, mx, n)
+                    if counts3[pr, pc, c] == 0:  # no such neighbour: the reference's 0
+                        dst[:] = np.float32(0.0)
+                        continue
+                    for s in range(counts3[pr, pc, c]):
+                        k = lists3[pr, pc, c, s]
+                        wk = _K3[k]
+                        src = _row(
+                            m,
+                            0,
+                            nb3[pr, pc, k, 0],
+                            nb3[pr, pc, k, 1],
+                            y + nb3[pr, pc, k, 2],
+                            mx + nb3[pr, pc, k, 3],
+                            n,
+                        )
+                        if s == 0:
+                            for x in range(n):
+                                dst[x] = wk * src[x]
+                        else:
+                            for x in range(n):
+                                dst[x] = dst[x] + wk * src[x]
+                    for x in range(n):
+                        dst[x] = dst[x] / den
 
 
-@njit(inline="always", **_JIT)
-def _l1(est, y, x, i, j):
-    return (abs(est[0, y, x] - est[0, i, j]) + abs(est[1, y, x] - est[1, i, j])) + abs(
-        est[2, y, x] - est[2, i, j]
+@njit(**_JIT)
+def _green(m, est, out, cmap, nb3, margin, l1, num, den):
+    """Step 1 of an ``icd`` round: green at the red and blue sites into ``out[1]``.
+
+    ``l1`` (8, n), ``num``, ``den`` (n): scratch rows. NEIGHBOURS_3 is symmetric
+    (neighbour 7 − k is opposite k), so each of the 8 RGB differences is taken
+    once and used twice.
+    """
+    _, ph, pw, ny, nx = m.shape
+    my, mx = margin[0], margin[1]
+    n = nx - 2 * mx
+    for pr in range(ph):
+        for pc in range(pw):
+            own = cmap[pr, pc]
+            if own == 1:
+                continue
+            for y in range(my, ny - my):
+                cr = _row(est, 0, pr, pc, y, mx, n)
+                cg = _row(est, 1, pr, pc, y, mx, n)
+                cb = _row(est, 2, pr, pc, y, mx, n)
+                for k in range(8):
+                    qr, qc = nb3[pr, pc, k, 0], nb3[pr, pc, k, 1]
+                    yy, xx = y + nb3[pr, pc, k, 2], mx + nb3[pr, pc, k, 3]
+                    er = _row(est, 0, qr, qc, yy, xx, n)
+                    eg = _row(est, 1, qr, qc, yy, xx, n)
+                    eb = _row(est, 2, qr, qc, yy, xx, n)
+                    dst = l1[k]
+                    for x in range(n):
+                        dst[x] = (abs(er[x] - cr[x]) + abs(eg[x] - cg[x])) + abs(eb[x] - cb[x])
+                for x in range(n):
+                    num[x] = np.float32(0.0)
+                    den[x] = np.float32(0.0)
+                for k in range(8):
+                    qr, qc = nb3[pr, pc, k, 0], nb3[pr, pc, k, 1]
+                    yy, xx = y + nb3[pr, pc, k, 2], mx + nb3[pr, pc, k, 3]
+                    eo = _row(est, own, qr, qc, yy, xx, n)
+                    eg = _row(est, 1, qr, qc, yy, xx, n)
+                    a, b = l1[k], l1[7 - k]
+                    wk = _K3[k]
+                    for x in range(n):
+                        t = (a[x] + _HALF * b[x]) + _EPS
+                        weight = wk * (_ONE / (t * t))
+                        num[x] = num[x] + weight * (eo[x] - eg[x])
+                        den[x] = den[x] + weight
+                sample = _row(m, 0, pr, pc, y, mx, n)
+                dst = _row(out, 1, pr, pc, y, mx, n)
+                for x in range(n):
+                    dst[x] = sample[x] - num[x] / den[x]
+
+
+@njit(**_JIT)
+def _red_blue(m, out, cmap, nb5, lists5, counts5, margin, num, den):
+    """Step 2 of an ``icd`` round: red and blue wherever missing, into ``out[0]``, ``out[2]``.
+
+    NEIGHBOURS_5 is symmetric too (23 − k is opposite k).
+    """
+    _, ph, pw, ny, nx = m.shape
+    my, mx = margin[0], margin[1]
+    n = nx - 2 * mx
+    for pr in range(ph):
+        for pc in range(pw):
+            own = cmap[pr, pc]
+            for i in range(2):
+                c = 2 * i
+                if c == own:
+                    continue
+                for y in range(my, ny - my):
+                    g0 = _row(out, 1, pr, pc, y, mx, n)
+                    for x in range(n):
+                        num[x] = np.float32(0.0)
+                        den[x] = np.float32(0.0)
+                    for s in range(counts5[pr, pc, i]):
+                        k = lists5[pr, pc, i, s]
+                        qr, qc = nb5[pr, pc, k, 0], nb5[pr, pc, k, 1]
+                        yy, xx = y + nb5[pr, pc, k, 2], mx + nb5[pr, pc, k, 3]
+                        gn = _row(out, 1, qr, qc, yy, xx, n)
+                        mn = _row(m, 0, qr, qc, yy, xx, n)
+                        k2 = 23 - k
+                        go = _row(
+                            out,
+                            1,
+                            nb5[pr, pc, k2, 0],
+                            nb5[pr, pc, k2, 1],
+                            y + nb5[pr, pc, k2, 2],
+                            mx + nb5[pr, pc, k2, 3],
+                            n,
+                        )
+                        wk = _K5[k]
+                        for x in range(n):
+                            t = (abs(gn[x] - g0[x]) + _HALF * abs(go[x] - g0[x])) + _EPS
+                            weight = wk * (_ONE / (t * t))
+                            num[x] = num[x] + weight * (mn[x] - gn[x])
+                            den[x] = den[x] + weight
+                    dst = _row(out, c, pr, pc, y, mx, n)
+                    for x in range(n):
+                        dst[x] = g0[x] + num[x] / den[x]
+
+
+@njit(**_JIT)
+def demosaic_planes(m, est, out, scratch, geometry):
+    """Demosaic the tile in ``m`` (1, ph, pw, NY, NX); returns the buffer holding the
+    result (``est`` or ``out``, each (3, ph, pw, NY, NX)). ``scratch``: (10, NX) rows."""
+    cmap, nb3, nb5, lists3, counts3, lists5, counts5, den3, margin, method, rounds = geometry
+    init_own(m, est, out, cmap)
+    _bilinear(m, est, cmap, nb3, lists3, counts3, den3, margin)
+    if method == 0:
+        return est
+    l1, num, den = scratch[:8], scratch[8], scratch[9]
+    for _ in range(rounds):
+        _green(m, est, out, cmap, nb3, margin, l1, num, den)
+        _red_blue(m, out, cmap, nb5, lists5, counts5, margin, num, den)
+        est, out = out, est
+    return est
+
+
+@njit(**_JIT)
+def new_buffers(ph, pw, ny, nx):
+    """A thread's tile buffers: mosaic planes, two estimates, scratch rows (zeroed
+    once: the margin planes are read before any tile writes them)."""
+    return (
+        np.zeros((1, ph, pw, ny, nx), np.float32),
+        np.zeros((3, ph, pw, ny, nx), np.float32),
+        np.zeros((3, ph, pw, ny, nx), np.float32),
+        np.zeros((10, nx), np.float32),
     )
 
 
-@njit(inline="always", **_JIT)
-def _inv_sq(g):
-    t = g + _EPS
-    return _ONE / (t * t)
+@njit(**_JIT)
+def planes_to_image(p, hy, hx, n_rows, n_cols, dst, d0, d1):
+    """Copy the tile's output sites of the estimate planes ``p`` (3, ph, pw, NY, NX),
+    buffer rows [hy, hy + n_rows) and columns [hx, hx + n_cols) (``hy``, ``hx``
+    whole periods), into ``dst[c]`` (three (H', W') images) at (d0 + row, d1 + col)."""
+    _, ph, pw, _, _ = p.shape
+    x0 = hx // pw
+    for c in range(3):
+        image = dst[c]
+        for i in range(n_rows):
+            b = hy + i
+            row = image[d0 + i, d1 : d1 + n_cols]
+            for pc in range(pw):
+                src = p[c, b % ph, pc, b // ph, x0:]
+                for t in range((n_cols - pc + pw - 1) // pw):
+                    row[pc + pw * t] = src[t]
+
+
+@njit(**_JIT)
+def _load_float(mosaic, m, rows, cols, r0, c0):
+    """Fill the planes ``m`` of the tile whose first output site is (r0, c0) from a
+    float32 mosaic, through the index maps ``rows``/``cols`` (:func:`tile_index`)."""
+    _, ph, pw, ny, nx = m.shape
+    for pr in range(ph):
+        for y in range(ny):
+            src = mosaic[rows[r0 + y * ph + pr]]
+            for pc in range(pw):
+                dst = m[0, pr, pc, y]
+                for x in range(nx):
+                    dst[x] = src[cols[c0 + x * pw + pc]]
 
 
 @njit(parallel=True, **_JIT)
-def _green(m, cmap, est, out, q):
-    """Step 1 of an ``icd`` round: green into ``out[1]`` over [q, H − q).
-
-    _N3 is symmetric (neighbour 7 − k is opposite k), so each of the 8 RGB
-    differences is taken once and used twice.
-    """
-    h, w = m.shape
-    ph, pw = cmap.shape
-    for i in prange(q, h - q):
-        l1 = np.empty(8, np.float32)
-        pr = i % ph
-        pc = q % pw
-        for j in range(q, w - q):
-            own = cmap[pr, pc]
-            pc += 1
-            if pc == pw:
-                pc = 0
-            if own == 1:
-                out[1, i, j] = m[i, j]
-                continue
-            for k in range(8):
-                l1[k] = _l1(est, i + _N3[k, 0], j + _N3[k, 1], i, j)
-            num = np.float32(0.0)
-            den = np.float32(0.0)
-            for k in range(8):
-                g = l1[k] + _HALF * l1[7 - k]
-                weight = _K3[k] * _inv_sq(g)
-                y = i + _N3[k, 0]
-                x = j + _N3[k, 1]
-                d = est[own, y, x] - est[1, y, x]
-                num = num + weight * d
-                den = den + weight
-            out[1, i, j] = m[i, j] - num / den
-
-
-@njit(parallel=True, **_JIT)
-def _red_blue(m, cmap, lists, counts, out, q):
-    """Step 2 of an ``icd`` round: red and blue into ``out[0]``, ``out[2]`` over [q, H − q)."""
-    h, w = m.shape
-    ph, pw = cmap.shape
-    green = out[1]
-    for i in prange(q, h - q):
-        pr = i % ph
-        pc = q % pw
-        for j in range(q, w - q):
-            own = cmap[pr, pc]
-            g0 = green[i, j]
-            for n in range(2):
-                c = 2 * n
-                if c == own:
-                    out[c, i, j] = m[i, j]
-                    continue
-                num = np.float32(0.0)
-                den = np.float32(0.0)
-                for s in range(counts[pr, pc, n]):
-                    k = lists[pr, pc, n, s]
-                    dy = _N5[k, 0]
-                    dx = _N5[k, 1]
-                    gn = green[i + dy, j + dx]
-                    g = abs(gn - g0) + _HALF * abs(green[i - dy, j - dx] - g0)
-                    weight = _K5[k] * _inv_sq(g)
-                    num = num + weight * (m[i + dy, j + dx] - gn)
-                    den = den + weight
-                out[c, i, j] = g0 + num / den
-            pc += 1
-            if pc == pw:
-                pc = 0
+def _demosaic_image(
+    mosaic, rows, cols, geometry, tile_rows, tile_cols, hy, hx, ny, nx, out, threads
+):
+    h, w = mosaic.shape
+    ph, pw = geometry[0].shape
+    n_r, n_c = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
+    tiles = n_r * n_c
+    threads = max(1, min(tiles, threads))
+    for t in prange(threads):
+        m, est, buf, scratch = new_buffers(ph, pw, ny, nx)
+        for tile in range(t, tiles, threads):
+            r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
+            _load_float(mosaic, m, rows, cols, r0, c0)
+            result = demosaic_planes(m, est, buf, scratch, geometry)
+            planes_to_image(
+                result, hy, hx, min(tile_rows, h - r0), min(tile_cols, w - c0), out, r0, c0
+            )
 
 
 def demosaic_xtrans(
@@ -187,37 +418,33 @@ def demosaic_xtrans(
     The same results as :func:`rawsim.isp.xtrans.demosaic_xtrans` to float32
     rounding; runs on numba's threads (:func:`rawsim.engine.set_threads`).
     """
-    check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
+    import numba
+
+    geo = Planes(cfa, method, iterations)
     mosaic = np.ascontiguousarray(mosaic, dtype=np.float32)
     if mosaic.ndim != 2:
         raise ParameterError(f"mosaic must be (H, W), got shape {mosaic.shape}")
-    if iterations < 1:
-        raise ParameterError(f"iterations must be at least 1, got {iterations}")
-    pad = padding(cfa, method, iterations)
     h, w = mosaic.shape
-    need = pad + max(cfa.period)
+    need = geo.pad + max(cfa.period)
     if h < need or w < need:
         raise ParameterError(
             f"a {cfa.name} mosaic needs at least {need}×{need} pixels for {method!r}, got {h}×{w}"
         )
     if not np.isfinite(mosaic).all():
         raise ParameterError("mosaic contains NaN or infinite values")
-    ph, pw = cfa.period
-    cmap = np.array(cfa.colors, np.int64).reshape(ph, pw)
-    rows = phase_reflect_index(h, pad, ph)
-    cols = phase_reflect_index(w, pad, pw)
-    m = np.empty((rows.size, cols.size), np.float32)
-    _extend(mosaic, rows, cols, m)
-    est = np.empty((3, *m.shape), np.float32)
-    lists3, counts3 = _neighbour_lists(cmap, _N3, (0, 1, 2))
-    _bilinear(m, cmap, lists3, counts3, est, 1)
-    if method == "icd":
-        lists5, counts5 = _neighbour_lists(cmap, _N5, (0, 2))
-        out = np.empty_like(est)
-        q = 1
-        for _ in range(iterations):
-            _green(m, cmap, est, out, q + 1)
-            _red_blue(m, cmap, lists5, counts5, out, q + 3)
-            est, out = out, est
-            q += 3
-    return np.ascontiguousarray(est[:, pad : pad + h, pad : pad + w])
+    tile = geo.tile_shape()
+    ny, nx = geo.buffer_planes(tile)
+    out = np.empty((3, h, w), np.float32)
+    _demosaic_image(
+        mosaic,
+        geo.index(h, 0, tile[0]),
+        geo.index(w, 1, tile[1]),
+        geo.args(),
+        *tile,
+        *geo.halo,
+        ny,
+        nx,
+        out,
+        numba.get_num_threads(),
+    )
+    return out

@@ -30,6 +30,7 @@ from rawsim.io.task import Task
 from rawsim.isp.config import (
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
+    XTRANS_METHOD,
     BlackLevelStage,
     ColorMatrixStage,
     DemosaicStage,
@@ -53,6 +54,7 @@ from rawsim.isp.curves import (
     _SRGB_SLOPE,
     filmic,
 )
+from rawsim.isp.xtrans_stencils import min_size
 
 
 @dataclass(frozen=True)
@@ -112,15 +114,20 @@ def _render(resolved: ResolvedIsp, device):
 # ------------------------------------------------------------------ engine
 #: The stages the output table evaluates, after every other pointwise stage.
 _TAIL_STAGES = (ToneStage, TransferStage)
-#: The engine's smallest image: every tile's halo must mirror inside the image.
+#: The engine's smallest Bayer image: every tile's halo must mirror inside the image.
 ENGINE_MIN_SIZE = 16
+
+
+def _engine_min_size(cfa) -> int:
+    """The engine's smallest image side for ``cfa``: X-Trans as its reference demosaic."""
+    return ENGINE_MIN_SIZE if cfa.is_bayer else min_size(cfa, "icd")
 
 
 @dataclass
 class EnginePlan:
     """A config resolved for one raw into the compiled kernel's arguments."""
 
-    method: int
+    method: str  # the demosaic: a Bayer method, or the X-Trans one it maps to
     pre_ops: np.ndarray
     pre_f: np.ndarray
     post_ops: np.ndarray
@@ -133,12 +140,26 @@ class EnginePlan:
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
-    black = np.asarray(r.raw.black_level, dtype=np.float64).reshape(4)
+    """Black and white − black per slot: the 4 Bayer sites, or for other patterns the
+    colours R, G, B (:func:`_black_per_colour`)."""
+    black = np.asarray(r.raw.black_level, dtype=np.float64)
+    black = black.reshape(4) if r.raw.cfa.is_bayer else _black_per_colour(r.raw)
     if np.allclose(black, black[0]):  # the reference's scalar black level
-        divisor = np.full(4, np.float32(r.white_level - black[0]))
+        divisor = np.full(black.size, np.float32(r.white_level - black[0]))
     else:  # its per-site tile, in float32
         divisor = np.float32(r.white_level) - black.astype(np.float32)
-    return ep.OP_LEVELS, [*black, *divisor]
+    return ep.OP_LEVELS, [*black, *np.zeros(4 - black.size), *divisor]
+
+
+def _black_per_colour(raw: RawImage) -> np.ndarray | None:
+    """The black level of each colour (R, G, B) of a non-Bayer mosaic, or None when
+    sites of one colour differ (the engine keeps one level per colour)."""
+    black = np.asarray(raw.black_level, dtype=np.float64).ravel()
+    colors = np.asarray(raw.cfa.colors)
+    levels = [black[colors == c] for c in range(3)]
+    if any(not np.all(v == v[0]) for v in levels):
+        return None
+    return np.array([v[0] for v in levels])
 
 
 def _highlights_op(ep, stage: HighlightsStage, r: ResolvedIsp):
@@ -187,15 +208,17 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     from rawsim.engine import process as ep
 
     raw = resolved.raw
-    if raw.cfa is None or not raw.cfa.is_bayer or min(raw.data.shape[:2]) < ENGINE_MIN_SIZE:
-        return None  # the torch reference renders these (X-Trans: rawsim.isp.xtrans)
+    if raw.cfa is None or min(raw.data.shape[:2]) < _engine_min_size(raw.cfa):
+        return None  # the torch reference renders these
+    if not raw.cfa.is_bayer and _black_per_colour(raw) is None:
+        return None
     pre, post = [], []
     tail: list[Stage] = []
     orientation = 1
-    method = 0
+    method = "bilinear"
     for stage in resolved.stages:
         if isinstance(stage, DemosaicStage):
-            method = ep.DEMOSAIC_CODES[stage.method]
+            method = stage.method if raw.cfa.is_bayer else XTRANS_METHOD[stage.method]
             continue
         if isinstance(stage, OrientationStage):
             orientation = raw.orientation
@@ -284,7 +307,8 @@ def engine_render(
 ) -> np.ndarray:
     """Render ``raw`` with the compiled kernel: (H, W, 3) samples for :func:`write_image`.
 
-    ``tile``: (rows, columns) of the kernel's tiles, even (default: the engine's).
+    ``tile``: (rows, columns) of the kernel's tiles, even for Bayer, whole periods of
+    other patterns (default: the engine's).
     """
     import numba
 
@@ -297,29 +321,31 @@ def engine_render(
     dtype = np.float32 if plan.out_mode == ep.OUT_FLOAT else np.uint16
     scale = 1.0 if plan.out_mode == ep.OUT_FLOAT else 2.0**bits - 1
     out = np.empty(shape, dtype=dtype)
-    colors = np.array(raw.cfa.colors, dtype=np.int64)
+    if raw.cfa.is_bayer:
+        colors = np.array(raw.cfa.colors, dtype=np.int64)
+    else:  # levels and white balance per colour: the table's rows are R, G, B
+        colors = np.array([0, 1, 2, 1], dtype=np.int64)
     if (plan.pre_ops == ep.OP_SHADING).any():
         table = np.empty((0, 0), dtype=np.float32)
     else:
         table = ep.mosaic_table(colors, plan.pre_ops, plan.pre_f)
-    ep.process_kernel(
-        np.ascontiguousarray(raw.data),
-        colors,
-        plan.method,
-        table,
-        plan.pre_ops,
-        plan.pre_f,
-        plan.post_ops,
-        plan.post_f,
-        plan.out_mode,
-        plan.lut,
-        plan.gamma,
-        scale,
-        np.array([transpose, flip_rows, flip_cols]),
-        out,
-        numba.get_num_threads(),
-        *(tile or (ep.TILE_ROWS, ep.TILE_COLS)),
-    )
+    stages = (plan.pre_ops, plan.pre_f, plan.post_ops, plan.post_f, plan.out_mode, plan.lut)
+    output = (plan.gamma, scale, np.array([transpose, flip_rows, flip_cols]), out)
+    threads = numba.get_num_threads()
+    data = np.ascontiguousarray(raw.data)
+    if raw.cfa.is_bayer:
+        method = ep.DEMOSAIC_CODES[plan.method]
+        tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
+        ep.process_kernel(data, colors, method, table, *stages, *output, threads, *tile)
+    else:
+        from rawsim.engine import xtrans
+
+        geo = xtrans.Planes(raw.cfa, plan.method)
+        tile = tile or geo.tile_shape()
+        rows, cols = geo.index(h, 0, tile[0]), geo.index(w, 1, tile[1])
+        ep.periodic_kernel(
+            data, rows, cols, geo.args(), table, *stages, *output, threads, *tile, *geo.halo
+        )
     if fmt == "exr" and bits == 16:
         return out.astype(np.float16)
     return out.astype(np.uint8) if bits == 8 and dtype == np.uint16 else out
