@@ -131,13 +131,18 @@ def linear_photo_scores(tmp_path_factory):
         scores[f"libraw{q}"] = cpsnr(libraw_linear(path, rawpy.DemosaicAlgorithm(q)), x, 12)
     for method in xtrans.XTRANS_DEMOSAIC_METHODS:
         scores[method] = cpsnr(demosaic_xtrans(m, XT, method), x, 12)
+    scores["icd as coded"] = cpsnr(demosaic_xtrans(m, XT, "icd", linear=False), x, 12)
     return scores
 
 
-def test_icd_beats_libraw_one_pass_markesteijn(linear_photo_scores):
+def test_icd_beats_libraw_markesteijn_on_a_linear_photo(linear_photo_scores):
+    """On linear data (a raw's), icd in its square-root domain beats LibRaw's 3-pass
+    Markesteijn (by 1.0 dB here; 2.1 dB on the Kodak set, bench_xtrans.py) and its
+    own run on the linear values."""
     s = linear_photo_scores
     assert abs(s["bilinear"] - s["libraw0"]) < 0.3, s  # the same demosaic as quality 0
-    assert s["icd"] > s["libraw1"] + 0.5, s
+    assert s["icd"] > s["libraw3"] + 0.5, s
+    assert s["icd"] > s["icd as coded"] + 1.0, s
 
 
 @pytest.mark.parametrize("method", xtrans.XTRANS_DEMOSAIC_METHODS)

@@ -12,8 +12,11 @@ Methods (:data:`XTRANS_DEMOSAIC_METHODS`):
   LibRaw normalises in integers (weights × ⌊256 / Σw⌋ / 256, then truncates),
   which darkens by up to 1.6 % (Σw = 6, 7); this normalises exactly, so a flat
   field stays flat.
-* ``icd`` (default): iterated, edge-weighted colour differences. Starting from
-  ``bilinear``, each of ``iterations`` (3) rounds
+* ``icd`` (default): iterated, edge-weighted colour differences, on the
+  signed square root of linear data (:func:`to_sqrt`: there shot noise has
+  one spread at every level and equal steps look nearly equal, so one
+  gradient scale fits dark and bright areas; on linear Kodak images this
+  gains 1.8 dB). Starting from ``bilinear``, each of ``iterations`` (3) rounds
 
   1. re-estimates green at the red and blue sites as the sample minus the mean
      colour difference (its colour − green) of its 8 neighbours, weighted by
@@ -52,6 +55,8 @@ from rawsim.isp.xtrans_stencils import (
     INV_DIST_5,
     NEIGHBOURS_3,
     NEIGHBOURS_5,
+    SQRT_KNEE,
+    SQRT_SLOPE,
     XTRANS_DEMOSAIC_METHODS,
     min_size,
     padding,
@@ -145,19 +150,41 @@ def _icd_round(m: torch.Tensor, est: torch.Tensor, masks: torch.Tensor) -> torch
     return torch.cat([out[0], green, out[1]], dim=1)
 
 
+def to_sqrt(x: torch.Tensor) -> torch.Tensor:
+    """The signed square root, linear below :data:`SQRT_KNEE` (see there). Any real x."""
+    a = x.abs()
+    # torch's float32 square root is not always correctly rounded; through float64 it
+    # is (and equals the compiled twin's)
+    root = torch.sign(x) * torch.sqrt(a.clamp(min=SQRT_KNEE).double()).to(x.dtype)
+    return torch.where(a >= SQRT_KNEE, root, x * SQRT_SLOPE)
+
+
+def from_sqrt(y: torch.Tensor) -> torch.Tensor:
+    """The inverse of :func:`to_sqrt`: y·|y|, linear below √knee."""
+    a = y.abs()
+    return torch.where(a >= SQRT_KNEE * SQRT_SLOPE, y * a, y * (1 / SQRT_SLOPE))
+
+
 def demosaic_xtrans(
-    mosaic: torch.Tensor, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS
+    mosaic: torch.Tensor,
+    cfa: CFA,
+    method: str = "icd",
+    iterations: int = ICD_ITERATIONS,
+    linear: bool = True,
 ) -> torch.Tensor:
     """Demosaic (B, 1, H, W) on ``cfa`` (any period; written for X-Trans) → (B, 3, H, W).
 
-    Linear values in, linear out; nothing is clipped. ``iterations`` applies to
-    ``icd`` only.
+    Nothing is clipped; the output is in the input's domain. ``iterations``
+    applies to ``icd`` only. ``linear``: the mosaic is linear light (a camera raw),
+    so ``icd`` works on its square root (:func:`to_sqrt`); False for data already
+    coded for display (e.g. sRGB test images), which it takes as they are.
     """
     check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
     _check(mosaic, cfa, method, iterations)
     pad = padding(cfa, method, iterations)
     h, w = mosaic.shape[-2:]
-    m = extend(mosaic, cfa, pad)
+    root = method == "icd" and linear
+    m = extend(to_sqrt(mosaic) if root else mosaic, cfa, pad)
     masks = cfa.masks(h + 2 * pad, w + 2 * pad, device=m.device, dtype=m.dtype)[:, None, None]
     est = _bilinear(m, masks)
     if method == "icd":
@@ -165,7 +192,8 @@ def demosaic_xtrans(
             est = _icd_round(m, est, masks)
     elif method != "bilinear":
         raise ParameterError(f"unknown method {method!r}")  # check_choice above
-    return est[..., pad : pad + h, pad : pad + w]
+    est = est[..., pad : pad + h, pad : pad + w]
+    return from_sqrt(est) if root else est
 
 
 def demosaic_xtrans_bilinear(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
