@@ -15,10 +15,15 @@ that peak memory (max RSS) is its own:
   * the default output (8-bit PNG) per image, and the write alone;
   * single cold invocations of ``rawsim process x.dng --format tiff --bits 16``:
     the first after clearing numba's cache (compiling) and later ones;
-  * forward and backward of ``rawsim.process`` with gradients on 1 MP.
-Targets (issues 13, 15): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
+  * forward and backward of ``rawsim.process`` with gradients on 1 MP;
+  * X-Trans: a 24 MP X-Trans DNG of the test photos at their own resolution
+    (mirrored tiles; a real camera matrix and white balance), rendered to 16-bit
+    sRGB TIFF by ``rawsim process`` (per image in a batch) and by LibRaw's 3-pass
+    Markesteijn (postprocess + TIFF write, fresh interpreter): seconds, and CPSNR
+    of each render against the photo.
+Targets (issues 13, 15, 26): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
 default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write;
-backward ≤ 3× forward.
+backward ≤ 3× forward; X-Trans ≤ 0.5× LibRaw 3-pass (+ TIFF write).
 """
 
 from __future__ import annotations
@@ -34,16 +39,19 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import OpenImageIO as oiio
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "srgb"
 
 LIBRAW = """
-import sys, time, rawpy, tifffile
+import os, sys, time, rawpy, tifffile
 t = time.perf_counter()
+algorithm = rawpy.DemosaicAlgorithm(int(os.environ.get("LIBRAW_QUALITY", 3)))  # 3: AHD
 with rawpy.imread(sys.argv[1]) as raw:
-    rgb = raw.postprocess(demosaic_algorithm=rawpy.DemosaicAlgorithm.AHD, use_camera_wb=True,
-                          output_color=rawpy.ColorSpace.sRGB, output_bps=16, no_auto_bright=True)
+    rgb = raw.postprocess(demosaic_algorithm=algorithm, use_camera_wb=True,
+                          output_color=rawpy.ColorSpace.sRGB, output_bps=16, no_auto_bright=True,
+                          gamma=(2.4, 12.92) if os.environ.get("LIBRAW_SRGB") else (2.222, 4.5))
 t1 = time.perf_counter()
 if len(sys.argv) > 2:
     tifffile.imwrite(sys.argv[2], rgb, photometric="rgb")
@@ -215,6 +223,106 @@ def main() -> None:
             " cold ≤ 1.0× rawpy + TIFF"
         )
     gradients_1mp()
+    with tempfile.TemporaryDirectory() as d:
+        xtrans(Path(d), copies)
+
+
+def xtrans_photo() -> np.ndarray:
+    """(4000, 6000, 3) linear sRGB: the test photos at their own size, mirrored to fill."""
+    tiles = []
+    for path in sorted(DATA.glob("*")):
+        x = oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)[:, :, :3]
+        tiles.append(np.concatenate([x, x[:, ::-1]], 1))
+    rows, width = [], 6000
+    while sum(r.shape[0] for r in rows) < 4000:
+        tile = tiles[len(rows) % len(tiles)]
+        reps = -(-width // tile.shape[1])
+        rows.append(np.concatenate([tile, tile[:, ::-1]] * reps, 1)[:, :width])
+    return np.concatenate(rows)[:4000] ** 2.2
+
+
+def make_xtrans_dng(path: Path) -> None:
+    """Write the X-Trans DNG of :func:`xtrans_photo` (the A7S II's matrix, an as-shot
+    white balance, 90 % of full scale) and beside it ``truth.npy``, the photo as 8-bit
+    sRGB levels. Run in a child process: a process forked later inherits its
+    parent's peak memory in its own figure."""
+    from rawsim.cfa import CFA
+    from rawsim.color import camera_from_srgb
+    from rawsim.io.dng import DngInfo, write_dng
+    from rawsim.profiles import load_profile
+
+    xt = CFA("XTRANS")
+    xyz = np.asarray(load_profile("sony_a7s2").xyz_to_camera)
+    neutral = (0.5, 1.0, 0.7)
+    linear = 0.9 * xtrans_photo()
+    cam = (linear @ camera_from_srgb(xyz).T * neutral).clip(0, 1)
+    cmap = np.tile(np.array(xt.colors).reshape(6, 6), (4000 // 6 + 1, 1000))[:4000, :6000]
+    mosaic = np.take_along_axis(cam, cmap[..., None], 2)[..., 0]
+    info = DngInfo(xt, 1024, 16383, tuple(map(tuple, xyz)), neutral, "Fujifilm", "X", "X", 400)
+    write_dng(path, np.round(1024 + mosaic * 15359).astype(np.uint16), info)
+    np.save(path.parent / "truth.npy", srgb_8bit(linear).astype(np.uint8))
+
+
+def xtrans(tmp: Path, copies: int) -> None:
+    """X-Trans: rawsim process (default demosaic) beside LibRaw 3-pass Markesteijn."""
+    batch = tmp / "xt"
+    batch.mkdir()
+    dng = str(batch / "copy0.dng")
+    code = f"import bench_process as b; b.make_xtrans_dng(b.Path({dng!r}))"
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).parent)
+    truth = np.load(batch / "truth.npy")
+    (batch / "truth.npy").unlink()
+    for i in range(1, copies + 1):
+        shutil.copy(batch / "copy0.dng", batch / f"copy{i}.dng")
+    env = dict(os.environ, LIBRAW_QUALITY="3", LIBRAW_SRGB="1")
+    libraw = []
+    for _ in range(copies):
+        start = time.perf_counter()
+        child([sys.executable, "-c", LIBRAW, str(batch / "copy0.dng"), str(tmp / "l.tif")], env)
+        libraw.append(time.perf_counter() - start)
+    seconds, peak = rawsim_batch(batch, tmp / "o", ["--format", "tiff", "--bits", "16"])
+    subprocess.run(
+        [
+            "rawsim",
+            "-q",
+            "process",
+            str(batch / "copy0.dng"),
+            "-o",
+            str(tmp / "r"),
+            "--format",
+            "tiff",
+            "--bits",
+            "16",
+            "--baseline-exposure",
+            "ignore",
+        ],
+        check=True,
+    )
+    ours = cpsnr(tmp / "r" / "copy0.tif", truth)
+    theirs = cpsnr(tmp / "l.tif", truth)
+    print(f"X-Trans, 24 MP 14-bit DNG of the test photos, {os.cpu_count()} cores:")
+    print(
+        f"  LibRaw 3-pass Markesteijn + TIFF write   {min(libraw):6.2f} s   CPSNR {theirs:.2f} dB"
+    )
+    print(
+        f"  rawsim process (icd, TIFF 16)            {seconds:6.2f} s   CPSNR {ours:.2f} dB"
+        f"   peak {peak:4.2f} GB   rawsim/LibRaw = {seconds / min(libraw):4.2f}×"
+    )
+    print("  target: ≤ 0.5× LibRaw 3-pass")
+
+
+def srgb_8bit(linear: np.ndarray) -> np.ndarray:
+    """Linear values → sRGB-coded 8-bit levels (float), clipped to [0, 1] first."""
+    x = np.clip(linear, 0, 1)
+    coded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+    return np.round(coded * 255)
+
+
+def cpsnr(path: Path, truth: np.ndarray, border: int = 12) -> float:
+    """CPSNR (8-bit scale) of a 16-bit TIFF against ``truth`` (8-bit levels), border cut."""
+    y = np.round(oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)[:, :, :3] * 255)
+    d = (y - truth.astype(np.float64))[border:-border, border:-border]
+    return float(10 * np.log10(255**2 / np.mean(d**2)))
 
 
 def gradients_1mp() -> None:
