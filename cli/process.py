@@ -93,6 +93,12 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     help="Bits per sample: 8 or 16 (PNG, TIFF; JPEG 8), 16 (half) or 32 for EXR. "
     "Default 8, EXR 16.",
 )
+@click.option(
+    "--strip-metadata",
+    is_flag=True,
+    help="Write none of the raw's metadata (camera, lens, exposure, time, GPS, "
+    "artist, XMP) into the images; by default it is carried over.",
+)
 @batch_options
 @click.pass_context
 @usage_errors
@@ -114,6 +120,7 @@ def command(
     transfer,
     fmt,
     bits,
+    strip_metadata,
     jobs,
     executor,
     address,
@@ -134,9 +141,12 @@ def command(
     render whose 99th percentile is below 1/8 of full scale gets a warning).
 
     Each file gives <stem>.<ext> and <stem>.process.json (camera data, warnings, the
-    white balance and matrix used, and the effective config). Raws without
-    a CFA (linear DNGs) are rendered as 3-channel data; X-Trans and other
-    non-Bayer mosaics are reported as not supported.
+    white balance and matrix used, and the effective config). The image keeps
+    the raw's metadata (camera, serial number, lens, capture time, exposure,
+    aperture, ISO, focal length, flash, GPS, artist, copyright, description,
+    XMP; Orientation 1, as the pixels are rotated) unless --strip-metadata.
+    Bayer and X-Trans (and other periodic R/G/B) mosaics are demosaicked; raws
+    without a CFA (linear DNGs) are rendered as 3-channel data.
 
     \b
     Example:
@@ -166,7 +176,9 @@ def command(
     if nbits not in valid:
         raise click.UsageError(f"--format {fmt} takes --bits {' or '.join(map(str, valid))}", ctx)
     resolve_device(device)
-    options = ProcessOptions(config=config, fmt=fmt, bits=nbits, device=device)
+    options = ProcessOptions(
+        config=config, fmt=fmt, bits=nbits, device=device, strip_metadata=strip_metadata
+    )
     run_files(
         ctx,
         inputs,

@@ -79,13 +79,17 @@ def write_png(
     srgb: bool = True,
     attributes: dict | None = None,
     threads: int | None = None,
+    exif: bytes = b"",
+    xmp: str = "",
 ) -> None:
     """Write (H, W, C) uint8/uint16 samples as a PNG at ``path``: C = 1 grey,
     2 grey + alpha, 3 RGB, 4 RGBA.
 
     ``attributes``: text chunks (keyword → value, Latin-1); ``threads``: deflate
     threads (default: :func:`set_threads`' value, else the CPU count). The file's
-    bytes do not depend on ``threads``.
+    bytes do not depend on ``threads``. ``exif``: an EXIF block (a TIFF structure,
+    :func:`rawsim.io.metadata.exif_block`) for an ``eXIf`` chunk; ``xmp``: an XMP
+    packet for an ``iTXt`` chunk keyed ``XML:com.adobe.xmp``, both before the pixels.
     """
     h, w, c = data.shape
     if data.dtype not in (np.uint8, np.uint16) or c not in _COLOUR_TYPES:
@@ -106,6 +110,10 @@ def write_png(
         parts += [_chunk(kind, body) for kind, body in _SRGB_CHUNKS]
     for key, value in (attributes or {}).items():
         parts.append(_chunk(b"tEXt", f"{key}\0{value}".encode("latin-1", "replace")))
+    if exif:
+        parts.append(_chunk(b"eXIf", exif))
+    if xmp:  # keyword, no compression, no language, no translated keyword, UTF-8 text
+        parts.append(_chunk(b"iTXt", b"XML:com.adobe.xmp\0\0\0\0\0" + xmp.encode()))
     pieces[0] = b"\x78\x01" + pieces[0]  # zlib header: deflate, 32 KiB window, fastest
     pieces[-1] += struct.pack(">I", adler)
     parts += [_chunk(b"IDAT", piece) for piece in pieces]

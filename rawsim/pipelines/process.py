@@ -24,6 +24,7 @@ from rawsim._version import __version__
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, write_image
+from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.io.task import Task
@@ -67,12 +68,15 @@ class ProcessOptions:
         fmt: output format, one of ``OUTPUT_FORMATS``.
         bits: 8 or 16 (PNG/TIFF/JPEG), 16 (half) or 32 (float) for EXR.
         device: ``cpu``, ``cuda`` or ``auto``.
+        strip_metadata: write none of the raw's metadata (EXIF, GPS, XMP) into the
+            image, only rawsim's own tags.
     """
 
     config: IspConfig = field(default_factory=IspConfig.default)
     fmt: str = "png"
     bits: int = 8
     device: str = "cpu"
+    strip_metadata: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "config", IspConfig.of(self.config))
@@ -520,7 +524,9 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         **{k: v for k, v in info.items() if k != "white_level"},
         "white_level_used": info.get("white_level", raw.white_level),
     }
+    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     with atomic_outputs(task.outputs) as tmp:
-        write_image(tmp["image"], samples, options.fmt, srgb, {"Software": f"rawsim {__version__}"})
+        software = {"Software": f"rawsim {__version__}"}
+        write_image(tmp["image"], samples, options.fmt, srgb, software, photo)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta

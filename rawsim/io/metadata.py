@@ -1,0 +1,387 @@
+"""Photo metadata (EXIF, GPS, XMP) read from a raw or a photo and carried into outputs.
+
+A camera file's metadata is read with exiv2 (python-exiv2: every raw format
+exiv2 knows, and JPEG, TIFF, PNG, WebP, …) into a :class:`PhotoMetadata`: the
+fields a photo manager sorts and searches by (:data:`FIELDS`: camera, serial
+number, lens, capture time with sub-seconds and time-zone offset, exposure,
+aperture, ISO, exposure bias, focal length and its 35 mm equivalent, flash,
+artist, copyright, description), every GPS tag, and the XMP packet. Each field
+is taken from the first of its sources that the file has (raws record some in
+TIFF/EP's or their maker notes' places; exiv2's "easy access" finds
+those), and written under its standard EXIF key. Files exiv2 cannot read fall
+back to what LibRaw reports (ISO, exposure, aperture, focal length, time,
+artist).
+
+Writing (:func:`exif_block`, :func:`embed`): exiv2 encodes the EXIF (its own
+TIFF structure: IFD0, the Exif and GPS IFDs), which goes as it is into a PNG
+``eXIf`` chunk and heads rawsim's TIFF files (:mod:`rawsim.io.tiff`); JPEG files
+get it through exiv2 itself; EXR headers get the standard OpenEXR attributes.
+Outputs always say Orientation 1 (rawsim rotates the pixels) and name rawsim
+as their Software. The same metadata gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+#: Standard EXIF key → the keys it is read from, in order of preference: the
+#: standard places, TIFF/EP's, DNG's and the maker notes' (values there are taken
+#: as exiv2 prints them: a lens code becomes the lens's name). exiv2's own "easy
+#: access" search is not used: it crashes on some old raws (Kodak DC50).
+FIELDS: dict[str, tuple[str, ...]] = {
+    "Exif.Image.Make": ("Exif.Image.Make",),
+    "Exif.Image.Model": ("Exif.Image.Model", "Exif.Image.UniqueCameraModel"),
+    "Exif.Photo.BodySerialNumber": (
+        "Exif.Photo.BodySerialNumber",
+        "Exif.Image.CameraSerialNumber",
+        "Exif.Canon.SerialNumber",
+        "Exif.Nikon3.SerialNumber",
+        "Exif.Fujifilm.SerialNumber",
+        "Exif.OlympusEq.SerialNumber",
+        "Exif.Pentax.SerialNumber",
+        "Exif.Panasonic.InternalSerialNumber",
+        "Exif.Sigma.SerialNumber",
+    ),
+    "Exif.Photo.LensMake": ("Exif.Photo.LensMake",),
+    "Exif.Photo.LensModel": (
+        "Exif.Photo.LensModel",
+        "Exif.Canon.LensModel",
+        "Exif.CanonCs.LensType",
+        "Exif.OlympusEq.LensModel",
+        "Exif.NikonLd3.LensIDNumber",
+        "Exif.NikonLd2.LensIDNumber",
+        "Exif.Sony2.LensID",
+        "Exif.Sony1.LensID",
+        "Exif.Minolta.LensID",
+        "Exif.Pentax.LensType",
+        "Exif.PentaxDng.LensType",
+        "Exif.Panasonic.LensType",
+        "Exif.Samsung2.LensType",
+    ),
+    "Exif.Photo.LensSpecification": ("Exif.Photo.LensSpecification",),
+    "Exif.Photo.LensSerialNumber": ("Exif.Photo.LensSerialNumber",),
+    "Exif.Photo.DateTimeOriginal": (
+        "Exif.Photo.DateTimeOriginal",
+        "Exif.Image.DateTimeOriginal",
+        "Exif.Image.DateTime",
+    ),
+    "Exif.Photo.SubSecTimeOriginal": ("Exif.Photo.SubSecTimeOriginal", "Exif.Photo.SubSecTime"),
+    "Exif.Photo.OffsetTimeOriginal": ("Exif.Photo.OffsetTimeOriginal", "Exif.Photo.OffsetTime"),
+    "Exif.Photo.ExposureTime": ("Exif.Photo.ExposureTime", "Exif.Image.ExposureTime"),
+    "Exif.Photo.FNumber": ("Exif.Photo.FNumber", "Exif.Image.FNumber"),
+    "Exif.Photo.ISOSpeedRatings": (
+        "Exif.Photo.ISOSpeedRatings",
+        "Exif.Image.ISOSpeedRatings",
+        "Exif.CanonSi.ISOSpeed",
+        "Exif.Nikon3.ISOSpeed",
+    ),
+    "Exif.Photo.ExposureProgram": ("Exif.Photo.ExposureProgram", "Exif.Image.ExposureProgram"),
+    "Exif.Photo.ExposureBiasValue": (
+        "Exif.Photo.ExposureBiasValue",
+        "Exif.Image.ExposureBiasValue",
+    ),
+    "Exif.Photo.MeteringMode": ("Exif.Photo.MeteringMode", "Exif.Image.MeteringMode"),
+    "Exif.Photo.Flash": ("Exif.Photo.Flash", "Exif.Image.Flash"),
+    "Exif.Photo.FocalLength": ("Exif.Photo.FocalLength", "Exif.Image.FocalLength"),
+    "Exif.Photo.FocalLengthIn35mmFilm": ("Exif.Photo.FocalLengthIn35mmFilm",),
+    "Exif.Photo.SubjectDistance": ("Exif.Photo.SubjectDistance", "Exif.Image.SubjectDistance"),
+    "Exif.Image.Artist": ("Exif.Image.Artist",),
+    "Exif.Image.Copyright": ("Exif.Image.Copyright",),
+    "Exif.Image.ImageDescription": ("Exif.Image.ImageDescription",),
+}
+#: Every tag of this group is kept as it is.
+GPS_GROUP = "Exif.GPSInfo."
+SOFTWARE_KEY = "Exif.Image.Software"
+#: Tags every output carries: rawsim rotates the pixels (Orientation 1); the tags
+#: EXIF 2.32 requires (its version, FlashPix version, resolution).
+_OUTPUT_TAGS = (
+    ("Exif.Image.Orientation", "1"),
+    ("Exif.Image.XResolution", "72/1"),
+    ("Exif.Image.YResolution", "72/1"),
+    ("Exif.Image.ResolutionUnit", "2"),
+    ("Exif.Photo.ExifVersion", "48 50 51 50"),
+    ("Exif.Photo.FlashpixVersion", "48 49 48 48"),
+)
+_JPEG_TAGS = (
+    ("Exif.Image.YCbCrPositioning", "1"),
+    ("Exif.Photo.ComponentsConfiguration", "1 2 3 0"),
+)
+#: Descriptions some raws carry in ImageDescription that describe nothing (a
+#: firmware's placeholder): dropped.
+_EMPTY_DESCRIPTIONS = ("", "OLYMPUS DIGITAL CAMERA", "SONY DSC", "DCIM")
+
+
+@dataclass(frozen=True)
+class PhotoMetadata:
+    """EXIF fields (standard key → exiv2's text form of the value, which it parses
+    back to the tag's type) in :data:`FIELDS` order then GPS, and the XMP packet."""
+
+    exif: tuple[tuple[str, str], ...] = ()
+    xmp: str = ""
+    source: str = field(default="", compare=False)
+
+    def __bool__(self) -> bool:
+        return bool(self.exif or self.xmp)
+
+    def get(self, key: str) -> str | None:
+        """The value of EXIF ``key``, or None."""
+        return dict(self.exif).get(key)
+
+    def summary(self) -> dict[str, str]:
+        """Tag name → value (exiv2's human-readable form), for ``rawsim info`` and sidecars."""
+
+        data = self._exif_data()
+        return {d.tagName(): d.print(data) for d in data}
+
+    def _exif_data(self, output: Output | None = None):
+        """exiv2's ExifData of the fields; for an ``output``, also the tags EXIF
+        requires of it (version, resolution, ColorSpace: 1 sRGB, else uncalibrated;
+        but for TIFF, the pixel size; for JPEG its YCbCr layout), Orientation 1 and
+        its Software."""
+        import exiv2
+
+        data = exiv2.ExifData()
+        for key, value in self.exif:
+            data[key] = value
+        if output is not None:
+            for key, value in _OUTPUT_TAGS + (_JPEG_TAGS if output.fmt == "jpg" else ()):
+                data[key] = value
+            if output.fmt != "tiff":  # TIFF has its own ImageWidth and ImageLength
+                data["Exif.Photo.PixelXDimension"] = str(output.width)
+                data["Exif.Photo.PixelYDimension"] = str(output.height)
+            data["Exif.Photo.ColorSpace"] = "1" if output.srgb else "65535"
+            data[SOFTWARE_KEY] = output.software
+        return data
+
+
+@dataclass(frozen=True)
+class Output:
+    """What an output's own EXIF tags say: its Software, format (``png``, ``tiff``,
+    ``jpg``, ``exr``), pixel size, and whether it is sRGB."""
+
+    software: str
+    fmt: str
+    width: int
+    height: int
+    srgb: bool = True
+
+
+def read_metadata(path: str | Path) -> PhotoMetadata:
+    """The photo metadata of a raw or image file (see the module doc); empty where the
+    file has none or neither exiv2 nor LibRaw can read any."""
+    import exiv2
+
+    try:
+        image = exiv2.ImageFactory.open(str(path))
+        image.readMetadata()
+    except exiv2.Exiv2Error:
+        return _from_libraw(path)
+    data = image.exifData()
+    fields: list[tuple[str, str]] = []
+    for key, sources in FIELDS.items():
+        value = _first(data, sources)
+        if value is not None:
+            fields.append((key, value))
+    fields += [
+        (d.key(), d.toString())
+        for d in data
+        if d.key().startswith(GPS_GROUP) and d.key() != "Exif.GPSInfo.GPSTag"
+    ]
+    xmp = image.xmpPacket() if image.xmpData().count() else ""
+    return PhotoMetadata(tuple(fields), xmp or "", str(path))
+
+
+def _first(data, sources: tuple[str, ...]) -> str | None:
+    """The first usable value among ``sources`` (see :data:`FIELDS`), as text."""
+    import exiv2
+
+    for source in sources:
+        found = data.findKey(exiv2.ExifKey(source))
+        if found == data.end():
+            continue
+        standard = source.split(".")[1] in ("Image", "Photo")
+        # maker-note values (lens codes, ISO codes) read best as exiv2 prints them
+        value = found.toString() if standard else found.print(data)
+        value = value.strip().strip("\0").strip()
+        if _usable(source, value, standard):
+            return value
+    return None
+
+
+def _usable(source: str, value: str, standard: bool) -> bool:
+    """Whether a value carries information: not empty, not a zero rational, not a
+    placeholder description, and from maker notes not a code exiv2 cannot name."""
+    if not value or value in ("0", "0/0", "0/1", "(0)", "n/a") or value.startswith("Unknown"):
+        return False
+    if source.endswith("ImageDescription") and value.upper() in _EMPTY_DESCRIPTIONS:
+        return False
+    return standard or not (value[0] == "(" or value.isdigit())
+
+
+def _from_libraw(path: str | Path) -> PhotoMetadata:
+    """What LibRaw reports, for files exiv2 cannot read (e.g. Apple QuickTake)."""
+    import rawpy
+
+    from rawsim.io.clibs import collected_stderr, openable_name
+
+    try:
+        with collected_stderr([]), openable_name(Path(path)) as name, rawpy.imread(name) as raw:
+            other = raw.other
+    except (rawpy.LibRawError, OSError):
+        return PhotoMetadata()
+    fields = []
+    if other.iso_speed > 0:
+        fields.append(("Exif.Photo.ISOSpeedRatings", f"{other.iso_speed:g}"))
+    if other.shutter_speed > 0:
+        fields.append(("Exif.Photo.ExposureTime", _rational(other.shutter_speed)))
+    if other.aperture > 0:
+        fields.append(("Exif.Photo.FNumber", _rational(other.aperture)))
+    if other.focal_length > 0:
+        fields.append(("Exif.Photo.FocalLength", _rational(other.focal_length)))
+    if other.timestamp.timestamp() > 0:  # LibRaw's 0 is "unknown"
+        stamp = other.timestamp.strftime("%Y:%m:%d %H:%M:%S")
+        fields.append(("Exif.Photo.DateTimeOriginal", stamp))
+    if other.artist.strip("\0 "):
+        fields.append(("Exif.Image.Artist", other.artist.strip("\0 ")))
+    order = list(FIELDS)
+    fields.sort(key=lambda kv: order.index(kv[0]))
+    return PhotoMetadata(tuple(fields), "", str(path))
+
+
+def _rational(x: float) -> str:
+    """A positive float as an exact-enough EXIF rational (1/N for short exposures)."""
+    from fractions import Fraction
+
+    if x < 1:
+        denominator = round(1 / x)
+        if abs(1 / denominator - x) <= 1e-6 * x:
+            return f"1/{denominator}"
+    f = Fraction(x).limit_denominator(100000)
+    return f"{f.numerator}/{f.denominator}"
+
+
+# ------------------------------------------------------------------ writing
+#: A 1×1 grey PNG: exiv2 encodes EXIF into its eXIf chunk, which :func:`exif_block` keeps.
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+
+_TINY_PNG = (
+    _PNG_SIGNATURE
+    + _png_chunk(b"IHDR", struct.pack(">2IBBBBB", 1, 1, 8, 0, 0, 0, 0))
+    + _png_chunk(b"IDAT", zlib.compress(b"\0\0"))
+    + _png_chunk(b"IEND", b"")
+)
+
+
+def exif_block(meta: PhotoMetadata, output: Output) -> bytes:
+    """The EXIF of ``meta`` for ``output`` (see :meth:`PhotoMetadata._exif_data`) as
+    exiv2 encodes it: a TIFF structure (byte-order header, IFD0, Exif and GPS IFDs;
+    offsets from its first byte), the body of a PNG ``eXIf`` chunk."""
+    import exiv2
+
+    image = exiv2.ImageFactory.open(_TINY_PNG)
+    image.setExifData(meta._exif_data(output))
+    image.writeMetadata()
+    io = image.io()
+    data = bytes(io.mmap())
+    io.munmap()
+    at = len(_PNG_SIGNATURE)
+    while at < len(data):
+        (size,) = struct.unpack(">I", data[at : at + 4])
+        if data[at + 4 : at + 8] == b"eXIf":
+            return data[at + 8 : at + 8 + size]
+        at += 12 + size
+    raise RuntimeError("exiv2 wrote no eXIf chunk")  # exiv2 always writes one for EXIF data
+
+
+def embed_jpeg(path: str | Path, meta: PhotoMetadata, output: Output) -> None:
+    """Write ``meta`` as ``output``'s EXIF (see :meth:`PhotoMetadata._exif_data`) and its
+    XMP into the JPEG at ``path`` with exiv2, which keeps the file's other segments
+    (its ICC profile)."""
+    import exiv2
+
+    image = exiv2.ImageFactory.open(str(path))
+    image.readMetadata()
+    image.setExifData(meta._exif_data(output))
+    if meta.xmp:
+        image.setXmpPacket(meta.xmp)
+    image.writeMetadata()
+
+
+#: EXIF key → OpenEXR standard attribute (name, kind): ``str``, ``float``, or ``date``.
+_EXR_ATTRIBUTES = {
+    "Exif.Image.Make": ("cameraMake", "str"),
+    "Exif.Image.Model": ("cameraModel", "str"),
+    "Exif.Photo.BodySerialNumber": ("cameraSerialNumber", "str"),
+    "Exif.Photo.LensMake": ("lensMake", "str"),
+    "Exif.Photo.LensModel": ("lensModel", "str"),
+    "Exif.Photo.LensSerialNumber": ("lensSerialNumber", "str"),
+    "Exif.Photo.ExposureTime": ("expTime", "float"),
+    "Exif.Photo.FNumber": ("aperture", "float"),
+    "Exif.Photo.ISOSpeedRatings": ("isoSpeed", "float"),
+    "Exif.Photo.FocalLength": ("nominalFocalLength", "float"),
+    "Exif.Photo.SubjectDistance": ("focus", "float"),
+    "Exif.Image.Copyright": ("owner", "str"),
+    "Exif.Image.ImageDescription": ("comments", "str"),
+}
+
+
+#: The capture time: OpenEXR's ``capDate`` and ``utcOffset``, sub-seconds as a string.
+_EXR_TIME = ("Exif.Photo.DateTimeOriginal", "Exif.Photo.OffsetTimeOriginal")
+
+
+def exr_attributes(meta: PhotoMetadata, software: str) -> dict[str, object]:
+    """OpenEXR header attributes for ``meta``: the standard ones (OpenEXR's
+    ImfStandardAttributes: cameraMake, lensModel, expTime, aperture, isoSpeed,
+    capDate, utcOffset, latitude/longitude/altitude, owner (the copyright),
+    comments, …), and for
+    EXIF fields without one, a string attribute named after the EXIF tag."""
+
+    data = meta._exif_data()
+    out: dict[str, object] = {"Software": software}
+    for datum in data:
+        key = datum.key()
+        if key.startswith(GPS_GROUP) or key in _EXR_TIME:
+            continue
+        name, kind = _EXR_ATTRIBUTES.get(key, (datum.tagName(), "str"))
+        out[name] = datum.toFloat(0) if kind == "float" else datum.print(data)
+    when = meta.get("Exif.Photo.DateTimeOriginal")
+    if when:
+        out["capDate"] = when
+        offset = meta.get("Exif.Photo.OffsetTimeOriginal")
+        if offset and len(offset) == 6 and offset[0] in "+-":
+            seconds = int(offset[1:3]) * 3600 + int(offset[4:6]) * 60
+            out["utcOffset"] = float(-seconds if offset[0] == "+" else seconds)  # UTC − local
+    position = _gps_degrees(data)
+    out.update(position)
+    if meta.xmp:
+        out["xmp"] = meta.xmp
+    return {k: v for k, v in out.items() if v not in ("", None)}
+
+
+def _gps_degrees(data) -> dict[str, float]:
+    """latitude, longitude (degrees, north and east positive) and altitude (metres)."""
+    import exiv2
+
+    out = {}
+    for axis, negative in (("Latitude", "S"), ("Longitude", "W")):
+        found = data.findKey(exiv2.ExifKey(f"Exif.GPSInfo.GPS{axis}"))
+        if found == data.end() or found.count() != 3:
+            continue
+        d, m, s = (found.toFloat(i) for i in range(3))
+        ref = data.findKey(exiv2.ExifKey(f"Exif.GPSInfo.GPS{axis}Ref"))
+        sign = -1.0 if ref != data.end() and ref.toString().strip() == negative else 1.0
+        out[axis.lower()] = sign * (d + m / 60 + s / 3600)
+    found = data.findKey(exiv2.ExifKey("Exif.GPSInfo.GPSAltitude"))
+    if found != data.end():
+        ref = data.findKey(exiv2.ExifKey("Exif.GPSInfo.GPSAltitudeRef"))
+        below = ref != data.end() and ref.toInt64(0) == 1
+        out["altitude"] = -found.toFloat(0) if below else found.toFloat(0)
+    return out
