@@ -49,6 +49,12 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     help="Demosaic method. On X-Trans (6×6) raws, bilinear stays bilinear and the "
     "others become icd, rawsim's X-Trans interpolation.",
 )
+@click.option(
+    "--half-size",
+    is_flag=True,
+    help="Half the width and height, no demosaic: one pixel per 2×2 block of the "
+    "mosaic (LibRaw's half_size), for fast previews.",
+)
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
 @click.option(
@@ -110,6 +116,7 @@ def command(
     wb,
     white_level,
     demosaic,
+    half_size,
     highlights,
     tone,
     tone_exposure,
@@ -158,6 +165,9 @@ def command(
     from rawsim.pipelines.process import ProcessOptions, process_file
 
     config = IspConfig.load(config_path) if config_path else IspConfig.default()
+    if half_size and demosaic:
+        raise click.UsageError("--half-size replaces the demosaic: drop --demosaic", ctx)
+    demosaic = "half" if half_size else demosaic
     config = config.override(
         wb=wb,
         white_level=white_level,

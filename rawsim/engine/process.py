@@ -953,3 +953,122 @@ def periodic_kernel(
                 h,
                 w,
             )
+
+
+# ---------------------------------------------------------------- half size
+@njit(inline="always", **_JIT)
+def _site(raw, y, x, k, color, table, ops, opf, cy, cx):
+    """The mosaic stages at site (y, x) of table row (levels slot) ``k``: white = 1."""
+    if table.shape[0]:
+        return table[k, raw[y, x]]
+    return _mosaic_value(np.float32(raw[y, x]), k, color, y, x, cy, cx, ops, opf)
+
+
+@njit(parallel=True, **_JIT)
+def half_kernel(
+    raw,
+    classes,
+    cmap,
+    table,
+    pre_ops,
+    pre_f,
+    post_ops,
+    post_f,
+    out_mode,
+    lut,
+    gamma,
+    scale,
+    orient,
+    out,
+    threads,
+    tile_rows,
+    tile_cols,
+):
+    """Half-size render (:mod:`rawsim.isp.half_size`): the mosaic stages, each output
+    pixel's colours from its 2×2 block (a missing colour from the 4×4 window around
+    it), then the RGB stages and output of :func:`_finish`, into ``out`` of
+    ⌈H/2⌉ × ⌈W/2⌉ (oriented). Tiles of ``tile_rows`` × ``tile_cols`` output pixels.
+
+    ``classes``/``cmap``: the table row (levels slot) and the colour of each site of
+    one period (Bayer: the 4 sites; other patterns: the colour for both).
+    """
+    h, w = raw.shape
+    ph, pw = cmap.shape
+    h2, w2 = (h + 1) // 2, (w + 1) // 2
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+    row_phase = np.arange(h) % ph  # no division in the loops
+    col_phase = np.arange(w) % pw
+    n_r, n_c = (h2 + tile_rows - 1) // tile_rows, (w2 + tile_cols - 1) // tile_cols
+    tiles = n_r * n_c
+    threads = max(1, min(tiles, threads))
+    for t in prange(threads):
+        rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
+        total = np.zeros(3, np.float32)
+        count = np.zeros(3, np.int64)
+        for tile in range(t, tiles, threads):
+            r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
+            r1, c1 = min(h2, r0 + tile_rows), min(w2, c0 + tile_cols)
+            for i in range(r0, r1):
+                y0, y1 = 2 * i, 2 * i + 1
+                for j in range(c0, c1):
+                    x0, x1 = 2 * j, 2 * j + 1
+                    if y1 < h and x1 < w:  # a whole block, in scalars
+                        p0, p1, q0, q1 = row_phase[y0], row_phase[y1], col_phase[x0], col_phase[x1]
+                        a, b = cmap[p0, q0], cmap[p0, q1]
+                        c, d = cmap[p1, q0], cmap[p1, q1]
+                        va = _site(raw, y0, x0, classes[p0, q0], a, table, pre_ops, pre_f, cy, cx)
+                        vb = _site(raw, y0, x1, classes[p0, q1], b, table, pre_ops, pre_f, cy, cx)
+                        vc = _site(raw, y1, x0, classes[p1, q0], c, table, pre_ops, pre_f, cy, cx)
+                        vd = _site(raw, y1, x1, classes[p1, q1], d, table, pre_ops, pre_f, cy, cx)
+                        missing = False
+                        for k in range(3):
+                            n = (a == k) + (b == k) + (c == k) + (d == k)
+                            if n == 0:
+                                missing = True
+                                break
+                            s = ((va * (a == k) + vb * (b == k)) + vc * (c == k)) + vd * (d == k)
+                            rgb[k][HALO + i - r0, HALO + j - c0] = s / np.float32(n)
+                        if not missing:
+                            continue
+                    for k in range(3):  # an edge block, or one missing a colour
+                        total[k] = np.float32(0.0)
+                        count[k] = 0
+                    for y in range(y0, min(h, y0 + 2)):
+                        for x in range(x0, min(w, x0 + 2)):
+                            py, px = row_phase[y], col_phase[x]
+                            c = cmap[py, px]
+                            v = _site(raw, y, x, classes[py, px], c, table, pre_ops, pre_f, cy, cx)
+                            total[c] += v
+                            count[c] += 1
+                    for k in range(3):
+                        if count[k]:
+                            value = total[k] / np.float32(count[k])
+                        else:  # not in the block: the 4×4 window around it
+                            s, n = np.float32(0.0), 0
+                            for y in range(max(0, y0 - 1), min(h, y0 + 3)):
+                                py = row_phase[y]
+                                for x in range(max(0, x0 - 1), min(w, x0 + 3)):
+                                    px = col_phase[x]
+                                    if cmap[py, px] == k:
+                                        k2 = classes[py, px]
+                                        s += _site(raw, y, x, k2, k, table, pre_ops, pre_f, cy, cx)
+                                        n += 1
+                            value = s / np.float32(max(n, 1))
+                        rgb[k][HALO + i - r0, HALO + j - c0] = value
+            _finish(
+                rgb,
+                post_ops,
+                post_f,
+                out_mode,
+                lut,
+                gamma,
+                scale,
+                orient,
+                out,
+                r0,
+                r1,
+                c0,
+                c1,
+                h2,
+                w2,
+            )

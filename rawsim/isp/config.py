@@ -36,7 +36,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from rawsim.color import SRGB_TO_XYZ, srgb_from_camera
+from rawsim.color import srgb_from_camera
+from rawsim.colorspaces import OUTPUT_SPACES as COLOR_SPACES
+from rawsim.colorspaces import space_from_srgb, space_transfer
 from rawsim.errors import ParameterError
 from rawsim.isp.curves import TransferSpec
 
@@ -48,6 +50,9 @@ DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
 #: LibRaw's same-colour average; the Bayer interpolations all become ``icd``
 #: (:mod:`rawsim.isp.xtrans`).
 XTRANS_METHOD = {"wcd": "icd", "menon": "icd", "malvar": "icd", "bilinear": "bilinear"}
+#: The demosaic stage's ``half``: no interpolation, one pixel per 2×2 block of any
+#: mosaic (:mod:`rawsim.isp.half_size`; ``rawsim process --half-size``).
+HALF_SIZE = "half"
 HIGHLIGHT_MODES = ("clip", "blend")
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
@@ -66,7 +71,8 @@ ORIENTATION_OPS = {
     8: (True, True, False),
 }
 
-OUTPUT_SPACES = ("srgb", "xyz", "camera")
+#: ``--output-space``: the RGB spaces of :mod:`rawsim.colorspaces`, CIE XYZ, camera RGB.
+OUTPUT_SPACES = COLOR_SPACES
 
 
 # ------------------------------------------------------------------ value checks
@@ -134,7 +140,12 @@ def parse_gains(value) -> tuple[float, float, float]:
 
 
 def _transfer(value):
-    return str(TransferSpec.parse(value))
+    if value == "auto":
+        return value
+    try:
+        return str(TransferSpec.parse(value))
+    except ParameterError as err:
+        raise ParameterError(f"{err}, or auto (the output space's own)") from None
 
 
 def _shading_k(value):
@@ -334,7 +345,11 @@ class DemosaicStage(Stage):
 
     name: ClassVar[str] = "demosaic"
     mosaic_only: ClassVar[bool] = True
-    method: str = _param("wcd", _choice(DEMOSAIC_METHODS), "interpolation method")
+    method: str = _param(
+        "wcd",
+        _choice((*DEMOSAIC_METHODS, HALF_SIZE)),
+        "interpolation method, or half: a half-size image without interpolation",
+    )
 
 
 @dataclass(frozen=True)
@@ -357,11 +372,16 @@ class ColorMatrixStage(Stage):
     rgb_only: ClassVar[bool] = True
     colour_only: ClassVar[bool] = True
     output_space: str = _param(
-        "srgb", _choice(OUTPUT_SPACES), "linear sRGB primaries, XYZ, or camera RGB"
+        "srgb",
+        _choice(OUTPUT_SPACES),
+        "srgb, display-p3, adobe-rgb, rec2020, prophoto (linear primaries), xyz (CIE XYZ, "
+        "D65), or camera RGB",
     )
 
     def matrix(self, raw: RawImage) -> np.ndarray:
-        """(3, 3) float64 camera (white-balanced) → output-space matrix for ``raw``."""
+        """(3, 3) float64 camera (white-balanced) → output-space matrix for ``raw``: to
+        linear sRGB as LibRaw does, then :func:`rawsim.colorspaces.space_from_srgb`
+        (through XYZ; Bradford-adapted to D50 for ProPhoto)."""
         if self.output_space == "camera":
             return np.eye(3)
         if raw.xyz_to_camera is not None:
@@ -370,7 +390,9 @@ class ColorMatrixStage(Stage):
             to_srgb = raw.camera_to_srgb
         else:
             to_srgb = np.eye(3)
-        return SRGB_TO_XYZ @ to_srgb if self.output_space == "xyz" else to_srgb
+        if self.output_space == "srgb":
+            return to_srgb
+        return space_from_srgb(self.output_space) @ to_srgb
 
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
         """``info["color_matrix"]``: :meth:`matrix` as nested lists."""
@@ -440,11 +462,25 @@ class TransferStage(Stage):
     """The output transfer function (OETF)."""
 
     name: ClassVar[str] = "transfer"
-    function: str = _param("srgb", _transfer, "srgb, gamma:G or linear")
+    function: str = _param(
+        "auto",
+        _transfer,
+        "auto (the output space's own: srgb for srgb, display-p3, xyz and camera; "
+        "gamma:563/256 for adobe-rgb; bt2020 for rec2020; romm for prophoto), srgb, "
+        "bt2020, romm, gamma:G or linear",
+    )
 
-    @property
-    def spec(self) -> TransferSpec:
+    def spec_for(self, output_space: str) -> TransferSpec:
+        """The function for an output in ``output_space``: ``auto`` is the space's own."""
+        if self.function == "auto":
+            return space_transfer(output_space)
         return TransferSpec.parse(self.function)
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["transfer"]``: the function used (``auto`` resolved for the config's
+        output space; without a colour matrix stage the output is camera RGB)."""
+        matrix = config.enabled_stage(ColorMatrixStage)
+        info["transfer"] = str(self.spec_for(matrix.output_space if matrix else "camera"))
 
 
 @dataclass(frozen=True)

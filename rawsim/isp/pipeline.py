@@ -22,6 +22,7 @@ from torch import nn
 from rawsim.cfa import CFA
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
+    HALF_SIZE,
     XTRANS_METHOD,
     AntiAliasingStage,
     BlackLevelStage,
@@ -46,6 +47,7 @@ from rawsim.isp.dead_pixel import DeadPixelCorrection
 from rawsim.isp.demosaic import Demosaic
 from rawsim.isp.exposure import Exposure
 from rawsim.isp.filters import AntiAliasing, Denoise
+from rawsim.isp.half_size import HalfSize
 from rawsim.isp.highlights import Highlights
 from rawsim.isp.lens_shading import LensShading
 from rawsim.isp.levels import Levels
@@ -95,7 +97,8 @@ class Isp(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h = x.shape[-2]
         strip = self.strip_rows
-        if torch.is_grad_enabled() or h <= 2 * strip:
+        whole = any(isinstance(m, HalfSize) for m in self.stages)  # strips keep the size
+        if torch.is_grad_enabled() or h <= 2 * strip or whole:
             out = self._run(x, (0, h))
         else:
             out = None
@@ -154,7 +157,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     ),
     ExposureStage: lambda s, r: Exposure(r.exposure_stops),
     ToneStage: lambda s, r: ToneCurve(s.curve, s.exposure, s.white_point),
-    TransferStage: lambda s, r: Transfer(s.function),
+    TransferStage: lambda s, r: Transfer(r.info["transfer"]),  # "auto" resolved
     YCbCrStage: lambda s, r: ColorSpaceConversion(),
     OrientationStage: lambda s, r: Orientation(r.raw.orientation),
 }
@@ -162,7 +165,10 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
 
 def _demosaic(cfa: CFA, method: str) -> nn.Module:
     """The demosaic stage of ``cfa``: a Bayer method as configured, or for other
-    patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`)."""
+    patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`); for
+    ``half``, half-size binning."""
+    if method == HALF_SIZE:
+        return HalfSize(cfa)
     if cfa.is_bayer:
         return Demosaic(cfa, method)
     return XTransDemosaic(cfa, XTRANS_METHOD[method])

@@ -29,6 +29,7 @@ from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.io.task import Task
 from rawsim.isp.config import (
+    HALF_SIZE,
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
     XTRANS_METHOD,
@@ -222,7 +223,8 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     method = "bilinear"
     for stage in resolved.stages:
         if isinstance(stage, DemosaicStage):
-            method = stage.method if raw.cfa.is_bayer else XTRANS_METHOD[stage.method]
+            bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
+            method = stage.method if bayer else XTRANS_METHOD[stage.method]
             continue
         if isinstance(stage, OrientationStage):
             orientation = raw.orientation
@@ -320,7 +322,9 @@ def engine_render(
 
     transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
     h, w = raw.data.shape
-    shape = (w, h, 3) if transpose else (h, w, 3)
+    half = plan.method == HALF_SIZE
+    oh, ow = ((h + 1) // 2, (w + 1) // 2) if half else (h, w)
+    shape = (ow, oh, 3) if transpose else (oh, ow, 3)
     # Codes go to uint16 even for 8 bits: one compiled signature fewer to build and cache.
     dtype = np.float32 if plan.out_mode == ep.OUT_FLOAT else np.uint16
     scale = 1.0 if plan.out_mode == ep.OUT_FLOAT else 2.0**bits - 1
@@ -337,7 +341,13 @@ def engine_render(
     output = (plan.gamma, scale, np.array([transpose, flip_rows, flip_cols]), out)
     threads = numba.get_num_threads()
     data = np.ascontiguousarray(raw.data)
-    if raw.cfa.is_bayer:
+    if half:
+        ph, pw = raw.cfa.period
+        cmap = np.array(raw.cfa.colors, dtype=np.int64).reshape(ph, pw)
+        classes = np.arange(4).reshape(2, 2) if raw.cfa.is_bayer else cmap
+        tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
+        ep.half_kernel(data, classes, cmap, table, *stages, *output, threads, *tile)
+    elif raw.cfa.is_bayer:
         method = ep.DEMOSAIC_CODES[plan.method]
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
         ep.process_kernel(data, colors, method, table, *stages, *output, threads, *tile)
