@@ -100,6 +100,19 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "Default 8, EXR 16.",
 )
 @click.option(
+    "--resize",
+    type=click.IntRange(min=1),
+    metavar="LONG_EDGE",
+    help="Scale the output down to this many pixels on its longer side (antialiased); "
+    "renders at half size first when the result is at most half the raw's size.",
+)
+@click.option(
+    "--thumbnail",
+    is_flag=True,
+    help="Write the raw's embedded preview (its JPEG, as stored, with the raw's "
+    "metadata) instead of rendering; --format jpg.",
+)
+@click.option(
     "--strip-metadata",
     is_flag=True,
     help="Write none of the raw's metadata (camera, lens, exposure, time, GPS, "
@@ -127,6 +140,8 @@ def command(
     transfer,
     fmt,
     bits,
+    resize,
+    thumbnail,
     strip_metadata,
     jobs,
     executor,
@@ -181,13 +196,23 @@ def command(
         output_space=output_space,
         transfer=transfer,
     )
+    if thumbnail:
+        if ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT and fmt != "jpg":
+            raise click.UsageError("--thumbnail writes the raw's embedded JPEG: --format jpg", ctx)
+        fmt = "jpg"
     nbits = int(bits) if bits else (16 if fmt == "exr" else 8)
     valid = {"png": (8, 16), "tiff": (8, 16), "jpg": (8,), "exr": (16, 32)}[fmt]
     if nbits not in valid:
         raise click.UsageError(f"--format {fmt} takes --bits {' or '.join(map(str, valid))}", ctx)
     resolve_device(device)
     options = ProcessOptions(
-        config=config, fmt=fmt, bits=nbits, device=device, strip_metadata=strip_metadata
+        config=config,
+        fmt=fmt,
+        bits=nbits,
+        device=device,
+        strip_metadata=strip_metadata,
+        resize=resize,
+        thumbnail=thumbnail,
     )
     run_files(
         ctx,

@@ -95,10 +95,9 @@ FIELDS: dict[str, tuple[str, ...]] = {
 #: Every tag of this group is kept as it is.
 GPS_GROUP = "Exif.GPSInfo."
 SOFTWARE_KEY = "Exif.Image.Software"
-#: Tags every output carries: rawsim rotates the pixels (Orientation 1); the tags
-#: EXIF 2.32 requires (its version, FlashPix version, resolution).
+#: Tags every output carries: the tags EXIF 2.32 requires (its version, FlashPix
+#: version, resolution).
 _OUTPUT_TAGS = (
-    ("Exif.Image.Orientation", "1"),
     ("Exif.Image.XResolution", "72/1"),
     ("Exif.Image.YResolution", "72/1"),
     ("Exif.Image.ResolutionUnit", "2"),
@@ -139,8 +138,8 @@ class PhotoMetadata:
     def _exif_data(self, output: Output | None = None):
         """exiv2's ExifData of the fields; for an ``output``, also the tags EXIF
         requires of it (version, resolution, ColorSpace: 1 sRGB, else uncalibrated;
-        but for TIFF, the pixel size; for JPEG its YCbCr layout), Orientation 1 and
-        its Software."""
+        but for TIFF, the pixel size; for JPEG its YCbCr layout), its Orientation
+        and its Software."""
         import exiv2
 
         data = exiv2.ExifData()
@@ -153,6 +152,7 @@ class PhotoMetadata:
                 data["Exif.Photo.PixelXDimension"] = str(output.width)
                 data["Exif.Photo.PixelYDimension"] = str(output.height)
             data["Exif.Photo.ColorSpace"] = "1" if output.srgb else "65535"
+            data["Exif.Image.Orientation"] = str(output.orientation)
             data[SOFTWARE_KEY] = output.software
         return data
 
@@ -167,6 +167,7 @@ class Output:
     width: int
     height: int
     srgb: bool = True
+    orientation: int = 1  # rawsim rotates what it renders; embedded previews keep the raw's
 
 
 def read_metadata(path: str | Path) -> PhotoMetadata:

@@ -23,11 +23,12 @@ import numpy as np
 from rawsim._version import __version__
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
-from rawsim.io.images import OUTPUT_FORMATS, write_image
-from rawsim.io.metadata import PhotoMetadata, read_metadata
+from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
+from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.io.task import Task
+from rawsim.io.thumbnail import read_thumbnail
 from rawsim.isp.config import (
     HALF_SIZE,
     HIGHLIGHT_TRANSFORM,
@@ -49,13 +50,7 @@ from rawsim.isp.config import (
     YCbCrStage,
     resolve,
 )
-from rawsim.isp.curves import (
-    _SRGB_A,
-    _SRGB_ENCODE_KNEE,
-    _SRGB_GAMMA,
-    _SRGB_SLOPE,
-    filmic,
-)
+from rawsim.isp.curves import TransferSpec, filmic
 from rawsim.isp.xtrans_stencils import min_size
 
 
@@ -71,6 +66,9 @@ class ProcessOptions:
         device: ``cpu``, ``cuda`` or ``auto``.
         strip_metadata: write none of the raw's metadata (EXIF, GPS, XMP) into the
             image, only rawsim's own tags.
+        resize: the output's longer side in pixels (scaled down, antialiased;
+            renders at half size first when that is still at least as large).
+        thumbnail: write the raw's embedded preview (a JPEG) instead of rendering.
     """
 
     config: IspConfig = field(default_factory=IspConfig.default)
@@ -78,9 +76,15 @@ class ProcessOptions:
     bits: int = 8
     device: str = "cpu"
     strip_metadata: bool = False
+    resize: int | None = None
+    thumbnail: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "config", IspConfig.of(self.config))
+        if self.resize is not None and self.resize < 1:
+            raise ParameterError(f"resize must be at least 1 pixel, got {self.resize}")
+        if self.thumbnail and self.fmt != "jpg":
+            raise ParameterError(f"a thumbnail is the raw's embedded JPEG: use jpg, not {self.fmt}")
 
     def output_suffixes(self) -> dict[str, str]:
         return {"image": OUTPUT_FORMATS[self.fmt], "json": ".process.json"}
@@ -243,7 +247,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         tail = [replace(tail[0], exposure=0.0), *tail[1:]]
     elif any(isinstance(s, ToneStage) and s.exposure for s in tail):
         return None  # a filmic gain after the transfer: the reference's order
-    out_mode, lut, gamma = _output_table(tail, fmt)
+    out_mode, lut, gamma = _output_table(tail, fmt, resolved.info.get("transfer"))
     if out_mode is None:
         return None
     return EnginePlan(
@@ -266,19 +270,22 @@ def _op_arrays(ops) -> tuple[np.ndarray, np.ndarray]:
     return codes, numbers
 
 
-def _output_table(tail: list[Stage], fmt: str):
+def _output_table(tail: list[Stage], fmt: str, transfer: str | None):
     """(mode, table, gamma) for the tone/transfer stages, or Nones.
 
-    The table is tone ∘ transfer on [0, 1] in float64, in the config's order; a
-    power-law transfer (infinite slope at 0) must come last and is left to the
-    kernel. EXR output has no tone or transfer (see ``effective_config``).
+    The table is tone ∘ transfer on [0, 1] in float64, in the config's order;
+    ``transfer`` is the transfer stage's function as resolved (``info["transfer"]``:
+    ``auto`` is the output space's own). A power-law transfer (infinite slope at 0:
+    ``gamma:G``, Adobe RGB's) must come last and is left to the kernel; the toe
+    curves (sRGB, BT.2020, ROMM) are tabulated. EXR output has no tone or transfer
+    (see ``effective_config``).
     """
     from rawsim.engine import process as ep
 
     x = np.linspace(0.0, 1.0, ep.LUT_SIZE)
     if fmt == "exr":
         return (ep.OUT_FLOAT, x.astype(np.float32), 1.0) if not tail else (None,) * 3
-    curve = _tail_curve(tail, x)
+    curve = _tail_curve(tail, x, transfer)
     if curve is None:
         return (None,) * 3
     x, gamma = curve
@@ -286,9 +293,12 @@ def _output_table(tail: list[Stage], fmt: str):
     return mode, x.astype(np.float32), gamma
 
 
-def _tail_curve(tail: list[Stage], x: np.ndarray) -> tuple[np.ndarray, float] | None:
+def _tail_curve(
+    tail: list[Stage], x: np.ndarray, transfer: str | None
+) -> tuple[np.ndarray, float] | None:
     """Tone and transfer stages on linear values ``x`` in [0, 1]: (values, gamma) with a
-    power-law transfer left as its exponent (it must come last; None otherwise)."""
+    power-law transfer left as its exponent (it must come last; None otherwise).
+    ``transfer``: the transfer stage's resolved function (``info["transfer"]``)."""
     gamma = 1.0
     for at, stage in enumerate(tail):
         if isinstance(stage, ToneStage):
@@ -297,10 +307,9 @@ def _tail_curve(tail: list[Stage], x: np.ndarray) -> tuple[np.ndarray, float] | 
             elif stage.curve != "none":
                 x = filmic(x, stage.curve, stage.exposure, stage.white_point)
             continue
-        spec = stage.spec
-        if spec.kind == "srgb":
-            power = (1 + _SRGB_A) * np.maximum(x, _SRGB_ENCODE_KNEE) ** (1 / _SRGB_GAMMA) - _SRGB_A
-            x = np.where(x <= _SRGB_ENCODE_KNEE, x * _SRGB_SLOPE, power)
+        spec = TransferSpec.parse(transfer)
+        if spec.curve is not None:  # the torch reference's formula (rawsim.colorspaces)
+            x = spec.curve.encode(x)
         elif spec.kind == "gamma":
             if at != len(tail) - 1:
                 return None
@@ -481,7 +490,7 @@ def _warn_if_dark(samples: np.ndarray, bits: int, config: IspConfig, info: dict)
     every 4th row and column) is below ``DARK_RENDER`` of full scale in linear light,
     i.e. below that level through the config's tone and transfer."""
     tail = [s for s in config.enabled if isinstance(s, _TAIL_STAGES)]
-    curve = _tail_curve(tail, np.array([DARK_RENDER]))
+    curve = _tail_curve(tail, np.array([DARK_RENDER]), info.get("transfer"))
     if curve is None:
         return
     level = float(curve[0][0]) ** curve[1]
@@ -498,17 +507,22 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
         raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
+    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
+    if options.thumbnail:
+        return _write_thumbnail(task, options, photo)
     config = options.effective_config()
     device = resolve_device(options.device)
     raw = _read_while_loading_engine(task.source, device)
+    config = _preview_config(config, raw, options.resize)
     samples, info = render_samples(raw, config, options.fmt, options.bits, device)
+    if options.resize:
+        samples = resize_samples(samples, options.resize)
     height, width = samples.shape[:2]
     exposure = config.enabled_stage(ExposureStage)
     if options.fmt != "exr" and (exposure is None or exposure.ev != "auto"):
         _warn_if_dark(samples, options.bits, config, info)
     matrix = config.enabled_stage(ColorMatrixStage)
-    transfer = config.enabled_stage(TransferStage)
-    encoded = transfer is not None and transfer.function == "srgb"
+    encoded = info.get("transfer") == "srgb"  # the transfer stage's, "auto" resolved
     srgb = (
         matrix is not None
         and matrix.output_space == "srgb"
@@ -529,14 +543,56 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         "height": height,
         "format": options.fmt,
         "bits": options.bits,
+        "resize": options.resize,
         "config": config.to_tables(),
         "config_toml": config.to_toml(),
         **{k: v for k, v in info.items() if k != "white_level"},
         "white_level_used": info.get("white_level", raw.white_level),
     }
-    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     with atomic_outputs(task.outputs) as tmp:
         software = {"Software": f"rawsim {__version__}"}
         write_image(tmp["image"], samples, options.fmt, srgb, software, photo)
+        tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
+    return meta
+
+
+def _preview_config(config: IspConfig, raw: RawImage, resize: int | None) -> IspConfig:
+    """``config``, rendering at half size when the output is to be scaled down to at
+    most half the raw's longer side anyway (a mosaic, not already half size)."""
+    demosaic = config.enabled_stage(DemosaicStage)
+    if resize is None or raw.cfa is None or demosaic is None or demosaic.method == HALF_SIZE:
+        return config
+    return config.override(demosaic=HALF_SIZE) if 2 * resize <= max(raw.data.shape) else config
+
+
+def _write_thumbnail(task: Task, options: ProcessOptions, photo: PhotoMetadata) -> dict:
+    """``process_file`` for ``thumbnail``: the raw's embedded preview, its JPEG bytes
+    as they are (decoded and encoded again only to resize it, or when it is a bitmap),
+    with the raw's metadata and orientation; and the sidecar."""
+    import OpenImageIO as oiio
+
+    thumb = read_thumbnail(task.source)
+    software = f"rawsim {__version__}"
+    with atomic_outputs(task.outputs) as tmp:
+        path = tmp["image"]
+        if thumb.jpeg is not None:
+            Path(path).write_bytes(thumb.jpeg)
+        if thumb.jpeg is None or options.resize:
+            pixels = thumb.bitmap if thumb.jpeg is None else oiio.ImageBuf(str(path)).get_pixels()
+            pixels = resize_samples(pixels, options.resize) if options.resize else pixels
+            write_image(path, np.ascontiguousarray(pixels, dtype=np.uint8), "jpg")
+        spec = oiio.ImageInput.open(str(path)).spec()
+        output = Output(software, "jpg", spec.width, spec.height, True, thumb.orientation)
+        embed_jpeg(path, photo, output)
+        meta = {
+            "rawsim_version": __version__,
+            "input": task.key,
+            "thumbnail": True,
+            "width": spec.width,
+            "height": spec.height,
+            "orientation": thumb.orientation,
+            "format": "jpg",
+            "resize": options.resize,
+        }
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
