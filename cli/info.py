@@ -27,7 +27,10 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     """Print what rawsim reads from each raw and what 'rawsim process' would use:
     camera, CFA, black and white levels, the camera's and daylight multipliers,
     the white balance it applies and why, the colour matrix and its source,
-    orientation and ISO. Folders are searched as 'process' searches them.
+    orientation, ISO, the DNG BaselineExposure and whether process applies it,
+    and the photo metadata renders carry (camera, lens, exposure, aperture,
+    focal length, time, GPS, artist, …). Folders are searched as 'process'
+    searches them.
 
     \b
     Example:
@@ -58,6 +61,9 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
             continue
         click.echo(shown(path))
         for key, value in facts.items():
-            if key != "file" and value not in (None, []):
+            if key == "metadata":
+                for tag, text in value.items():
+                    click.echo(f"  {tag:<24} {text}")
+            elif key != "file" and value not in (None, []):
                 click.echo(f"  {key:<24} {value}")
     ctx.exit(1 if failed else 0)

@@ -188,3 +188,15 @@ def test_reading_old_and_odd_raws():
     assert canon.get("Exif.Photo.BodySerialNumber") == "21FE1CD5"
     assert canon.get("Exif.Photo.ISOSpeedRatings") == "100"
     assert read_metadata(DATA / "raw" / "apple_quicktake150.qtk") == PhotoMetadata()
+
+
+def test_info_shows_the_fields_and_the_baseline_exposure(tagged_raw):
+    done = CliRunner().invoke(cli, ["info", "--json", str(tagged_raw)])
+    assert done.exit_code == 0, done.output
+    facts = json.loads(done.output)
+    assert facts["metadata"]["LensModel"] == "XF18-55mmF2.8-4 R LM OIS"
+    assert facts["metadata"]["ExposureTime"] == "1/250 s"
+    assert facts["metadata"]["GPSLatitude"] == "52 deg 31' 12.34\""
+    assert facts["baseline_exposure"] == 0.0 and facts["baseline_exposure_applied"] is True
+    text = CliRunner().invoke(cli, ["info", str(tagged_raw)])
+    assert "  Copyright                (c) 2024 Jane Doe" in text.output

@@ -451,7 +451,9 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
 def describe(raw: RawImage, config: IspConfig | list[dict]) -> dict:
     """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
     camera, CFA, levels, the camera's and daylight multipliers, the white balance
-    and matrix it will apply with where they come from, orientation, ISO."""
+    and matrix it will apply with where they come from, orientation, ISO, the DNG
+    BaselineExposure and whether it is applied, and the photo metadata (lens,
+    exposure, time, GPS, …) that renders carry."""
     resolved = resolve(config, raw)
     info = resolved.info
     out = {
@@ -468,6 +470,11 @@ def describe(raw: RawImage, config: IspConfig | list[dict]) -> dict:
     }
     if "white_level" in info:
         out["white_level_used"] = info["white_level"]
+    exposure = resolved.config.enabled_stage(ExposureStage)
+    out["baseline_exposure"] = raw.baseline_exposure
+    out["baseline_exposure_applied"] = bool(
+        exposure is not None and exposure.baseline == "apply" and exposure.ev != "auto"
+    )
     if not info["monochrome"]:
         out["camera_multipliers"] = raw.camera_wb_note
         out["daylight_white_balance"] = raw.daylight_wb
@@ -477,6 +484,7 @@ def describe(raw: RawImage, config: IspConfig | list[dict]) -> dict:
         if "color_matrix" in info:
             out["color_matrix"] = np.round(resolved.color_matrix, 6).tolist()
             out["matrix_source"] = raw.matrix_source
+    out["metadata"] = read_metadata(raw.path).summary()
     out["warnings"] = info["warnings"]
     return out
 
