@@ -23,6 +23,18 @@ SRGB_TO_XYZ = np.array(
 XYZ_D65 = SRGB_TO_XYZ.sum(axis=1)
 #: DNG CalibrationIlluminant code of D65 (EXIF LightSource 21).
 ILLUMINANT_D65 = 21
+#: CIE XYZ of D50 as ICC.1 gives it (the profile connection space's illuminant,
+#: ICC.1:2022 7.2.16; also ROMM RGB's white, ISO 22028-2).
+XYZ_D50 = np.array([0.9642, 1.0, 0.8249], dtype=np.float64)
+#: The Bradford cone-response matrix (Lam 1985; ICC.1:2022 Annex E.3), XYZ → "sharpened" LMS.
+BRADFORD = np.array(
+    [
+        [0.8951, 0.2664, -0.1614],
+        [-0.7502, 1.7135, 0.0367],
+        [0.0389, -0.0685, 1.0296],
+    ],
+    dtype=np.float64,
+)
 
 
 def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> np.ndarray:
@@ -79,3 +91,41 @@ def daylight_gains(xyz_to_camera) -> np.ndarray:
     if (response <= 0).any():
         raise ParameterError("xyz_to_camera gives a non-positive response to D65 white")
     return response[1] / response
+
+
+def xy_to_xyz(x: float, y: float) -> np.ndarray:
+    """CIE xy chromaticity → XYZ with Y = 1, a (3,) float64 array; ``y`` must be > 0."""
+    if not y > 0:
+        raise ParameterError(f"chromaticity y must be > 0, got {y}")
+    return np.array([x / y, 1.0, (1.0 - x - y) / y], dtype=np.float64)
+
+
+def rgb_to_xyz_matrix(primaries, white) -> np.ndarray:
+    """Linear RGB → CIE XYZ (3, 3) of an RGB space (SMPTE RP 177): each primary's XYZ
+    direction (from its xy) scaled so that RGB (1, 1, 1) is ``white``.
+
+    Args:
+        primaries: (3, 2) xy chromaticities of red, green and blue.
+        white: (3,) XYZ of the white, Y = 1 for relative colorimetry.
+
+    Returns:
+        (3, 3) float64 matrix whose columns are the primaries' XYZ; its row sums are ``white``.
+    """
+    xy = as_matrix(primaries, "primaries", (3, 2))
+    directions = np.stack([xy_to_xyz(x, y) for x, y in xy], axis=1)
+    if abs(np.linalg.det(directions)) < 1e-12:
+        raise ParameterError("primaries are collinear: they span no RGB space")
+    scale = np.linalg.solve(directions, np.asarray(white, dtype=np.float64))
+    return directions * scale
+
+
+def bradford_adaptation(source_white, target_white) -> np.ndarray:
+    """Bradford chromatic adaptation (ICC.1:2022 Annex E.3): the (3, 3) float64 matrix
+    taking XYZ seen under ``source_white`` to corresponding XYZ under ``target_white``
+    (both (3,) XYZ, Y = 1). It maps ``source_white`` onto ``target_white`` exactly
+    (to rounding); for equal whites it is the identity."""
+    src = BRADFORD @ np.asarray(source_white, dtype=np.float64)
+    dst = BRADFORD @ np.asarray(target_white, dtype=np.float64)
+    if (src <= 0).any() or (dst <= 0).any():
+        raise ParameterError("whites must have positive cone responses (XYZ of a real white)")
+    return np.linalg.solve(BRADFORD, np.diag(dst / src) @ BRADFORD)

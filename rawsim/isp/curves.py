@@ -1,4 +1,4 @@
-"""Tone curves' forward formulas, the transfer functions' constants and names, torch-free.
+"""Tone curves' forward formulas and the transfer functions' names, torch-free.
 
 Operator-only code: the same functions evaluate torch tensors (the reference in
 :mod:`rawsim.isp.tone` and :mod:`rawsim.isp.transfer`) and numpy arrays (the
@@ -8,48 +8,17 @@ compiled engine's lookup tables, :mod:`rawsim.engine.process`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-from rawsim.errors import ParameterError
+from rawsim.colorspaces import SRGB_CURVE
+from rawsim.colorspaces import TransferSpec as TransferSpec  # its home before; still imported
 
-# IEC 61966-2-1 (sRGB) constants.
-_SRGB_DECODE_KNEE = 0.04045
-_SRGB_ENCODE_KNEE = 0.0031308
-_SRGB_SLOPE = 12.92
-_SRGB_A = 0.055
-_SRGB_GAMMA = 2.4
-
-
-@dataclass(frozen=True)
-class TransferSpec:
-    """A parsed transfer name: ``srgb``, ``linear`` or ``gamma:G``.
-
-    The functions themselves are :func:`rawsim.isp.transfer.apply_transfer` and
-    :func:`~rawsim.isp.transfer.invert_transfer` (torch).
-    """
-
-    kind: str
-    gamma: float = 1.0
-
-    @classmethod
-    def parse(cls, text: str) -> TransferSpec:
-        """Parse ``"srgb"``, ``"linear"`` or ``"gamma:2.2"``."""
-        text = str(text).strip().lower()
-        if text in ("srgb", "linear"):
-            return cls(text)
-        if text.startswith("gamma:"):
-            try:
-                gamma = float(text.split(":", 1)[1])
-            except ValueError:
-                gamma = float("nan")
-            if not gamma > 0:
-                raise ParameterError(f"bad transfer {text!r}: gamma must be a number > 0")
-            return cls("gamma", gamma)
-        raise ParameterError(f"unknown transfer {text!r}; valid: srgb, linear, gamma:G")
-
-    def __str__(self) -> str:
-        return f"gamma:{self.gamma:g}" if self.kind == "gamma" else self.kind
-
+# The transfer functions live with the output spaces (:mod:`rawsim.colorspaces`);
+# these names stay for the modules that read sRGB's constants directly.
+_SRGB_DECODE_KNEE = SRGB_CURVE.decode_knee
+_SRGB_ENCODE_KNEE = SRGB_CURVE.encode_knee
+_SRGB_SLOPE = SRGB_CURVE.slope
+_SRGB_A = SRGB_CURVE.offset
+_SRGB_GAMMA = SRGB_CURVE.gamma
 
 _REINHARD_WHITE = 4.0
 # ACES filmic fit (Narkowicz 2015): g(x) = x(a x + b) / (x(c x + d) + e).
