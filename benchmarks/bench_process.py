@@ -51,7 +51,8 @@ algorithm = rawpy.DemosaicAlgorithm(int(os.environ.get("LIBRAW_QUALITY", 3)))  #
 with rawpy.imread(sys.argv[1]) as raw:
     rgb = raw.postprocess(demosaic_algorithm=algorithm, use_camera_wb=True,
                           output_color=rawpy.ColorSpace.sRGB, output_bps=16, no_auto_bright=True,
-                          gamma=(2.4, 12.92) if os.environ.get("LIBRAW_SRGB") else (2.222, 4.5))
+                          gamma=(2.4, 12.92) if os.environ.get("LIBRAW_SRGB") else (2.222, 4.5),
+                  half_size=bool(os.environ.get("LIBRAW_HALF")))
 t1 = time.perf_counter()
 if len(sys.argv) > 2:
     tifffile.imwrite(sys.argv[2], rgb, photometric="rgb")
@@ -165,8 +166,10 @@ def main() -> None:
         for i in range(copies + 1):  # the first file loads the engine: not counted
             shutil.copy(dng, batch / f"copy{i}.dng")
         tiff16 = ["--format", "tiff", "--bits", "16"]
+        full = {}
         for method in methods:
             seconds, peak = rawsim_batch(batch, tmp / "o", ["--demosaic", method, *tiff16])
+            full[method] = seconds
             print(
                 row.format(
                     f"rawsim process --demosaic {method} (TIFF 16)",
@@ -194,6 +197,7 @@ def main() -> None:
                 f"vs LibRaw + TIFF write = {seconds / libraw_tiff:4.2f}×",
             )
         )
+        previews(tmp, batch, copies, full["wcd"])
         render = tmp / "render.tif"
         subprocess.run(["rawsim", "-q", "process", str(dng), "-o", str(tmp), *tiff16], check=True)
         (tmp / "photo24.tif").rename(render)
@@ -239,6 +243,58 @@ def xtrans_photo() -> np.ndarray:
         reps = -(-width // tile.shape[1])
         rows.append(np.concatenate([tile, tile[:, ::-1]] * reps, 1)[:, :width])
     return np.concatenate(rows)[:4000] ** 2.2
+
+
+THUMB = """
+import sys, time, rawpy
+t = time.perf_counter()
+with rawpy.imread(sys.argv[1]) as raw:
+    thumb = raw.extract_thumb()
+with open(sys.argv[2], "wb") as f:
+    f.write(thumb.data)
+print(time.perf_counter() - t)
+"""
+
+
+def previews(tmp: Path, batch: Path, copies: int, full: float) -> None:
+    """Half-size and embedded-preview renders per image in a batch, beside the full
+    render (wcd → 16-bit TIFF, ``full`` seconds) and LibRaw's half_size and
+    extract_thumb."""
+    import exiv2
+
+    seconds, _ = rawsim_batch(batch, tmp / "o", ["--half-size", "--format", "tiff", "--bits", "16"])
+    env = dict(os.environ, LIBRAW_HALF="1")
+    dng = next(batch.iterdir())
+    libraw = min(
+        timed([sys.executable, "-c", LIBRAW, str(dng), str(tmp / "half.tif")], env)[0]
+        for _ in range(copies)
+    )
+    print(
+        f"  rawsim process --half-size (TIFF 16)         {seconds:6.2f} s  "
+        f"= {seconds / full:4.2f}× the full render; LibRaw half_size + TIFF write "
+        f"(fresh interpreter) {libraw:.2f} s"
+    )
+    # A camera-sized embedded preview (1620 × 1080 JPEG), as most raws carry
+    preview = oiio.ImageBufAlgo.resize(
+        oiio.ImageBuf(str(DATA / "astronaut.png")), roi=oiio.ROI(0, 1620, 0, 1080)
+    )
+    preview.write(str(tmp / "preview.jpg"))
+    for path in batch.iterdir():
+        image = exiv2.ImageFactory.open(str(path))
+        image.readMetadata()
+        exiv2.ExifThumb(image.exifData()).setJpegThumbnail((tmp / "preview.jpg").read_bytes())
+        image.writeMetadata()
+    seconds, _ = rawsim_batch(batch, tmp / "o", ["--thumbnail"])
+    libraw = min(
+        timed([sys.executable, "-c", THUMB, str(dng), str(tmp / "thumb.jpg")])[0]
+        for _ in range(copies)
+    )
+    print(
+        f"  rawsim process --thumbnail (its JPEG)       {seconds:6.2f} s  "
+        f"= {seconds / full:4.2f}× the full render; LibRaw extract_thumb (fresh "
+        f"interpreter) {libraw:.2f} s"
+    )
+    print("  target: half size ≤ 0.4× the full render")
 
 
 def make_xtrans_dng(path: Path) -> None:
