@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from rawsim.colorspaces import SRGB, Encoding
 from rawsim.errors import UnsupportedInputError
 from rawsim.io.clibs import collected_stderr, openable_name
+from rawsim.io.icc import icc_profile
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, exif_block, exr_attributes
 from rawsim.io.png import write_png
 from rawsim.io.tiff import write_tiff
@@ -353,7 +355,7 @@ def write_image(
     path: str | Path,
     data: np.ndarray,
     fmt: str,
-    srgb: bool = True,
+    color: Encoding | None = SRGB,
     attributes: dict | None = None,
     metadata: PhotoMetadata | None = None,
 ) -> None:
@@ -364,25 +366,31 @@ def write_image(
     uncompressed, PNG deflated at zlib level 1 on several threads (measured on a
     24 MP 8-bit render: 0.55 s for 32 MB on 2 cores; libpng's defaults, level 6
     and adaptive filters, 9.2 s for 27 MB). EXR takes float32 (scene-linear,
-    written as float) or float16 (half), zip-compressed. ``srgb`` tags the colour
-    space. ``metadata``: the photo's EXIF, GPS and XMP (:mod:`rawsim.io.metadata`:
+    written as float) or float16 (half), zip-compressed. ``color``: what the samples
+    are (:class:`~rawsim.colorspaces.Encoding`: space and transfer), tagged as each
+    format can (:func:`_color_tags`); None writes no colour tags (camera RGB,
+    YCbCr). ``metadata``: the photo's EXIF, GPS and XMP (:mod:`rawsim.io.metadata`:
     PNG ``eXIf`` and ``iTXt``, TIFF tags, JPEG APP1, EXR header attributes), with
     the ``Software`` of ``attributes``; None writes ``attributes`` alone (PNG text,
     OpenImageIO attributes). No DateTime is written unless given: the same pixels
     make the same bytes.
     """
     software = (attributes or {}).get("Software", "rawsim")
+    srgb = color is not None and color.is_srgb
     output = Output(software, fmt, data.shape[1], data.shape[0], srgb)
+    profile, cicp = _color_tags(color, fmt, data.shape[2])
     if fmt == "png":
         if data.dtype not in (np.uint8, np.uint16):
             raise UnsupportedInputError(f"png output cannot hold {data.dtype} samples")
         if metadata is None:
-            write_png(path, data, srgb, attributes)
+            write_png(path, data, srgb, attributes, icc=profile, cicp=cicp)
         else:
-            write_png(path, data, srgb, exif=exif_block(metadata, output), xmp=metadata.xmp)
+            exif = exif_block(metadata, output)
+            write_png(path, data, srgb, exif=exif, xmp=metadata.xmp, icc=profile, cicp=cicp)
         return
     if fmt == "tiff" and metadata is not None:
-        write_tiff(path, data, exif_block(metadata, output), metadata.xmp)
+        icc = profile[1] if profile else None
+        write_tiff(path, data, exif_block(metadata, output), metadata.xmp, icc)
         return
     import OpenImageIO as oiio
 
@@ -401,9 +409,15 @@ def write_image(
     spec = oiio.ImageSpec(w, h, c, kind)
     if fmt == "exr":
         spec.attribute("compression", "zip")
-        spec.attribute("oiio:ColorSpace", "lin_rec709" if srgb else "Linear")
+        linear_srgb = color is not None and color.space == "srgb"
+        spec.attribute("oiio:ColorSpace", "lin_rec709" if linear_srgb else "Linear")
+        if color is not None and c >= 3:  # OpenEXR's primaries and white (xy)
+            spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), color.chromaticities)
     elif srgb:
         spec.attribute("oiio:ColorSpace", "sRGB")
+    if profile is not None:
+        icc = np.frombuffer(profile[1], np.uint8)
+        spec.attribute("ICCProfile", oiio.TypeDesc(f"uint8[{icc.size}]"), icc)
     if fmt == "jpg":
         spec.attribute("Compression", "jpeg:95")
     elif fmt == "tiff":
@@ -426,3 +440,24 @@ def write_image(
         out.close()
     if fmt == "jpg" and metadata is not None:
         embed_jpeg(path, metadata, output)
+
+
+def _color_tags(
+    color: Encoding | None, fmt: str, channels: int
+) -> tuple[tuple[str, bytes] | None, tuple[int, int, int, int] | None]:
+    """(ICC profile as (name, bytes), H.273 code points) that tag ``channels``-channel
+    samples of ``color`` in ``fmt``, either None where not written.
+
+    TIFF and JPEG embed the profile (:func:`rawsim.io.icc.icc_profile`; grey
+    samples a grey one), sRGB included. PNG embeds it (``iCCP``) but for sRGB,
+    which its own ``sRGB`` chunk names, and adds ``cICP`` where the space and
+    transfer have code points (RGB only). EXR says its primaries instead
+    (``chromaticities``, in :func:`write_image`).
+    """
+    if color is None or fmt == "exr":
+        return None, None
+    grey = channels < 3
+    cicp = None if grey or fmt != "png" else color.cicp
+    if fmt == "png" and color.is_srgb:
+        return None, cicp
+    return (color.describe(), icc_profile(color, grey)), cicp

@@ -12,7 +12,8 @@ of threads or the machine.
 Rows use PNG's Sub filter (each byte minus the one a pixel to its left), which
 costs one vectorised pass and compresses photos nearly as well as adaptive
 filtering. Colour: ``sRGB``, ``gAMA`` and ``cHRM`` chunks, as OpenImageIO writes
-them, when the samples are sRGB-encoded; text attributes as ``tEXt`` chunks.
+them, when the samples are sRGB-encoded, or an ICC profile (``iCCP``); a ``cICP``
+chunk where the encoding has H.273 code points; text attributes as ``tEXt`` chunks.
 """
 
 from __future__ import annotations
@@ -81,6 +82,8 @@ def write_png(
     threads: int | None = None,
     exif: bytes = b"",
     xmp: str = "",
+    icc: tuple[str, bytes] | None = None,
+    cicp: tuple[int, int, int, int] | None = None,
 ) -> None:
     """Write (H, W, C) uint8/uint16 samples as a PNG at ``path``: C = 1 grey,
     2 grey + alpha, 3 RGB, 4 RGBA.
@@ -90,6 +93,12 @@ def write_png(
     bytes do not depend on ``threads``. ``exif``: an EXIF block (a TIFF structure,
     :func:`rawsim.io.metadata.exif_block`) for an ``eXIf`` chunk; ``xmp``: an XMP
     packet for an ``iTXt`` chunk keyed ``XML:com.adobe.xmp``, both before the pixels.
+
+    Colour: ``icc`` (name, profile bytes) writes an ``iCCP`` chunk (the profile
+    deflated at level 9) and then no ``sRGB``, ``gAMA`` or ``cHRM``, which would
+    contradict it; else ``srgb`` writes those three. ``cicp``: ITU-T H.273
+    (primaries, transfer, matrix, full range) for a ``cICP`` chunk, which readers
+    that know it (PNG 3rd edition) prefer to the others.
     """
     h, w, c = data.shape
     if data.dtype not in (np.uint8, np.uint16) or c not in _COLOUR_TYPES:
@@ -106,7 +115,12 @@ def write_png(
         adler = zlib.adler32(band, adler)
     header = struct.pack(">2IBBBBB", w, h, 8 * data.dtype.itemsize, _COLOUR_TYPES[c], 0, 0, 0)
     parts = [_SIGNATURE, _chunk(b"IHDR", header)]
-    if srgb:
+    if cicp is not None:
+        parts.append(_chunk(b"cICP", bytes(cicp)))
+    if icc is not None:
+        name = icc[0].encode("latin-1", "replace")[:79].strip() or b"ICC profile"
+        parts.append(_chunk(b"iCCP", name + b"\0\0" + zlib.compress(icc[1], 9)))
+    elif srgb:
         parts += [_chunk(kind, body) for kind, body in _SRGB_CHUNKS]
     for key, value in (attributes or {}).items():
         parts.append(_chunk(b"tEXt", f"{key}\0{value}".encode("latin-1", "replace")))

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from rawsim._version import __version__
+from rawsim.colorspaces import Encoding
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
@@ -511,6 +512,18 @@ def _warn_if_dark(samples: np.ndarray, bits: int, config: IspConfig, info: dict)
         )
 
 
+def output_encoding(config: IspConfig, info: dict) -> Encoding | None:
+    """What a render's samples are, for the file's colour tags: the config's output
+    space with the transfer used (``info["transfer"]``; linear light without a
+    transfer stage, as in EXR). None, for no tags, where the samples have no fixed
+    colorimetry: camera RGB (no colour matrix, or ``output_space = "camera"``) or
+    YCbCr."""
+    matrix = config.enabled_stage(ColorMatrixStage)
+    if matrix is None or matrix.output_space == "camera" or config.enabled_stage(YCbCrStage):
+        return None
+    return Encoding(matrix.output_space, info.get("transfer", "linear"))
+
+
 def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
@@ -529,14 +542,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     exposure = config.enabled_stage(ExposureStage)
     if options.fmt != "exr" and (exposure is None or exposure.ev != "auto"):
         _warn_if_dark(samples, options.bits, config, info)
-    matrix = config.enabled_stage(ColorMatrixStage)
-    encoded = info.get("transfer") == "srgb"  # the transfer stage's, "auto" resolved
-    srgb = (
-        matrix is not None
-        and matrix.output_space == "srgb"
-        and config.enabled_stage(YCbCrStage) is None
-        and (options.fmt == "exr" or encoded)
-    )
+    color = output_encoding(config, info)
     meta = {
         "rawsim_version": __version__,
         "input": task.key,
@@ -559,7 +565,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     }
     with atomic_outputs(task.outputs) as tmp:
         software = {"Software": f"rawsim {__version__}"}
-        write_image(tmp["image"], samples, options.fmt, srgb, software, photo)
+        write_image(tmp["image"], samples, options.fmt, color, software, photo)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
