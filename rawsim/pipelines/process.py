@@ -528,12 +528,12 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
     if options.fmt not in OUTPUT_FORMATS:
         raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
-    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     if options.thumbnail:
-        return _write_thumbnail(task, options, photo)
+        return _write_thumbnail(task, options)
     config = options.effective_config()
     device = resolve_device(options.device)
     raw = _read_while_loading_engine(task.source, device)
+    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     config = _preview_config(config, raw, options.resize)
     samples, info = render_samples(raw, config, options.fmt, options.bits, device)
     if options.resize:
@@ -579,13 +579,14 @@ def _preview_config(config: IspConfig, raw: RawImage, resize: int | None) -> Isp
     return config.override(demosaic=HALF_SIZE) if 2 * resize <= max(raw.data.shape) else config
 
 
-def _write_thumbnail(task: Task, options: ProcessOptions, photo: PhotoMetadata) -> dict:
+def _write_thumbnail(task: Task, options: ProcessOptions) -> dict:
     """``process_file`` for ``thumbnail``: the raw's embedded preview, its JPEG bytes
     as they are (decoded and encoded again only to resize it, or when it is a bitmap),
     with the raw's metadata and orientation; and the sidecar."""
     import OpenImageIO as oiio
 
-    thumb = read_thumbnail(task.source)
+    thumb = read_thumbnail(task.source)  # LibRaw first: it refuses what is no raw
+    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     software = f"rawsim {__version__}"
     with atomic_outputs(task.outputs) as tmp:
         path = tmp["image"]
