@@ -16,7 +16,7 @@ from rawsim_cli.report import run_files
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend")
-SPACES = ("srgb", "xyz", "camera")
+SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
 #: Other usual spellings of the formats.
 FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
@@ -81,8 +81,19 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     type=click.Choice(["apply", "ignore"]),
     help="The DNG's BaselineExposure: apply (default, as Adobe's DNG SDK) or ignore (as LibRaw).",
 )
-@click.option("--output-space", type=click.Choice(SPACES), help="Colour space of the output.")
-@click.option("--transfer", metavar="srgb|gamma:G|linear", help="Output transfer function.")
+@click.option(
+    "--output-space",
+    type=click.Choice(SPACES),
+    help="Colour space of the output (default srgb), each with its own transfer and an "
+    "embedded ICC profile; xyz is CIE XYZ (D65); camera is the camera's RGB, untagged.",
+)
+@click.option(
+    "--transfer",
+    metavar="auto|srgb|bt2020|romm|gamma:G|linear",
+    help="Output transfer function. Default auto, the space's own: the sRGB curve for "
+    "srgb, display-p3, xyz and camera; gamma 563/256 for adobe-rgb; BT.2020's for "
+    "rec2020; ROMM's (1.8, linear toe) for prophoto.",
+)
 @click.option(
     "--format",
     "fmt",

@@ -139,6 +139,17 @@ OPTIONS = [
     dict(wb="daylight", output_space="xyz"),
     dict(wb="1.5,1,2.5", output_space="camera", exposure=-1),
     dict(wb="auto"),
+    # output spaces, each with its own transfer (table: sRGB, BT.2020, ROMM curves;
+    # kernel power law: Adobe RGB's 563/256), and transfers other than the space's own
+    dict(output_space="display-p3"),
+    dict(output_space="adobe-rgb"),
+    dict(output_space="rec2020", tone="aces"),
+    dict(output_space="prophoto", highlights="blend"),
+    dict(output_space="prophoto", transfer="bt2020"),
+    dict(output_space="xyz", transfer="romm"),
+    dict(output_space="adobe-rgb", transfer="linear", tone="hable"),
+    dict(output_space="rec2020", transfer="gamma:563/256"),
+    dict(transfer="bt2020", exposure=1.0),
 ]
 
 
