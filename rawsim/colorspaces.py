@@ -205,14 +205,18 @@ TRANSFERS = ("srgb", "bt2020", "romm", "gamma:G", "linear")
 class RgbSpace:
     """An RGB output space: primaries and white, its own transfer, code points.
 
-    ``primaries``: xy of red, green, blue; ``white``: XYZ (Y = 1) of RGB (1, 1, 1);
-    ``cicp``: ITU-T H.273 ColourPrimaries code, None where it has none.
+    ``primaries``: xy of red, green, blue; ``white``: XYZ (Y = 1) of RGB (1, 1, 1),
+    what the matrices are built with; ``white_xy``: the white's chromaticity as
+    the standard gives it, written where files name the white (OpenEXR's
+    ``chromaticities``); ``cicp``: ITU-T H.273 ColourPrimaries code, None where it
+    has none.
     """
 
     name: str
     title: str
     primaries: tuple[tuple[float, float], ...]
     white: tuple[float, float, float]
+    white_xy: tuple[float, float]
     transfer: str
     cicp: int | None
     source: str
@@ -224,15 +228,13 @@ class RgbSpace:
             return SRGB_TO_XYZ.copy()
         return rgb_to_xyz_matrix(self.primaries, self.white)
 
-    @property
-    def white_xy(self) -> tuple[float, float]:
-        """The white's xy chromaticity."""
-        x, y, z = self.white
-        return (x / (x + y + z), y / (x + y + z))
-
 
 _D65 = tuple(float(v) for v in XYZ_D65)
 _D50 = tuple(float(v) for v in XYZ_D50)
+#: The standards' white chromaticities: D65 (IEC 61966-2-1, SMPTE EG 432-1, Adobe RGB,
+#: BT.2020) and ROMM RGB's D50 (ISO 22028-2).
+_D65_XY = (0.3127, 0.3290)
+_D50_XY = (0.3457, 0.3585)
 
 #: The RGB output spaces, by name.
 RGB_SPACES: dict[str, RgbSpace] = {
@@ -243,6 +245,7 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "sRGB IEC61966-2.1",
             ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06)),
             _D65,
+            _D65_XY,
             "srgb",
             1,
             "IEC 61966-2-1:1999",
@@ -252,6 +255,7 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "Display P3",
             ((0.680, 0.320), (0.265, 0.690), (0.150, 0.060)),
             _D65,
+            _D65_XY,
             "srgb",
             12,
             "SMPTE EG 432-1:2010 (P3 primaries, D65 white), with the sRGB curve (Apple)",
@@ -261,6 +265,7 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "Adobe RGB (1998)",
             ((0.6400, 0.3300), (0.2100, 0.7100), (0.1500, 0.0600)),
             _D65,
+            _D65_XY,
             f"gamma:{Fraction(ADOBE_RGB_GAMMA)}",
             None,
             "Adobe RGB (1998) Color Image Encoding, version 2005-05",
@@ -270,6 +275,7 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "ITU-R BT.2020",
             ((0.708, 0.292), (0.170, 0.797), (0.131, 0.046)),
             _D65,
+            _D65_XY,
             "bt2020",
             9,
             "ITU-R BT.2020-2",
@@ -279,6 +285,7 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "ProPhoto RGB (ROMM RGB)",
             ((0.7347, 0.2653), (0.1596, 0.8404), (0.0366, 0.0001)),
             _D50,
+            _D50_XY,
             "romm",
             None,
             "ISO 22028-2:2013 (ROMM RGB)",
