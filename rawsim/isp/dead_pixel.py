@@ -1,4 +1,4 @@
-"""Dead/hot pixel correction on a CFA mosaic, within each colour plane.
+"""Dead/hot pixel correction on a CFA mosaic, within each colour.
 
 Each site is compared with the median of its same-colour neighbours (the
 original design used their mean, which a hot pixel drags along with it, so its
@@ -6,6 +6,13 @@ neighbours got "corrected" too); where it deviates by more than ``threshold``
 (linear units, white = 1) it is replaced by that median, blended through a
 sigmoid of width ``temperature`` so the stage stays differentiable. ``reverse``
 is the identity (defects are not re-created).
+
+The neighbours are those of :mod:`rawsim.isp.planes` for a ``kernel``×``kernel``
+window of plane pixels, ``2·(kernel // 2)`` mosaic pixels on each side: on a
+Bayer mosaic the other sites of the site's plane (R, Gr, Gb or B: 8 for
+``kernel`` 3, 24 for 5); on any other pattern the other sites of its colour in
+that window (X-Trans: 5 red or blue and 12 or 16 green for ``kernel`` 3; 16 and
+44 for 5). An even count takes the lower of the two middle values.
 """
 
 from __future__ import annotations
@@ -15,7 +22,17 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_image
-from rawsim.isp.planes import neighbourhood, per_plane
+from rawsim.isp.planes import neighbourhood, per_plane, per_site, plane_radius
+
+
+def _replace_outliers(
+    sites: torch.Tensor, others: torch.Tensor, threshold: float, temperature: float
+) -> torch.Tensor:
+    """``sites`` (…) blended towards the median of ``others`` (N, …) where they differ by
+    more than ``threshold``."""
+    reference = others.median(dim=0).values
+    weight = torch.sigmoid(((sites - reference).abs() - threshold) / temperature)
+    return sites + weight * (reference - sites)
 
 
 def correct_dead_pixels(
@@ -25,20 +42,31 @@ def correct_dead_pixels(
     kernel: int = 3,
     temperature: float = 0.01,
 ) -> torch.Tensor:
-    """(B, 1, H, W) linear mosaic → the same with outliers replaced by their neighbours' median."""
+    """(B, 1, H, W) linear mosaic (white = 1, any range) of any periodic ``cfa`` → the
+    same with outliers replaced by their same-colour neighbours' median. Not clipped.
+    """
     check_image(mosaic, "mosaic", channels=1)
     if kernel not in (3, 5):
         raise ParameterError(f"dead-pixel kernel must be 3 or 5, got {kernel}")
     if not threshold > 0 or not temperature > 0:
         raise ParameterError("dead-pixel threshold and temperature must be > 0")
 
+    if not cfa.is_bayer:
+        return per_site(
+            mosaic,
+            cfa,
+            plane_radius(kernel),
+            lambda sites, values, _: _replace_outliers(
+                sites, torch.stack(values), threshold, temperature
+            ),
+            centre=False,
+        )
+
     def fix(planes: torch.Tensor) -> torch.Tensor:
         shifted = neighbourhood(planes, kernel)
         centre = kernel * kernel // 2
         others = torch.cat([shifted[:centre], shifted[centre + 1 :]])
-        reference = others.median(dim=0).values
-        weight = torch.sigmoid(((planes - reference).abs() - threshold) / temperature)
-        return planes + weight * (reference - planes)
+        return _replace_outliers(planes, others, threshold, temperature)
 
     return per_plane(mosaic, cfa, fix)
 
@@ -59,8 +87,8 @@ class DeadPixelCorrection(nn.Module):
 
     @property
     def radius(self) -> int:
-        """Rows of context needed on each side (the neighbourhood, in mosaic rows)."""
-        return 2 * (self.kernel // 2)
+        """Rows of context needed on each side (the window, in mosaic rows), any pattern."""
+        return plane_radius(self.kernel)
 
     def forward(self, mosaic: torch.Tensor) -> torch.Tensor:
         return correct_dead_pixels(mosaic, self.cfa, self.threshold, self.kernel, self.temperature)

@@ -63,9 +63,12 @@ class Isp(nn.Module):
     """A built ISP: named stage modules run in order. ``info`` records resolved values.
 
     Without gradients, images taller than two strips run strip by strip
-    (:data:`STRIP_ROWS` rows plus enough rows of context for every stage): the
-    result is the same, the memory a fraction. Orientation, a global reindexing,
-    runs once at the end.
+    (:data:`STRIP_ROWS` rows, the last one up to twice that, plus :attr:`halo`
+    rows of context on each side): the result is the same, the memory a
+    fraction. Every strip starts on a whole CFA period and is at least a strip
+    tall, so stages that need a few periods of image (the X-Trans demosaics,
+    the per-site filters of :mod:`rawsim.isp.planes`) get them. Orientation, a
+    global reindexing, runs once at the end.
     """
 
     def __init__(self, stages: list[tuple[str, nn.Module]], info: dict, period: int = 2) -> None:
@@ -77,8 +80,9 @@ class Isp(nn.Module):
 
     @property
     def halo(self) -> int:
-        """Rows of context a strip needs on each side (whole CFA periods, so strips
-        keep the CFA phase)."""
+        """Rows of context a strip needs on each side: the sum of the stages' ``radius``
+        (rows each output row depends on, on each side), rounded up to whole CFA
+        periods so strips keep the CFA phase."""
         total = sum(getattr(m, "radius", 0) for m in self.stages)
         return -(-total // self.period) * self.period
 
@@ -103,13 +107,16 @@ class Isp(nn.Module):
         else:
             out = None
             halo = self.halo
-            for top in range(0, h, strip):
-                lo, hi = max(0, top - halo), min(h, top + strip + halo)
+            count = h // strip  # the last strip takes the rest: none is shorter than a strip
+            for k in range(count):
+                top = k * strip
+                size = strip if k < count - 1 else h - top
+                lo, hi = max(0, top - halo), min(h, top + size + halo)
                 part = self._run(x[..., lo:hi, :], (lo, h))
-                rows = part[..., top - lo : top - lo + min(strip, h - top), :]
+                rows = part[..., top - lo : top - lo + size, :]
                 if out is None:
                     out = rows.new_empty(*rows.shape[:-2], h, rows.shape[-1])
-                out[..., top : top + rows.shape[-2], :] = rows
+                out[..., top : top + size, :] = rows
         for m in self.stages:
             if isinstance(m, Orientation):
                 out = m(out)
