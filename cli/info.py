@@ -25,12 +25,15 @@ HIGHLIGHTS = ("clip", "blend")
 @usage_errors
 def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     """Print what rawsim reads from each raw and what 'rawsim process' would use:
-    camera, CFA, black and white levels, the camera's and daylight multipliers,
-    the white balance it applies and why, the colour matrix and its source,
-    orientation, ISO, the DNG BaselineExposure and whether process applies it,
-    and the photo metadata renders carry (camera, lens, exposure, aperture,
-    focal length, time, GPS, artist, …). Folders are searched as 'process'
-    searches them.
+    camera, whether it can render it, CFA, black and white levels, the camera's
+    and daylight multipliers, the white balance it applies and why, the colour
+    matrix and its source, orientation, ISO, the DNG BaselineExposure and
+    whether process applies it, and the photo metadata renders carry (camera,
+    lens, exposure, aperture, focal length, time, GPS, artist, …). For a raw
+    it cannot render (a four-colour CFA, a full image of four samples, …) it
+    prints what LibRaw read and 'renderable: no — the reason; the way out'.
+    Folders are searched as 'process' searches them. Exit status 1 when a file
+    cannot be read at all.
 
     \b
     Example:
@@ -38,7 +41,7 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     """
     from rawsim.errors import RawsimError, shown
     from rawsim.io.images import RAW_EXTENSIONS
-    from rawsim.io.raw import read_raw
+    from rawsim.io.raw import UnrenderableRawError, read_raw
     from rawsim.isp.config import IspConfig
     from rawsim.pipelines.process import describe
     from rawsim.run.batch import discover
@@ -51,7 +54,10 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
         click.echo(f"error: {result.message}", err=True)
     for path, _ in found:
         try:
-            facts = describe(read_raw(path), config)
+            try:
+                facts = describe(read_raw(path), config)
+            except UnrenderableRawError as err:  # what could be read, and why not
+                facts = describe(err.facts, config)
         except RawsimError as err:
             click.echo(f"error: {err}", err=True)
             failed += 1
@@ -61,6 +67,10 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
             continue
         click.echo(shown(path))
         for key, value in facts.items():
+            if key == "renderable":
+                value = "yes" if value else f"no — {facts['reason']}"
+            if key == "reason":
+                continue
             if key == "metadata":
                 for tag, text in value.items():
                     click.echo(f"  {tag:<24} {text}")

@@ -15,7 +15,18 @@ real files are handled here, the way LibRaw handles them:
 * monochrome files (one colour, no filter): read as (H, W, 1) grey data and
   rendered without demosaicking or colour stages;
 * mosaics of any periodic R/G/B pattern (2×2 Bayer, 6×6 X-Trans): read with
-  their CFA and per-site black levels; four-colour filters (CMYG, RGBE): refused.
+  their CFA and per-site black levels. A DNG whose CFA LibRaw misreads (it holds
+  2×2, 8×2 and 6×6 layouts: a 3×3 or 2×4 pattern comes out scrambled) is read
+  with the file's own CFAPattern, warned.
+
+What rawsim cannot render is refused with :class:`UnrenderableRawError`, one
+line naming the file, the camera, the reason and the way out, carrying the
+:class:`RawFacts` that were read (``rawsim info`` shows them): filters of other
+colours (CMYG, RGBE, RGBW, a mosaic without one of R, G, B), raws LibRaw gives
+as full images of another number of colours (a 4-sample LinearRaw), layouts
+LibRaw describes in ways rawpy cannot pass on (Fujifilm SuperCCD's 45° rows,
+unknown filter codes), images too small for their CFA and unusable levels.
+A Sigma X3F (Foveon) file that this LibRaw cannot decode is named as such.
 """
 
 from __future__ import annotations
@@ -41,7 +52,8 @@ class RawImage:
         data: (H, W) mosaic in DN for a CFA sensor, or (H, W, C) linear data when
             the file has no CFA (``cfa`` is None): C = 3, or 1 for a monochrome
             sensor. uint16.
-        cfa: the Bayer pattern, None for 3-channel or monochrome data.
+        cfa: the CFA pattern (any periodic R/G/B layout), None for 3-channel or
+            monochrome data.
         black_level: (ph, pw) black per site of one CFA period (DN; 2×2 Bayer, 6×6
             X-Trans), or (C,) per channel.
         white_level: saturation level (DN).
@@ -102,8 +114,115 @@ def _multipliers(values) -> tuple[tuple[float, float, float] | None, str]:
     return None, "auto" if v[0] <= _SET else "daylight"
 
 
-def _camera_names(path: Path) -> tuple[str, str]:
-    """Make and Model from TIFF-based raws (DNG, CR2, NEF, ARW, …), else "unknown"."""
+#: TIFF/EP's CFA colour codes (CFAPattern, CFAPlaneColor), as letters.
+_TIFF_EP_LETTERS = "RGBCMYW"
+#: The letters' names, for messages (LibRaw's "E" is Sony's emerald).
+_COLOUR_NAMES = {
+    "R": "red",
+    "G": "green",
+    "B": "blue",
+    "C": "cyan",
+    "M": "magenta",
+    "Y": "yellow",
+    "W": "white",
+    "E": "emerald",
+}
+#: Where to turn for what rawsim does not render.
+RENDER_WITH_LIBRAW = "render it with LibRaw instead (dcraw_emu -T, or rawpy's postprocess)"
+
+
+@dataclass(frozen=True)
+class RawFacts:
+    """What LibRaw reads from a raw that rawsim cannot render, and why it cannot.
+
+    Attributes:
+        path: the file.
+        make, model: camera names ("unknown" when the file does not say).
+        reason: why rawsim cannot render it, a clause ("its CFA has filters of four
+            colours, …").
+        remedy: the way out, e.g. :data:`RENDER_WITH_LIBRAW`.
+        width, height: the visible image in pixels (None if not read).
+        samples: values per pixel: 1 for a mosaic, 3 or 4 for a full image.
+        colors: LibRaw's number of colours (``num_colors``).
+        color_desc: LibRaw's colour letters (``color_desc``), e.g. "RGBG", "GMCY".
+        cfa_pattern: the mosaic's colours, rows of one period joined by ``/`` in
+            the colours' letters (C, M, Y, W, E besides R, G, B), or None.
+        black_level: LibRaw's black per colour (DN), white_level: its white (DN).
+    """
+
+    path: str
+    make: str
+    model: str
+    reason: str
+    remedy: str = RENDER_WITH_LIBRAW
+    width: int | None = None
+    height: int | None = None
+    samples: int | None = None
+    colors: int | None = None
+    color_desc: str | None = None
+    cfa_pattern: str | None = None
+    black_level: tuple[float, ...] | None = None
+    white_level: float | None = None
+
+    @property
+    def camera(self) -> str:
+        """ "make model" without repeating the make, or "unknown camera"."""
+        return _camera_text(self.make, self.model)
+
+    @property
+    def message(self) -> str:
+        """One line: the file, the camera, the reason and the way out."""
+        return f"{self.path}: {self.camera}: cannot be rendered: {self.reason}; {self.remedy}"
+
+    def summary(self) -> dict:
+        """The facts as ``rawsim info`` shows them (JSON-ready; unread ones left out)."""
+        out = {
+            "file": self.path,
+            "make": self.make,
+            "model": self.model,
+            "renderable": False,
+            "reason": f"{self.reason}; {self.remedy}",
+            "cfa_pattern": self.cfa_pattern,
+            "colors": self.color_desc[: self.colors] if self.color_desc and self.colors else None,
+            "samples_per_pixel": self.samples,
+            "width": self.width,
+            "height": self.height,
+            "black_level": None if self.black_level is None else list(self.black_level),
+            "white_level": self.white_level,
+        }
+        return {k: v for k, v in out.items() if v is not None}
+
+
+class UnrenderableRawError(UnsupportedInputError):
+    """A raw LibRaw reads but rawsim cannot render; ``facts`` holds what was read."""
+
+    def __init__(self, facts: RawFacts) -> None:
+        super().__init__(facts.message)
+        self.facts = facts
+
+
+def _camera_text(make: str, model: str) -> str:
+    if make == "unknown" and model == "unknown":
+        return "unknown camera"
+    if model.lower().startswith(make.lower()) or make == "unknown":
+        return model
+    return f"{make} {model}" if model != "unknown" else make
+
+
+@dataclass(frozen=True)
+class _TiffFacts:
+    """What a TIFF-based raw's own tags say: the camera, and for a DNG its CFA (the
+    raw IFD's CFARepeatPatternDim and CFAPattern as TIFF/EP colour letters)."""
+
+    make: str = "unknown"
+    model: str = "unknown"
+    cfa_rows: tuple[str, ...] | None = None
+
+
+def _tiff_facts(path: Path) -> _TiffFacts:
+    """Make, Model (or UniqueCameraModel) and a DNG's CFA, from TIFF-based raws (DNG,
+    CR2, NEF, ARW, …); for other formats the camera as exiv2 reads it; "unknown"
+    where neither says."""
     import tifffile
 
     try:
@@ -115,9 +234,44 @@ def _camera_names(path: Path) -> tuple[str, str]:
                 if key in tags:
                     model = str(tags[key].value).strip()
                     break
-            return make or "unknown", model or "unknown"
-    except Exception:  # not TIFF-based: rawpy does not expose the names
+            try:
+                cfa_rows = _dng_cfa(tif)
+            except Exception:  # a tag we cannot parse: LibRaw's reading stands
+                cfa_rows = None
+            return _TiffFacts(make or "unknown", model or "unknown", cfa_rows)
+    except Exception:  # not TIFF-based: rawpy does not expose the names; exiv2 may
+        return _TiffFacts(*_exiv2_camera(path))
+
+
+def _dng_cfa(tif) -> tuple[str, ...] | None:
+    """The CFA of a DNG's raw image (the full-size CFA IFD, top level or SubIFD), rows
+    of TIFF/EP colour letters; None for other files or codes beyond TIFF/EP's."""
+    tags = tif.pages.first.tags
+    if "DNGVersion" not in tags:
+        return None
+    pages = [page for top in tif.pages for page in (top, *(top.pages or ()))]
+    for page in pages:
+        found = page.tags
+        if page.photometric != 32803 or page.subfiletype != 0 or 33422 not in found:
+            continue
+        rows, cols = (int(v) for v in found[33421].value) if 33421 in found else (2, 2)
+        codes = bytes(found[33422].value)
+        if rows * cols != len(codes) or max(codes) >= len(_TIFF_EP_LETTERS):
+            return None
+        letters = "".join(_TIFF_EP_LETTERS[c] for c in codes)
+        return tuple(letters[r * cols : (r + 1) * cols] for r in range(rows))
+    return None
+
+
+def _exiv2_camera(path: Path) -> tuple[str, str]:
+    """Make and Model as exiv2 reads them (RAF, CR3, ORF, RW2, MRW, …)."""
+    from rawsim.io.metadata import read_metadata
+
+    try:
+        meta = read_metadata(path)
+    except Exception:  # exiv2 failing on an odd file only costs the names
         return "unknown", "unknown"
+    return meta.get("Exif.Image.Make") or "unknown", meta.get("Exif.Image.Model") or "unknown"
 
 
 def _measured_rgb_cam(raw) -> np.ndarray | None:
@@ -182,18 +336,120 @@ def _baseline_exposure(path: Path) -> float:
 
 
 def _image_hint(path: Path) -> str:
-    """``"; it is a PNG image: use 'rawsim unprocess'"`` for an image named as a raw."""
+    """``"; it is a PNG image: use 'rawsim unprocess'"`` for an image named as a raw, and
+    the way out for a Sigma X3F file this LibRaw cannot decode."""
     from rawsim.io.images import image_format
 
     with open(path, "rb") as fh:
-        kind = image_format(fh.read(16))
+        head = fh.read(16)
+    if head.startswith(b"FOVb"):
+        return (
+            "; it is a Sigma X3F file (Foveon: stacked colour layers, no CFA): convert it to "
+            "DNG with Sigma Photo Pro, or render it with a LibRaw built with X3F support"
+        )
+    kind = image_format(head)
     if kind is None or kind[0] == "TIFF":  # raws are TIFFs too
         return ""
     return f"; it is a {kind[0]} image: use 'rawsim unprocess'"
 
 
+def _colour_list(letters) -> str:
+    """ "cyan, yellow, green and magenta" for the distinct letters, in order of first use."""
+    names = [_COLOUR_NAMES.get(c, repr(c)) for c in dict.fromkeys(letters)]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+
+
+def _matches(rows: tuple[str, ...], sites: np.ndarray) -> bool:
+    """Whether the letters ``sites`` (H, W) are the pattern ``rows`` anchored at some
+    site of its period (LibRaw may start the visible area on any phase)."""
+    ph, pw = len(rows), len(rows[0])
+    h, w = sites.shape
+    tile = np.array([list(r) for r in rows])
+    for dy in range(ph):
+        for dx in range(pw):
+            shifted = np.roll(tile, (-dy, -dx), axis=(0, 1))
+            reps = (-(-h // ph), -(-w // pw))
+            if np.array_equal(np.tile(shifted, reps)[:h, :w], sites):
+                return True
+    return False
+
+
+def _mosaic_cfa(
+    libraw_rows: tuple[str, ...], sites: np.ndarray, dng_rows: tuple[str, ...] | None
+) -> tuple[CFA | None, str | None, list[str]]:
+    """The CFA to render a mosaic with: (cfa, None, warnings), or (None, reason, []) when
+    rawsim cannot render it.
+
+    ``libraw_rows``: LibRaw's pattern in its colour letters (one period from the
+    visible area's first site); ``sites``: LibRaw's letters over a window of the
+    visible area; ``dng_rows``: a DNG's own CFAPattern (TIFF/EP letters), or None.
+    LibRaw holds CFAs as 2×2 … 8×2 or 6×6 layouts: a DNG pattern of another shape
+    comes out scrambled, and a three-colour C/M/Y one is named R, G, B.
+    """
+    warnings: list[str] = []
+    rows = libraw_rows
+    if dng_rows is not None and not _matches(dng_rows, sites):
+        file_letters = set("".join(dng_rows))
+        shape = f"{len(dng_rows)}×{len(dng_rows[0])}"
+        if file_letters <= set("RGB"):  # LibRaw misread the layout: use the file's
+            rows = dng_rows
+            warnings.append(
+                f"LibRaw reads the DNG's {shape} CFA pattern {'/'.join(dng_rows)} as "
+                f"{'/'.join(libraw_rows)}; rendered with the file's pattern"
+            )
+        elif len(file_letters) == 3 and _same_structure(dng_rows, libraw_rows):
+            warnings.append(
+                f"the DNG's filters are {_colour_list(''.join(dng_rows))}: rendered as "
+                "LibRaw renders them, as the camera's three channels through the file's "
+                "colour matrix"
+            )
+        else:
+            return None, _colours_reason(dng_rows, "the DNG's CFAPattern"), []
+    if set("".join(rows)) != set("RGB"):
+        return None, _colours_reason(rows, "LibRaw's colours"), []
+    try:
+        return CFA("/".join(rows)), None, warnings
+    except ParameterError:  # a 2×2 layout that is not Bayer (greens side by side)
+        return (
+            None,
+            f"its 2×2 CFA {'/'.join(rows)} is not a Bayer layout (the greens are not "
+            "diagonal neighbours), and rawsim renders Bayer and other periodic R/G/B mosaics",
+            [],
+        )
+
+
+def _same_structure(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    """Whether two patterns of one shape differ only in the names of their colours."""
+    if len(a) != len(b) or len(a[0]) != len(b[0]):
+        return False
+    pairs = set(zip("".join(a), "".join(b), strict=True))
+    return len(pairs) == len({x for x, _ in pairs}) == len({y for _, y in pairs})
+
+
+def _colours_reason(rows: tuple[str, ...], source: str) -> str:
+    """Why a mosaic of these colours is not rendered, naming them."""
+    letters = "".join(rows)
+    pattern = "/".join(rows)
+    n = len(set(letters))
+    if set(letters) <= set("RGB"):
+        missing = _colour_list(c for c in "RGB" if c not in letters)
+        return (
+            f"its CFA ({pattern}, {source}) has no {missing} site, and rawsim renders "
+            "red, green and blue mosaics only"
+        )
+    return (
+        f"its CFA has filters of {n} colours, {_colour_list(letters)} ({pattern}, "
+        f"{source}), and rawsim renders red, green and blue mosaics only"
+    )
+
+
 def read_raw(path: str | Path) -> RawImage:
-    """Decode a camera raw with rawpy. Raises :class:`UnsupportedInputError` with the reason."""
+    """Decode a camera raw with rawpy.
+
+    Raises :class:`UnsupportedInputError` with the reason when LibRaw cannot read
+    the file, and its subclass :class:`UnrenderableRawError` (with the
+    :class:`RawFacts` read) when rawsim cannot render what LibRaw reads.
+    """
     import rawpy
 
     path = Path(path)
@@ -201,41 +457,82 @@ def read_raw(path: str | Path) -> RawImage:
         raise UnsupportedInputError(f"{path}: not a file")
     if path.stat().st_size == 0:
         raise UnsupportedInputError(f"{path}: empty file (0 bytes)")
+    tiff = _tiff_facts(path)
+    make, model = tiff.make, tiff.model
     warnings: list[str] = []
     libraw_said: list[str] = []
+    facts: dict = {}
+
+    def refuse(reason: str, remedy: str = RENDER_WITH_LIBRAW) -> UnrenderableRawError:
+        return UnrenderableRawError(RawFacts(str(path), make, model, reason, remedy, **facts))
+
     try:
         with (
             collected_stderr(libraw_said),
             openable_name(path) as name,
             rawpy.imread(name) as raw,
         ):
-            pattern = raw.raw_pattern
-            mono = int(raw.num_colors) == 1 and raw.raw_image_visible.ndim == 2
-            if mono:
-                pattern = None
-            if pattern is not None:
-                # The colours of the visible area's first period (its origin may be
-                # anywhere in the pattern).
-                ph, pw = np.asarray(pattern).shape
-                pattern = raw.raw_colors_visible[:ph, :pw]
             desc = raw.color_desc.decode(errors="replace")
-            visible = raw.raw_image_visible
-            data = np.array(visible, dtype=np.uint16, copy=True)
+            colors = int(raw.num_colors)
             black = np.asarray(raw.black_level_per_channel, dtype=np.float64)
             white = float(raw.white_level)
-            pattern = None if pattern is None else np.array(pattern, copy=True)
+            facts.update(
+                colors=colors,
+                color_desc=desc,
+                black_level=tuple(black[: max(colors, 1)].tolist()),
+                white_level=white,
+            )
+            try:
+                pattern = raw.raw_pattern
+                visible = raw.raw_image_visible
+            except (NotImplementedError, RuntimeError) as err:  # rawpy's, not LibRaw's
+                raise refuse(
+                    f"LibRaw holds its image in a layout that rawpy cannot pass on ({err})"
+                ) from None
+            sizes = raw.sizes
+            samples = 1 if visible.ndim == 2 else int(visible.shape[2])
+            facts.update(width=int(sizes.width), height=int(sizes.height), samples=samples)
+            if visible.shape[:2] != (sizes.height, sizes.width):
+                raise refuse(
+                    f"LibRaw's image ({sizes.width}×{sizes.height}) is not a window of its "
+                    f"raw data ({sizes.raw_width}×{sizes.raw_height}; e.g. Fujifilm "
+                    "SuperCCD's 45° rows, which LibRaw rotates while rendering)"
+                )
+            mono = colors == 1 and visible.ndim == 2
+            cfa = None
+            if pattern is not None and not mono:
+                # The colours of the visible area's first period (its origin may be
+                # anywhere in the pattern), and of a window to check a DNG's against.
+                ph, pw = np.asarray(pattern).shape
+                sites = np.asarray(raw.raw_colors_visible[: 4 * ph, : 4 * pw])
+                pattern = np.array(sites[:ph, :pw], copy=True)
+                letter = np.array(list(desc) + ["?"] * 4)
+                libraw_rows = tuple("".join(letter[int(i)] for i in row) for row in pattern)
+                facts["cfa_pattern"] = "/".join(libraw_rows)
+                cfa, reason, notes = _mosaic_cfa(libraw_rows, letter[sites], tiff.cfa_rows)
+                if reason is not None:
+                    raise refuse(reason)
+                warnings += notes
+            elif not mono and (visible.ndim != 3 or samples < 3 or colors != 3):
+                plural = "s" if samples > 1 else ""
+                raise refuse(
+                    f"LibRaw gives it as a full image of {samples} sample{plural} per pixel "
+                    f"in {colors} colours ({desc[:colors]}), not a mosaic, and rawsim renders "
+                    "such images in three colours only"
+                )
+            data = np.array(visible, dtype=np.uint16, copy=True)
             camera_wb = np.array(raw.camera_whitebalance, dtype=np.float64)
             daylight_wb = np.array(raw.daylight_whitebalance, dtype=np.float64)
             xyz = np.array(raw.rgb_xyz_matrix[:3], dtype=np.float64)
             cam_srgb = np.array(raw.color_matrix[:, :3], dtype=np.float64)
             flip = int(raw.sizes.flip)
+            aspect = float(raw.sizes.pixel_aspect)
             iso = float(raw.other.iso_speed)
-            colors = int(raw.num_colors)
             measured = None
             no_matrix = np.allclose(xyz, 0) and np.allclose(cam_srgb, 0)
             # Measured on a mosaic only: LibRaw has no raw_colors for other data
             # ("RAW image is not flat", e.g. 3-sample LinearRaw, Kodak C330).
-            if no_matrix and colors == 3 and not mono and pattern is not None:
+            if no_matrix and colors == 3 and cfa is not None:
                 measured = _measured_rgb_cam(raw)
     except UnsupportedInputError:
         raise
@@ -249,39 +546,40 @@ def read_raw(path: str | Path) -> RawImage:
             f"{path}: truncated or not a raw file (LibRaw: {reason}){_image_hint(path)}"
         ) from None
     warnings += [f"LibRaw: {line}" for line in libraw_said]
+    if abs(aspect - 1) > 1e-3:
+        warnings.append(
+            f"the pixels are not square (aspect {aspect:g}); LibRaw stretches its render "
+            "to square pixels, rawsim does not"
+        )
 
     if mono:
         data = data[:, :, None]
-        cfa = None
         black_level = black[:1].copy()
-    elif pattern is None:
-        if data.ndim != 3 or data.shape[2] < 3 or colors != 3:
-            raise UnsupportedInputError(f"{path}: no CFA and not 3-channel data")
+    elif cfa is None:
         data = np.ascontiguousarray(data[:, :, :3])
-        cfa = None
         black_level = black[:3].copy()
         warnings.append("no CFA (linear DNG): rendered as 3-channel linear data")
     else:
-        if colors != 3 or sorted(set(desc[int(i)] for i in pattern.flatten())) != ["B", "G", "R"]:
-            raise UnsupportedInputError(
-                f"{path}: colour filter {desc!r} with pattern {pattern.tolist()} is not "
-                "an R, G, B mosaic (four-colour filters are not supported)"
-            )
-        try:
-            cfa = CFA.from_rawpy(pattern, desc)
-        except ParameterError as err:
-            raise UnsupportedInputError(f"{path}: {err}") from None
         h, w = data.shape
         ph, pw = cfa.period
         if h < 2 * ph or w < 2 * pw:
-            raise UnsupportedInputError(f"{path}: image is too small ({w}×{h})")
+            raise refuse(
+                f"its image ({w}×{h}) is smaller than two periods of its "
+                f"{ph}×{pw} CFA, too small to demosaic"
+            )
         if cfa.is_bayer:  # LibRaw's visible area may start on any site: whole 2×2 tiles
             data = np.ascontiguousarray(data[: h - h % 2, : w - w % 2])
-        black_level = black[pattern.astype(int)]  # per site of one period
+        # per site of one period; a G2 (index 3) has its own black
+        site_colour = (
+            pattern.astype(int)
+            if pattern.shape == cfa.period
+            else np.asarray(cfa.colors).reshape(cfa.period)
+        )
+        black_level = black[site_colour]
     if not np.isfinite(white) or not np.isfinite(black_level).all():
-        raise UnsupportedInputError(f"{path}: black or white level is not a number")
+        raise refuse("its black or white level is not a number")
     if not white > float(np.max(black_level)):
-        raise UnsupportedInputError(f"{path}: white level {white:g} is not above black")
+        raise refuse(f"its white level {white:g} is not above its black level")
 
     if mono:  # no colour: no matrix, no white balance
         xyz_out = cam_srgb_out = None
@@ -301,7 +599,6 @@ def read_raw(path: str | Path) -> RawImage:
         warnings.append("no colour matrix for this camera: camera RGB is treated as sRGB")
     as_shot, fallback = (None, "auto") if mono else _multipliers(camera_wb)
     daylight = None if mono else _multipliers(daylight_wb)[0]
-    make, model = _camera_names(path)
     return RawImage(
         data=data,
         cfa=cfa,

@@ -27,7 +27,7 @@ from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
-from rawsim.io.raw import RawImage, read_raw
+from rawsim.io.raw import RawFacts, RawImage, read_raw
 from rawsim.io.task import Task
 from rawsim.io.thumbnail import read_thumbnail
 from rawsim.isp.config import (
@@ -449,18 +449,26 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
         return future.result()
 
 
-def describe(raw: RawImage, config: IspConfig | list[dict]) -> dict:
+def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
     """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
-    camera, CFA, levels, the camera's and daylight multipliers, the white balance
-    and matrix it will apply with where they come from, orientation, ISO, the DNG
-    BaselineExposure and whether it is applied, and the photo metadata (lens,
-    exposure, time, GPS, …) that renders carry."""
+    camera, ``renderable`` (true), CFA, levels, the camera's and daylight multipliers,
+    the white balance and matrix it will apply with where they come from,
+    orientation, ISO, the DNG BaselineExposure and whether it is applied, and the
+    photo metadata (lens, exposure, time, GPS, …) that renders carry.
+
+    For a raw rawsim cannot render (the :class:`~rawsim.io.raw.RawFacts` of an
+    :class:`~rawsim.io.raw.UnrenderableRawError`): what LibRaw read (camera, CFA in
+    its colour letters, colours, samples per pixel, size, levels), ``renderable``
+    false, the ``reason`` with the way out, and the photo metadata."""
+    if isinstance(raw, RawFacts):
+        return {**raw.summary(), "metadata": read_metadata(raw.path).summary(), "warnings": []}
     resolved = resolve(config, raw)
     info = resolved.info
     out = {
         "file": raw.path,
         "make": raw.make,
         "model": raw.model,
+        "renderable": True,
         "cfa_pattern": None if raw.cfa is None else raw.cfa.pattern,
         "width": int(raw.data.shape[1]),
         "height": int(raw.data.shape[0]),
