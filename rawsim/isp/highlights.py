@@ -2,10 +2,11 @@
 
 White-balance gains push saturated sites above 1 by different amounts per
 channel, which turns clipped highlights magenta. ``clip`` limits every value to
-1 (the one intended clipping here; on a mosaic, as LibRaw does before
-demosaicking). ``blend`` (RGB only) keeps the clipped image's lightness and the
-unclipped image's hue, with the chroma scaled to the clipped chroma's size,
-where any channel exceeds 1 — dcraw's ``-H 2``.
+1 (the one intended clipping here; value by value, so on a mosaic of any CFA
+as on RGB, as LibRaw does before demosaicking). ``blend`` (RGB only) keeps
+the clipped image's lightness and the unclipped image's hue, with the chroma
+scaled to the clipped chroma's size, where any channel exceeds 1 — dcraw's
+``-H 2``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ _TRANS = torch.tensor(HIGHLIGHT_TRANSFORM, dtype=torch.float64)
 
 
 def handle_highlights(x: torch.Tensor, mode: str = "clip") -> torch.Tensor:
-    """Apply ``mode`` to white-balanced linear data, white = 1."""
+    """Apply ``mode`` to white-balanced linear data, white = 1: a mosaic (B, 1, H, W) of
+    any CFA or an image (B, C, H, W) for ``clip`` (values ≤ 1 out), RGB (B, 3, H, W)
+    for ``blend`` (values above 1 may remain)."""
     check_choice("highlight mode", mode, HIGHLIGHT_MODES)
     check_image(x, "image")
     if mode == "clip":

@@ -2,7 +2,10 @@
 
 ``forward`` corrects shading (multiplies by the gain); ``reverse`` divides by it,
 which adds vignetting — the unprocessing direction. The gain is evaluated at
-each pixel's own position, so on a mosaic every CFA site gets its own value.
+each pixel's own position, so on a mosaic of any CFA (Bayer, X-Trans, …) every
+site gets the value of where it lies, whatever its colour; the stage needs no
+context (strips give it their first row and the full height, ``region``).
+Values are linear, any range; nothing is clipped.
 """
 
 from __future__ import annotations
