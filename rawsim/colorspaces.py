@@ -372,6 +372,12 @@ class Encoding:
             return (1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1 / 3, 1 / 3)
         return (*(c for xy in rgb.primaries for c in xy), *rgb.white_xy)
 
+    @property
+    def neutral_xy(self) -> tuple[float, float]:
+        """xy of the scene's neutral (OpenEXR's ``adoptedNeutral``): the space's white;
+        D65 for CIE XYZ, whose (1, 1, 1) is not neutral."""
+        return self.rgb_space.white_xy if self.rgb_space else _D65_XY
+
     def describe(self) -> str:
         """A profile description: the space, and the transfer where it is not its own."""
         title = self.rgb_space.title if self.rgb_space else "CIE XYZ (D65)"

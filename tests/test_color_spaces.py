@@ -411,6 +411,9 @@ def test_exr_chromaticities(space, tmp_path):
     if space != "xyz":
         rgb = RGB_SPACES[space]
         assert want == (*(c for xy in rgb.primaries for c in xy), *rgb.white_xy)
+    else:  # OpenEXR's XYZ, and D65 as the neutral
+        assert want == (1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1 / 3, 1 / 3)
+        assert np.allclose(spec.getattribute("adoptedNeutral"), (0.3127, 0.3290), atol=1e-7)
 
 
 # ------------------------------------------------------------------ renders

@@ -413,6 +413,8 @@ def write_image(
         spec.attribute("oiio:ColorSpace", "lin_rec709" if linear_srgb else "Linear")
         if color is not None and c >= 3:  # OpenEXR's primaries and white (xy)
             spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), color.chromaticities)
+            if color.rgb_space is None:  # XYZ: say which white is neutral
+                spec.attribute("adoptedNeutral", oiio.TypeDesc("float[2]"), color.neutral_xy)
     elif srgb:
         spec.attribute("oiio:ColorSpace", "sRGB")
     if profile is not None:
