@@ -26,7 +26,7 @@ ILLUMINANT_D65 = 21
 #: CIE XYZ of D50 as ICC.1 gives it (the profile connection space's illuminant,
 #: ICC.1:2022 7.2.16; also ROMM RGB's white, ISO 22028-2).
 XYZ_D50 = np.array([0.9642, 1.0, 0.8249], dtype=np.float64)
-#: The Bradford cone-response matrix (Lam 1985; ICC.1:2022 Annex E.3), XYZ → "sharpened" LMS.
+#: The Bradford cone-response matrix (Lam 1985; ICC.1 Annex E), XYZ → "sharpened" LMS.
 BRADFORD = np.array(
     [
         [0.8951, 0.2664, -0.1614],
@@ -120,7 +120,7 @@ def rgb_to_xyz_matrix(primaries, white) -> np.ndarray:
 
 
 def bradford_adaptation(source_white, target_white) -> np.ndarray:
-    """Bradford chromatic adaptation (ICC.1:2022 Annex E.3): the (3, 3) float64 matrix
+    """Bradford chromatic adaptation (ICC.1 Annex E): the (3, 3) float64 matrix
     taking XYZ seen under ``source_white`` to corresponding XYZ under ``target_white``
     (both (3,) XYZ, Y = 1). It maps ``source_white`` onto ``target_white`` exactly
     (to rounding); for equal whites it is the identity."""

@@ -113,11 +113,11 @@ BT2020_CURVE = ToeCurve(
     _BT2020_SLOPE * _BT2020_BETA,
     "ITU-R BT.2020-2, Table 4 (the BT.709-6 OETF)",
 )
-#: ISO 22028-2:2013 (ROMM RGB) 5.3: gamma 1.8 with a linear toe of slope 16 below
-#: Et = 16^(1.8 / (1 − 1.8)) = 1/512, where both pieces meet (1/32).
+#: ISO 22028-2:2013 (ROMM RGB): gamma 1.8 with a linear toe of slope 16 below
+#: Et = 16^(1.8 / (1 − 1.8)) = 2^-9, where both pieces meet (at 1/32).
 _ROMM_GAMMA = 1.8
 _ROMM_SLOPE = 16.0
-_ROMM_KNEE = _ROMM_SLOPE ** (_ROMM_GAMMA / (1 - _ROMM_GAMMA))
+_ROMM_KNEE = 1 / 512
 ROMM_CURVE = ToeCurve(
     "romm",
     _ROMM_GAMMA,
@@ -125,10 +125,10 @@ ROMM_CURVE = ToeCurve(
     _ROMM_SLOPE,
     _ROMM_KNEE,
     _ROMM_SLOPE * _ROMM_KNEE,
-    "ISO 22028-2:2013 (ROMM RGB), 5.3",
+    "ISO 22028-2:2013 (ROMM RGB)",
 )
-#: Adobe RGB (1998) Color Image Encoding, version 2005-05, 4.3.1.2: a pure power law
-#: of exponent 563/256 (exact in ICC's s15Fixed16 numbers).
+#: Adobe RGB (1998) Color Image Encoding, version 2005-05: a pure power law of
+#: exponent 563/256 ≈ 2.2 (exact in ICC's s15Fixed16 numbers), no linear toe.
 ADOBE_RGB_GAMMA = 563 / 256
 
 #: Transfer name → its toe curve.
@@ -189,7 +189,7 @@ class TransferSpec:
         return _TRANSFER_CODES.get(self.kind)
 
     def describe(self) -> str:
-        """A short English name: "the sRGB curve", "gamma 2.2", "linear"."""
+        """A short English name: "sRGB curve", "gamma 2.2", "linear"."""
         if self.kind == "gamma":
             return f"gamma {self.gamma:g}"
         names = {"srgb": "sRGB curve", "bt2020": "BT.2020 curve", "romm": "ROMM curve"}
