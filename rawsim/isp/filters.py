@@ -63,14 +63,33 @@ def _normalised(weight: Callable[[int, int], float], offsets: Offsets) -> list[f
     return [v / total for v in values]
 
 
+def _range_weight(values: torch.Tensor, sites: torch.Tensor, sigma_color: float) -> torch.Tensor:
+    """The bilateral filter's weight of neighbour ``values`` against ``sites``."""
+    return torch.exp(-((values - sites) ** 2) / (2 * sigma_color**2))
+
+
 def _bilateral(
     sites: torch.Tensor, values: torch.Tensor, spatial: torch.Tensor, sigma_color: float
 ) -> torch.Tensor:
     """Bilateral mean of ``values`` (N, …) around ``sites`` (…), spatial weights (N,)."""
-    w = spatial.reshape(-1, *([1] * sites.ndim)).to(sites) * torch.exp(
-        -((values - sites) ** 2) / (2 * sigma_color**2)
+    w = spatial.reshape(-1, *([1] * sites.ndim)).to(sites) * _range_weight(
+        values, sites, sigma_color
     )
     return (w * values).sum(0) / w.sum(0)
+
+
+def _site_bilateral(spatial: Callable[[int, int], float], sigma_color: float):
+    """A :func:`~rawsim.isp.planes.per_site` filter: the bilateral mean, summed tap by tap
+    (the same bits whatever the image's size, so strips equal the whole)."""
+
+    def mean(sites, values, offsets):
+        pairs = list(zip(values, offsets, strict=True))
+        w = [_range_weight(v, sites, sigma_color) * spatial(*d) for v, d in pairs]
+        ones = [1.0] * len(w)
+        weighted = [wk * v for wk, (v, _) in zip(w, pairs, strict=True)]
+        return weighted_sum(weighted, ones) / weighted_sum(w, ones)
+
+    return mean
 
 
 def _weighted_mean(weight: Callable[[int, int], float]):
@@ -127,12 +146,7 @@ def denoise(
         weight = _gaussian(sigma)
         if method == "gaussian":
             return per_site(x, cfa, plane_radius(kernel), _weighted_mean(weight))
-
-        def site_bilateral(sites, values, offsets):
-            spatial = torch.tensor([weight(dy, dx) for dy, dx in offsets], dtype=torch.float64)
-            return _bilateral(sites, torch.stack(values), spatial, sigma_color)
-
-        return per_site(x, cfa, plane_radius(kernel), site_bilateral)
+        return per_site(x, cfa, plane_radius(kernel), _site_bilateral(weight, sigma_color))
     spatial = gaussian_kernel(sigma, kernel)
     if method == "gaussian":
         return _planes(x, cfa, lambda p: correlate(p, spatial))

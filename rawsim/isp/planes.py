@@ -71,7 +71,8 @@ def same_colour_offsets(cfa: CFA, radius: int, centre: bool) -> tuple[Offsets, .
             if len(found) < 1 + centre:
                 raise ParameterError(
                     f"the {cfa.name} pattern has no other {letters[colour]} site within "
-                    f"{radius} pixels of its site ({a}, {b}): a larger window reaches one"
+                    f"{radius} pixels of its site ({a}, {b}): a filter of this window "
+                    "cannot act on it with its own colour"
                 )
             table.append(found)
     return tuple(table)
