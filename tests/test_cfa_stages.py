@@ -4,6 +4,7 @@ and the one line (or the render) rawsim gives for it."""
 
 import json
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -332,6 +333,8 @@ def _refused(path, *fragments):
     message = str(caught.value)
     for text in (str(path), "Rawsim Odd Cam", *fragments, "render it with LibRaw"):
         assert text in message, message
+    copy = pickle.loads(pickle.dumps(caught.value))  # as worker processes pass it on
+    assert str(copy) == message and copy.facts == caught.value.facts
     out = path.parent / "out"
     done = CliRunner().invoke(cli, ["process", str(path), "-o", str(out)])
     assert done.exit_code == 1, done.output

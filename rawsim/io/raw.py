@@ -166,7 +166,8 @@ class RawFacts:
 
     @property
     def camera(self) -> str:
-        """ "make model" without repeating the make, or "unknown camera"."""
+        """The camera as messages name it: the make (once) and the model, or
+        "unknown camera"."""
         return _camera_text(self.make, self.model)
 
     @property
@@ -199,6 +200,9 @@ class UnrenderableRawError(UnsupportedInputError):
     def __init__(self, facts: RawFacts) -> None:
         super().__init__(facts.message)
         self.facts = facts
+
+    def __reduce__(self):  # pickled (worker processes) with its facts, not its message
+        return type(self), (self.facts,)
 
 
 def _camera_text(make: str, model: str) -> str:
