@@ -249,13 +249,15 @@ class BlackLevelStage(Stage):
 
 @dataclass(frozen=True)
 class DeadPixelStage(Stage):
-    """Soft correction of pixels far from their colour plane's neighbours."""
+    """Soft correction of pixels far from their same-colour neighbours (any CFA)."""
 
     name: ClassVar[str] = "dead_pixel"
     on_by_default: ClassVar[bool] = False
     mosaic_only: ClassVar[bool] = True
-    threshold: float = _param(0.1, _number(1e-6), "deviation from the neighbours' mean (white = 1)")
-    kernel: int = _param(3, _choice((3, 5)), "neighbourhood size within the colour plane")
+    threshold: float = _param(
+        0.1, _number(1e-6), "deviation from the same-colour neighbours' median (white = 1)"
+    )
+    kernel: int = _param(3, _choice((3, 5)), "window in plane pixels (2 mosaic pixels), any CFA")
     temperature: float = _param(0.01, _number(1e-6), "width of the soft decision")
 
 
@@ -273,7 +275,7 @@ class LensShadingStage(Stage):
 
 @dataclass(frozen=True)
 class AntiAliasingStage(Stage):
-    """Per-plane blur of the mosaic."""
+    """Blur of the mosaic, each colour with its own sites (any CFA)."""
 
     name: ClassVar[str] = "anti_aliasing"
     on_by_default: ClassVar[bool] = False
