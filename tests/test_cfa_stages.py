@@ -490,3 +490,14 @@ def test_calibrate_refuses_an_unrenderable_raw_in_one_line(tmp_path):
     assert done.exit_code != 0
     assert "filters of 4 colours" in done.output and "internal error" not in done.output
     assert not (tmp_path / "p.json").exists()
+
+
+def test_unusable_levels_are_refused_with_their_fix(tmp_path):
+    info = DngInfo(CFA("RGGB"), 1000, 1000, np.eye(3).tolist(), (1, 1, 1), "Rawsim", "L", "L", 100)
+    write_dng(tmp_path / "levels.dng", np.full((32, 32), 1000, np.uint16), info)
+    with pytest.raises(UnrenderableRawError, match="white level 1000 is not above its black"):
+        read_raw(tmp_path / "levels.dng")
+    shown = CliRunner().invoke(cli, ["info", str(tmp_path / "levels.dng")])
+    assert "no — its white level 1000 is not above its black level; correct its levels" in (
+        shown.output
+    )

@@ -580,10 +580,11 @@ def read_raw(path: str | Path) -> RawImage:
             else np.asarray(cfa.colors).reshape(cfa.period)
         )
         black_level = black[site_colour]
+    levels = "correct its levels (a DNG's BlackLevel and WhiteLevel tags)"
     if not np.isfinite(white) or not np.isfinite(black_level).all():
-        raise refuse("its black or white level is not a number")
+        raise refuse("its black or white level is not a number", levels)
     if not white > float(np.max(black_level)):
-        raise refuse(f"its white level {white:g} is not above its black level")
+        raise refuse(f"its white level {white:g} is not above its black level", levels)
 
     if mono:  # no colour: no matrix, no white balance
         xyz_out = cam_srgb_out = None
