@@ -57,8 +57,9 @@ def unprocess(
         images: (B, 3, H, W) on any device: integer codes (uint8/uint16/int32, with
             ``code_max`` the full-scale code) or floats, display-referred in [0, 1]
             unless ``display_referred`` is False (then scene-linear).
-        sensor: an :class:`~rawsim.sensors.RGBSensor` (Bayer mosaic) or a
-            :class:`~rawsim.sensors.MonoSensor` (grey).
+        sensor: an :class:`~rawsim.sensors.RGBSensor` (a mosaic in its CFA: Bayer,
+            X-Trans or any periodic layout, e.g. ``RGBSensor(profile, cfa="XTRANS")``)
+            or a :class:`~rawsim.sensors.MonoSensor` (grey).
         seeds: one int per sample. Sample i is bit for bit what the files job
             writes for a file whose seed is ``seeds[i]`` (see :func:`file_seed`),
             on the same device.
@@ -186,7 +187,7 @@ def process(
         raw = RawImage(
             data=np.empty((0, 0, 1) if mono else (0, 0), dtype=np.uint16),
             cfa=None if mono else p.cfa,
-            black_level=np.full((1,) if mono else (2, 2), p.black_level),
+            black_level=np.full((1,) if mono else p.cfa.period, p.black_level),
             white_level=p.white_level,
             as_shot_wb=None if mono else tuple(params["wb_gains"]),
             daylight_wb=None,

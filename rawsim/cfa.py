@@ -177,6 +177,25 @@ class CFA:
         green_b = next(s for s, col in sites.items() if col == "G" and s[0] == blue[0])
         return (red, green_r, green_b, blue)
 
+    @cached_property
+    def phase_sites(self) -> tuple[tuple[int, int], ...]:
+        """(row, col) of every site of one period: phase plane i is ``m[r::ph, c::pw]``
+        for the i-th (r, c). For Bayer the R, Gr, Gb, B sites (:attr:`packed_sites`,
+        the order of :meth:`pack`); otherwise all ph·pw sites, row-major."""
+        if self.is_bayer:
+            return self.packed_sites
+        ph, pw = self.period
+        return tuple((r, c) for r in range(ph) for c in range(pw))
+
+    @cached_property
+    def phase_channels(self) -> tuple[str, ...]:
+        """The colour channel of each of :attr:`phase_sites`: ``R``, ``Gr``, ``Gb``, ``B``
+        for Bayer (:data:`PACKED_PLANES`), the site's letter (``R``, ``G``, ``B``)
+        otherwise, so phase planes of one colour share a name (X-Trans: 8 R, 20 G, 8 B)."""
+        if self.is_bayer:
+            return PACKED_PLANES
+        return tuple(self.rows[r][c] for r, c in self.phase_sites)
+
     def tile(self, values: torch.Tensor) -> torch.Tensor:
         """Lay per-colour ``values`` (..., 3) out on one period: returns (..., 1, ph, pw)."""
         import torch

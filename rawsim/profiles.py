@@ -11,14 +11,14 @@ from __future__ import annotations
 import difflib
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rawsim.cfa import BAYER_PATTERNS, CFA
+from rawsim.cfa import CFA
 from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
@@ -69,9 +69,11 @@ SEED_KEYS = (
 class SensorProfile:
     """A camera sensor: CFA, levels (DN), colour, ISO range and noise.
 
-    ``xyz_to_camera`` is the D65 XYZ → camera matrix (DNG ColorMatrix);
-    ``white_balance`` the daylight gains (R, G, B) with G = 1; ``ccm_bias`` the
-    bias row of a seed 4×3 colour matrix (camera → sRGB), if any.
+    ``cfa`` is any periodic R/G/B layout: a 2×2 Bayer pattern, X-Trans (6×6) or
+    rows such as ``"GRG/BGB/GRG"`` (the ``cfa_pattern`` key takes the same
+    strings as :class:`~rawsim.cfa.CFA`). ``xyz_to_camera`` is the D65 XYZ → camera
+    matrix (DNG ColorMatrix); ``white_balance`` the daylight gains (R, G, B) with
+    G = 1; ``ccm_bias`` the bias row of a seed 4×3 colour matrix (camera → sRGB), if any.
     """
 
     name: str
@@ -94,6 +96,16 @@ class SensorProfile:
     path: str | None = None
     #: Why the profile is not to be trusted (``rawsim calibrate --force``); empty if it is.
     unreliable: tuple[str, ...] = ()
+
+    def with_cfa(self, cfa: CFA | str) -> SensorProfile:
+        """This profile with another CFA layout (e.g. ``"XTRANS"`` for a Bayer profile):
+        levels, colour and noise stay; ``source["cfa_pattern"]`` records the change.
+        A string that is no valid layout raises :class:`ParameterError`."""
+        cfa = cfa if isinstance(cfa, CFA) else CFA(cfa)
+        if cfa == self.cfa:
+            return self
+        note = f"set to {cfa.name} by the user; the profile's own layout is {self.cfa.name}"
+        return replace(self, cfa=cfa, source={**self.source, "cfa_pattern": note})
 
     def check_iso(self, iso: float) -> float:
         """Return ``iso`` if the profile allows it, else raise a clear error."""
@@ -275,15 +287,11 @@ class _Reader:
         return value
 
     def cfa(self, key: str) -> CFA:
+        """A Bayer name, ``XTRANS``, or any periodic R/G/B layout as rows (see :class:`CFA`)."""
         try:
-            cfa = CFA(self.string(key))
+            return CFA(self.string(key))
         except ParameterError as err:
             self.fail(key, str(err))
-        if not cfa.is_bayer:  # the unprocess pipeline mosaics 2×2 Bayer patterns only
-            self.fail(
-                key, f"{cfa.name} is not supported yet; use one of {', '.join(BAYER_PATTERNS)}"
-            )
-        return cfa
 
     def curve(self, key: str, kind: str):
         model = self.string(f"{key}.model")

@@ -4,7 +4,9 @@ The sensors chain the ISP stages of :mod:`rawsim.isp` and the noise models of
 :mod:`rawsim.noise.models`; they hold no random state: randomness comes in as a
 ``torch.Generator`` and sampled values as :class:`~rawsim.params.UnprocessParams`.
 
-Shapes: images (B, 3, H, W), mosaics (B, 1, H, W) with H, W even.
+Shapes: images (B, 3, H, W), mosaics (B, 1, H, W) with H, W even. A mosaic
+follows the sensor's CFA: a 2×2 Bayer pattern, X-Trans (6×6) or any periodic
+R/G/B layout, anchored at the top-left pixel.
 """
 
 from __future__ import annotations
@@ -92,9 +94,10 @@ class ProfileSensor(Sensor):
         self.profile = profile
 
     @classmethod
-    def from_profile(cls, name_or_path):
-        """Build from a bundled profile name or a profile JSON path."""
-        return cls(load_profile(name_or_path))
+    def from_profile(cls, name_or_path, **kwargs):
+        """Build from a bundled profile name or a profile JSON path (``kwargs`` go to
+        the constructor, e.g. ``cfa="XTRANS"`` for an :class:`RGBSensor`)."""
+        return cls(load_profile(name_or_path), **kwargs)
 
     @classmethod
     def from_config(cls, config):
@@ -165,7 +168,16 @@ class ProfileSensor(Sensor):
 
 
 class RGBSensor(ProfileSensor):
-    """A Bayer sensor described by a :class:`~rawsim.profiles.SensorProfile`."""
+    """A colour sensor described by a :class:`~rawsim.profiles.SensorProfile`.
+
+    Its mosaic follows the profile's CFA, or ``cfa`` when given: a :class:`CFA`
+    or its string (``"RGGB"``, ``"XTRANS"``, rows such as ``"GRG/BGB/GRG"``), which
+    replaces the profile's layout and keeps its levels, colour and noise
+    (:meth:`~rawsim.profiles.SensorProfile.with_cfa`).
+    """
+
+    def __init__(self, profile: SensorProfile, cfa: CFA | str | None = None) -> None:
+        super().__init__(profile if cfa is None else profile.with_cfa(cfa))
 
     @property
     def cfa(self) -> CFA:
@@ -206,14 +218,16 @@ class RGBSensor(ProfileSensor):
     ) -> torch.Tensor:
         """Camera RGB (B, 3, H, W) → clean mosaic in DN (B, 1, H, W), unrounded.
 
-        Mosaics in the profile's CFA pattern, adds vignetting if ``params.vignetting``
+        Mosaics in the sensor's CFA (any period), adds vignetting if ``params.vignetting``
         (``shading`` overrides the radial gain map, e.g. a strip of a larger one),
         and scales [0, 1] to [black, white]. Not clipped: see :meth:`simu_noise`.
         """
         return self._to_dn(self.cfa.mosaic(camera_rgb), params, shading)
 
     def bayer2rggb(self, dn: torch.Tensor) -> torch.Tensor:
-        """Mosaic DN (B, 1, H, W) → normalised planes (B, 4, H/2, W/2) in R, Gr, Gb, B order."""
+        """Mosaic DN (B, 1, H, W) → normalised planes (B, 4, H/2, W/2) in R, Gr, Gb, B order.
+
+        Bayer CFAs only (:meth:`~rawsim.cfa.CFA.pack`); other layouts raise."""
         return self.cfa.pack(normalize_levels(dn, self.black_level, self.white_level))
 
     def rggb2bayer(self, planes: torch.Tensor) -> torch.Tensor:

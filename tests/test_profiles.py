@@ -80,7 +80,7 @@ def test_user_profile_by_path(tmp_path, sony_json):
         (lambda d: d.pop("black_level"), "black_level"),
         (lambda d: d.update(white_level="high"), "white_level"),
         (lambda d: d.update(white_level=100), "white_level"),
-        (lambda d: d.update(cfa_pattern="XTRANS"), "cfa_pattern"),
+        (lambda d: d.update(cfa_pattern="RG/GR"), "cfa_pattern"),  # no blue
         (lambda d: d.update(xyz_to_camera=[[1, 0], [0, 1]]), "xyz_to_camera"),
         (lambda d: d["noise"]["gain"].update(model="cubic"), "noise.gain.model"),
         (lambda d: d["noise"]["row_sigma"].pop("bias"), "noise.row_sigma.bias"),

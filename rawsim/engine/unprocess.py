@@ -9,6 +9,10 @@ rounding and saturation → uint16. The torch reference of each stage is in
 :func:`rawsim.noise.models.noise_field`, drawn here by :func:`noise_row` from the same
 counter-based generator, bit for bit. Arithmetic is float64 (the reference runs
 in float32), so the clean codes agree with the reference within one code.
+
+Any periodic CFA (2×2 Bayer, 6×6 X-Trans, …): the colour and the channel bias of
+each site come from one period's tiles, laid along the rows once per image
+(:func:`site_rows`).
 """
 
 from __future__ import annotations
@@ -68,10 +72,25 @@ def noise_tables(levels) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(**_JIT)
-def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
+def site_rows(tile, width):
+    """A (ph, pw) per-site tile (one CFA period) laid along rows ``width`` wide:
+    (ph, width), entry [i, x] = tile[i, x % pw]; row y of an image reads entry
+    ``y % ph``. Built once per image, so the row loops read one value per site
+    (no division) for any period."""
+    ph, pw = tile.shape
+    out = np.empty((ph, width), tile.dtype)
+    for i in range(ph):
+        for x in range(width):
+            out[i, x] = tile[i, x % pw]
+    return out
+
+
+@njit(**_JIT)
+def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_rows, white, out):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
     into codes ``out`` (w,), with ``tukey``, ``poisson`` the model's
-    :func:`noise_tables`: the compiled
+    :func:`noise_tables` and ``bias_rows`` the channel bias of each site
+    (:func:`site_rows` of the (ph, pw) bias tile): the compiled
     :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the reference's
     ``noise_field``: same operations, same order).
 
@@ -94,7 +113,8 @@ def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_tile, white, 
         else:
             _shot_noise(dn, first, model == 3, p, poisson, k0, k1, z, noise)
         if model == 3:
-            _physics_read_noise(y, first, p, tukey, k0, k1, bias_tile[y % 2], noise)
+            bias = bias_rows[y % bias_rows.shape[0]]
+            _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise)
     for x in range(w):
         out[x] = min(max(np.rint(dn[x] + noise[x]), 0.0), white)
 
@@ -129,22 +149,22 @@ def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
 @njit(**_JIT)
 def _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise):
     """The physics model's Tukey-lambda read noise, row noise and channel bias
-    (``bias``: the row's two sites of the CFA tile), added to ``noise``."""
+    (``bias``: (w,), each site's of the row), added to ``noise``."""
     t = np.empty(noise.size)
     tukey_lambda_row(first, k0, k1, tukey, t)
     read = p[N_READ]
     row_noise = p[N_ROW] * normal(np.uint64(y), ROW, k0, k1)
-    even, odd = bias[0], bias[1]
     for x in range(noise.size):
         v = (noise[x] + read * t[x]) + row_noise
-        noise[x] = v + (odd if x & 1 else even)
+        noise[x] = v + bias[x]
 
 
 @njit(**_JIT)
 def add_noise_rows(dn, top, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
-    image ``width`` wide, into ``out`` (h, w); for the equality tests."""
-    noise = (model, p, tukey, poisson, k0, k1, bias_tile, white)
+    image ``width`` wide, into ``out`` (h, w), with ``bias_tile`` the (ph, pw) channel
+    bias of one CFA period; for the equality tests."""
+    noise = (model, p, tukey, poisson, k0, k1, site_rows(bias_tile, width), white)
     for y in range(dn.shape[0]):
         noise_row(dn[y].astype(np.float64), top + y, width, *noise, out[y])
 
@@ -167,15 +187,14 @@ def _linear_row(pixels, lut, scale, ccm_bias, r, g, b):
 @njit(**_JIT)
 def _camera_row(r, g, b, colors, matrix, wb, safe, threshold, out):
     """Each site's camera channel, white balance inverted, into ``out`` (w,): the
-    channel of column x is ``colors[x % 2]``. Brooks's safe inverse blends above
-    ``threshold`` of the grey level."""
+    channel of column x is ``colors[x]`` (the row of :func:`site_rows` of the CFA's
+    colours). Brooks's safe inverse blends above ``threshold`` of the grey level."""
     m = matrix
-    even, odd = colors[0], colors[1]
     for x in range(r.size):
         cam0 = m[0, 0] * r[x] + m[0, 1] * g[x] + m[0, 2] * b[x]
         cam1 = m[1, 0] * r[x] + m[1, 1] * g[x] + m[1, 2] * b[x]
         cam2 = m[2, 0] * r[x] + m[2, 1] * g[x] + m[2, 2] * b[x]
-        c = odd if x & 1 else even
+        c = colors[x]
         v = cam0 if c == 0 else (cam1 if c == 1 else cam2)
         gain = wb[0] if c == 0 else (wb[1] if c == 1 else wb[2])
         if safe:
@@ -231,10 +250,12 @@ def unprocess_kernel(
         matrix: (3, 3) sRGB → camera. ``wb``: (3,) white-balance gains.
         safe: Brooks's highlight-preserving inverse, blending above ``threshold``.
         mono: grey sensor (mean of RGB; no matrix or white balance).
-        colors: (2, 2) colour index of each site of the CFA tile.
+        colors: (ph, pw) colour index (R=0, G=1, B=2) of each site of one CFA
+            period, laid from the top-left pixel: 2×2 Bayer, 6×6 X-Trans, any period.
         vignetting: (strength, k1, k2, k3); no shading when strength is 0.
         levels: (black, white) DN.
-        model, p, tukey, poisson, k0, k1, bias_tile: the noise (see :func:`noise_row`).
+        model, p, tukey, poisson, k0, k1: the noise (see :func:`noise_row`).
+        bias_tile: (ph, pw) channel bias (DN) of each site of one period (physics model).
         noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
@@ -244,6 +265,8 @@ def unprocess_kernel(
     strength = vignetting[0]
     cy, cx = (h - 1) / 2.0, (w - 1) / 2.0
     norm = cy * cy + cx * cx
+    site_colors, bias_rows = site_rows(colors, w), site_rows(bias_tile, w)
+    period = site_colors.shape[0]
     for y in prange(h):
         r, g, b, dn = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
         _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
@@ -251,11 +274,11 @@ def unprocess_kernel(
             for x in range(w):
                 dn[x] = (r[x] + g[x] + b[x]) / 3.0
         else:
-            _camera_row(r, g, b, colors[y % 2], matrix, wb, safe, threshold, dn)
+            _camera_row(r, g, b, site_colors[y % period], matrix, wb, safe, threshold, dn)
         if strength > 0.0:
             _vignetting_row(y, cy, cx, norm, vignetting, dn)
         for x in range(w):
             dn[x] = black + dn[x] * span
         if want_clean:
-            noise_row(dn, y, w, 0, p, tukey, poisson, k0, k1, bias_tile, white, clean[y])
-        noise_row(dn, y, w, model, p, tukey, poisson, k0, k1, bias_tile, white, noisy[y])
+            noise_row(dn, y, w, 0, p, tukey, poisson, k0, k1, bias_rows, white, clean[y])
+        noise_row(dn, y, w, model, p, tukey, poisson, k0, k1, bias_rows, white, noisy[y])

@@ -138,7 +138,8 @@ class NoiseSpec:
 
     ``gain`` K(ISO) and the Gaussian ``read_sigma`` serve ``poisson-gaussian``; the
     physics model adds ``tukey_sigma`` (scale of the Tukey-lambda read noise),
-    ``tukey_lambda``, ``row_sigma`` and ``channel_bias`` (DN, R, Gr, Gb, B);
+    ``tukey_lambda``, ``row_sigma`` and ``channel_bias`` (DN, R, Gr, Gb, B; the G
+    sites of a non-Bayer layout take the mean of Gr and Gb, see :func:`bias_tile`);
     ``gaussian`` holds the seed model. ``spread`` is the σ of ln σ when noise
     levels are sampled (:meth:`sample_levels`).
     """
@@ -379,9 +380,9 @@ def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: 
             function of (key, pixel index ``y · w + x``), from
             :mod:`rawsim.noise.reference`, so the result does not depend on how the
             image is cut into strips or batches, nor on the device.
-        cfa: the mosaic's :class:`~rawsim.cfa.CFA`, to place a non-zero
-            ``channel_bias`` (physics model); None for a monochrome sensor, which
-            gets the mean of the four biases.
+        cfa: the mosaic's :class:`~rawsim.cfa.CFA` (any layout), to place a non-zero
+            ``channel_bias`` (physics model; see :func:`bias_tile`); None for a
+            monochrome sensor, which gets the mean of the four biases.
         top: the first row's index in the image.
 
     Returns:
@@ -412,15 +413,36 @@ def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: 
     return dn.double() + noise
 
 
-def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
-    """(h, w) float64 channel bias of each site, or None when there is none."""
+def bias_tile(levels: NoiseLevels, cfa, device="cpu"):
+    """The channel bias of each site of one CFA period: (ph, pw) float64, or None when
+    there is none, or a number for a monochrome sensor (``cfa`` None: the mean of the
+    four biases).
+
+    ``channel_bias`` is (R, Gr, Gb, B) DN. A Bayer pattern places the four at its
+    R, Gr, Gb and B sites; any other layout (X-Trans) has no Gr/Gb distinction, so
+    its R and B sites get those biases and every G site the mean of Gr and Gb.
+    """
     if levels.model != "physics" or not any(levels.channel_bias):
         return None
     if cfa is None:  # monochrome: one mean offset
         return sum(levels.channel_bias) / len(levels.channel_bias)
-    bias = torch.tensor(levels.channel_bias, dtype=torch.float64, device=device)
-    tile = cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
-    return tile.roll(top % 2, 0).repeat(h // 2 + 1, w // 2)[:h]
+    r, gr, gb, b = levels.channel_bias
+    if cfa.is_bayer:
+        bias = torch.tensor(levels.channel_bias, dtype=torch.float64, device=device)
+        return cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
+    per_colour = torch.tensor([r, (gr + gb) / 2, b], dtype=torch.float64, device=device)
+    return cfa.tile(per_colour)[0]
+
+
+def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
+    """(h, w) float64 channel bias of rows ``top`` … ``top + h`` (the tile of
+    :func:`bias_tile` laid from the image's top-left site), a number for a
+    monochrome sensor, or None when there is none."""
+    tile = bias_tile(levels, cfa, device)
+    if tile is None or cfa is None:
+        return tile
+    ph, pw = tile.shape
+    return tile.roll(-(top % ph), 0).repeat(-(-h // ph) + 1, -(-w // pw))[:h, :w]
 
 
 def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Tensor:

@@ -1,8 +1,11 @@
-"""Unprocessing: an sRGB or scene-linear image → a noisy Bayer mosaic (and a clean one).
+"""Unprocessing: an sRGB or scene-linear image → a noisy CFA mosaic (and a clean one).
 
+The mosaic follows the profile's CFA: a 2×2 Bayer pattern, Fujifilm's 6×6
+X-Trans or any periodic R/G/B layout (:class:`~rawsim.cfa.CFA`).
 :func:`unprocess_tensor` is the tensor core, used by the files job here and by
 the Python API. It runs the sensor's stages over strips of
-:data:`STRIP_ROWS` rows, so that temporaries stay small and cache-resident. The
+:data:`STRIP_ROWS` rows (whole CFA periods: 126 for X-Trans), so that
+temporaries stay small and cache-resident. The
 noise is drawn per pixel from a counter-based generator (:mod:`rawsim.noise.reference`),
 so any strip height, device, job count or run split gives the same bits.
 Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
@@ -29,13 +32,15 @@ from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
 from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
-from rawsim.noise.models import NOISE_MODELS, NoiseLevels, site_bias
+from rawsim.noise.models import NOISE_MODELS, NoiseLevels, bias_tile
 from rawsim.noise.seeds import derive_seed
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
 from rawsim.sensors import MonoSensor, ProfileSensor, RGBSensor, display_to_linear
 
 STRIP_ROWS = 128
+#: ``planes`` of an npz whose mosaic is kept whole, (1, H, W): a CFA that is not Bayer.
+MOSAIC_PLANE = "CFA"
 INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
 SENSOR_KINDS = ("rgb", "mono")
 
@@ -100,8 +105,8 @@ def unprocess_tensor(
         clean: also return the noise-free mosaic.
 
     Returns:
-        ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a Bayer
-        mosaic for an :class:`RGBSensor`, grey for a :class:`MonoSensor`),
+        ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a mosaic
+        in the sensor's CFA for an :class:`RGBSensor`, grey for a :class:`MonoSensor`),
         ``clean`` None unless asked for. Not differentiable (see
         :func:`rawsim.api.unprocess` for gradients).
     """
@@ -130,12 +135,20 @@ def unprocess_tensor(
     return noisy, clean_out
 
 
+def strip_rows(sensor: ProfileSensor) -> int:
+    """Rows of a reference strip: :data:`STRIP_ROWS` cut to whole CFA periods, so that
+    each strip's mosaic starts on the period's first row (128 for Bayer, 126 for
+    X-Trans)."""
+    period = 1 if isinstance(sensor, MonoSensor) else sensor.cfa.period[0]
+    return STRIP_ROWS - STRIP_ROWS % period
+
+
 def _run_strips(
     sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out
 ) -> None:
-    h = image.shape[-2]
-    for top_row in range(0, h, STRIP_ROWS):
-        rows = slice(top_row, top_row + STRIP_ROWS)
+    h, step = image.shape[-2], strip_rows(sensor)
+    for top_row in range(0, h, step):
+        rows = slice(top_row, top_row + step)
         strip = image[:, :, rows]
         if lut is not None:  # index_select with int32 indices is the fastest gather
             linear = lut.index_select(0, strip.reshape(-1).int()).view(strip.shape)
@@ -174,8 +187,9 @@ def engine_unprocess(
         pixels = display_to_linear(torch.from_numpy(pixels), params.tone, params.transfer).numpy()
     mono = isinstance(sensor, MonoSensor)
     h, w = pixels.shape[:2]
-    bias = site_bias(noise, None if mono else sensor.cfa, 0, 2, 2, "cpu")
-    bias_tile = np.zeros((2, 2)) + (0.0 if bias is None else np.asarray(bias, np.float64))
+    period = (2, 2) if mono else sensor.cfa.period
+    bias = bias_tile(noise, None if mono else sensor.cfa)
+    bias = np.zeros(period) + (0.0 if bias is None else np.asarray(bias, np.float64))
     noisy = np.empty((h, w), np.uint16)
     clean_out = np.empty((h, w) if clean else (0, 0), np.uint16)
     kernels.unprocess_kernel(
@@ -188,14 +202,14 @@ def engine_unprocess(
         params.safe_white_balance,
         SAFE_WB_THRESHOLD,
         mono,
-        np.zeros((2, 2), np.int64) if mono else np.array(sensor.cfa.colors).reshape(2, 2),
+        np.zeros(period, np.int64) if mono else np.array(sensor.cfa.colors).reshape(period),
         np.array([params.vignetting, *DEFAULT_K], np.float64),
         np.array([sensor.black_level, sensor.white_level], np.float64),
         kernels.MODEL_CODES[noise.model],
         kernels.noise_vector(noise, sensor.black_level),
         *kernels.noise_tables(noise),
         *np_key(key),
-        bias_tile,
+        bias,
         noisy,
         clean_out,
     )
@@ -221,8 +235,9 @@ class UnprocessOptions:
         safe_white_balance: highlight-preserving inverse white balance.
         device: ``cpu``, ``cuda`` or ``auto``.
         seed: the run's seed (recorded in the sidecar).
-        sensor: ``rgb`` (the profile's Bayer CFA) or ``mono`` (no filter, the
-            profile's levels and noise).
+        sensor: ``rgb`` (the profile's CFA: Bayer, X-Trans or any periodic layout;
+            :meth:`~rawsim.profiles.SensorProfile.with_cfa` gives a profile another)
+            or ``mono`` (no filter, the profile's levels and noise).
     """
 
     profile: SensorProfile
@@ -240,6 +255,16 @@ class UnprocessOptions:
     device: str = "cpu"
     seed: int = 0
     sensor: str = "rgb"
+
+    def with_cfa(self, cfa: str | None) -> UnprocessOptions:
+        """These options with the profile's CFA replaced by ``cfa`` (``--cfa``: a Bayer
+        name, ``XTRANS`` or rows); None keeps it. Raises :class:`ParameterError` for
+        a layout :class:`~rawsim.cfa.CFA` refuses, or with the ``mono`` sensor."""
+        if cfa is None:
+            return self
+        if self.sensor == "mono":
+            raise ParameterError(f"a CFA ({cfa}) needs the rgb sensor: mono has no colour filter")
+        return replace(self, profile=self.profile.with_cfa(cfa))
 
     def make_sensor(self) -> ProfileSensor:
         """The sensor simulated: :class:`RGBSensor` or :class:`MonoSensor`."""
@@ -390,18 +415,8 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         if "clean_dng" in tmp:
             write_dng(tmp["clean_dng"], clean_np, replace(info, noise_profile=None))
         if "npz" in tmp:
-            mono = options.sensor == "mono"
-            pack = (lambda m: m[None]) if mono else (lambda m: _pack(options.profile.cfa, m))
-            arrays = {"mosaic": pack(noisy_np)}
-            if clean_np is not None:
-                arrays["clean"] = pack(clean_np)
             with open(tmp["npz"], "wb") as fh:
-                np.savez(
-                    fh,
-                    **arrays,
-                    planes=np.array(["Y"] if mono else PACKED_PLANES),
-                    metadata=np.array(json.dumps(metadata)),
-                )
+                np.savez(fh, **npz_arrays(options, noisy_np, clean_np, metadata))
         tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     return metadata
 
@@ -415,6 +430,41 @@ def _iso_warning(options: UnprocessOptions) -> list[str]:
         f"ISO {iso:g} is written as {round(iso)} in the DNG (an integer tag); "
         f"the sidecar keeps {iso:g}"
     ]
+
+
+def npz_planes(options: UnprocessOptions) -> tuple[str, ...]:
+    """The names of the npz mosaic's planes (its axis 0): ``R, Gr, Gb, B`` for a Bayer
+    CFA, :data:`MOSAIC_PLANE` for any other (the whole mosaic), ``Y`` for mono."""
+    if options.sensor == "mono":
+        return ("Y",)
+    return PACKED_PLANES if options.profile.cfa.is_bayer else (MOSAIC_PLANE,)
+
+
+def npz_arrays(
+    options: UnprocessOptions, noisy: np.ndarray, clean: np.ndarray | None, metadata: dict
+) -> dict[str, np.ndarray]:
+    """The arrays of ``<stem>.npz``, from (H, W) uint16 codes.
+
+    ``mosaic`` (and ``clean``): uint16 (4, H/2, W/2) R, Gr, Gb, B planes for a Bayer
+    CFA (:meth:`~rawsim.cfa.CFA.pack`); (1, H, W), the mosaic as the sensor records
+    it, for any other CFA and for mono. ``planes``: their names
+    (:func:`npz_planes`). A CFA that is not Bayer adds ``cfa_pattern`` (the
+    :class:`~rawsim.cfa.CFA` string, rows joined by ``/``) and ``cfa_colors``,
+    uint8 (ph, pw), the colour (R=0, G=1, B=2) of each site of one period from the
+    top-left pixel. ``metadata``: the sidecar as JSON.
+    """
+    cfa = None if options.sensor == "mono" else options.profile.cfa
+    whole = cfa is None or not cfa.is_bayer
+    arrange = (lambda m: m[None]) if whole else (lambda m: _pack(cfa, m))  # noqa: E731
+    arrays = {"mosaic": arrange(noisy)}
+    if clean is not None:
+        arrays["clean"] = arrange(clean)
+    arrays["planes"] = np.array(npz_planes(options))
+    if cfa is not None and whole:
+        arrays["cfa_pattern"] = np.array(cfa.pattern)
+        arrays["cfa_colors"] = np.array(cfa.colors, np.uint8).reshape(cfa.period)
+    arrays["metadata"] = np.array(json.dumps(metadata))
+    return arrays
 
 
 def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
@@ -467,7 +517,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         },
         "sensor": options.sensor,
         "cfa_pattern": None if options.sensor == "mono" else profile.cfa.pattern,
-        "packed_planes": ["Y"] if options.sensor == "mono" else list(PACKED_PLANES),
+        "packed_planes": list(npz_planes(options)),
         "bit_depth": profile.bit_depth,
         "black_level": profile.black_level,
         "white_level": profile.white_level,
