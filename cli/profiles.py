@@ -36,7 +36,7 @@ def list_cmd(as_json):
             {
                 "name": name,
                 "camera": f"{p.make} {p.model}",
-                "cfa": p.cfa.pattern,
+                "cfa": p.cfa.name,
                 "bits": p.bit_depth,
                 "iso_min": lo,
                 "iso_max": hi,
@@ -47,10 +47,12 @@ def list_cmd(as_json):
         return
     name_w = max(len("name"), *(len(r["name"]) for r in rows))
     camera_w = max(len("camera"), *(len(r["camera"]) for r in rows))
-    click.echo(f"{'name':<{name_w}}  {'camera':<{camera_w}}  {'cfa':<4}  {'bits':>4}  iso")
+    cfa_w = max(len("cfa"), *(len(r["cfa"]) for r in rows))
+    click.echo(f"{'name':<{name_w}}  {'camera':<{camera_w}}  {'cfa':<{cfa_w}}  {'bits':>4}  iso")
     for r in rows:
         click.echo(
-            f"{r['name']:<{name_w}}  {r['camera']:<{camera_w}}  {r['cfa']:<4}  {r['bits']:>4}  "
+            f"{r['name']:<{name_w}}  {r['camera']:<{camera_w}}  {r['cfa']:<{cfa_w}}  "
+            f"{r['bits']:>4}  "
             f"{_iso_range(r['iso_min'], r['iso_max'])}"
         )
 

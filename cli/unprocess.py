@@ -1,4 +1,4 @@
-"""``rawsim unprocess``: images → noisy Bayer DNGs."""
+"""``rawsim unprocess``: images → noisy CFA DNGs (Bayer, X-Trans, any periodic layout)."""
 
 from __future__ import annotations
 
@@ -29,9 +29,16 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
     type=click.Choice(["rgb", "mono"]),
     default="rgb",
     show_default=True,
-    help="rgb: the profile's Bayer CFA; mono: no colour filter (grey = mean of linear "
+    help="rgb: the profile's CFA (or --cfa); mono: no colour filter (grey = mean of linear "
     "R, G, B, or the profile's green spectral response), the profile's levels and noise, "
     "written as a one-sample LinearRaw DNG.",
+)
+@click.option(
+    "--cfa",
+    metavar="RGGB|BGGR|GRBG|GBRG|XTRANS|ROWS",
+    help="Mosaic in this CFA instead of the profile's, keeping its levels, colour and "
+    "noise: a Bayer name, XTRANS (Fujifilm's 6×6, written with CFARepeatPatternDim 6×6) "
+    "or rows of R/G/B joined by '/' (e.g. GRG/BGB/GRG).",
 )
 @click.option("--iso", type=float, help="ISO of every capture (within the profile's range).")
 @click.option(
@@ -54,7 +61,8 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
     type=click.Choice(["dng", "npz", "both"]),
     default="dng",
     show_default=True,
-    help="npz: packed R, Gr, Gb, B planes + metadata, for ML loaders.",
+    help="npz: packed R, Gr, Gb, B planes (Bayer) or the whole mosaic and its CFA "
+    "(other layouts) + metadata, for ML loaders.",
 )
 @click.option(
     "--noise",
@@ -109,6 +117,7 @@ def command(
     out_dir,
     profile,
     sensor_kind,
+    cfa,
     iso,
     iso_range,
     seed,
@@ -129,18 +138,21 @@ def command(
     shard,
     json_records,
 ):
-    """Turn sRGB or scene-linear images into the noisy Bayer DNGs a sensor would record.
+    """Turn sRGB or scene-linear images into the noisy raw DNGs a sensor would record.
 
     INPUTS are image files or folders (searched recursively for PNG, JPEG, TIFF,
     EXR, HDR, BMP, WebP). 8/16-bit images are display-referred: the inverse tone
     curve and the transfer are undone. Float images (EXR, HDR, float TIFF) are
     scene-linear. Then: sRGB → camera RGB through the profile's matrix, inverse
-    white balance, mosaic in the profile's CFA, optional vignetting, black/white
-    levels, noise at the ISO, rounding and saturation at the white level.
+    white balance, mosaic in the profile's CFA (or --cfa: a Bayer pattern, XTRANS
+    or any periodic R/G/B layout), optional vignetting, black/white levels, noise
+    at the ISO, rounding and saturation at the white level.
 
     Each file gives <stem>.dng (and <stem>.clean.dng with --clean, <stem>.npz with
-    --format npz|both) and <stem>.json with every parameter used. Existing outputs
-    are skipped unless --overwrite; files are written atomically.
+    --format npz|both) and <stem>.json with every parameter used. The npz holds
+    R, Gr, Gb, B planes (4, H/2, W/2) for a Bayer CFA, the whole mosaic (1, H, W)
+    with cfa_pattern and cfa_colors for any other. Existing outputs are skipped
+    unless --overwrite; files are written atomically.
 
     \b
     --randomize samples per file, as in Brooks et al. (CVPR 2019):
@@ -155,6 +167,8 @@ def command(
     \b
     Example:
       rawsim unprocess photos/ renders/ -o raw/ --profile sony_a7s2 --iso 1600 --clean
+      rawsim unprocess photos/ -o xtrans/ --profile fujifilm_xt3 --iso 3200
+      rawsim unprocess photos/ -o xt-a7s2/ --profile sony_a7s2 --cfa XTRANS --iso 800
     """
     from rawsim.device import resolve_device
     from rawsim.io.images import IMAGE_EXTENSIONS
@@ -184,7 +198,7 @@ def command(
         device=device,
         seed=seed,
         sensor=sensor_kind,
-    )
+    ).with_cfa(cfa)
     options.check_isos()
     run_files(
         ctx,

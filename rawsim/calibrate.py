@@ -1,13 +1,16 @@
 """Noise calibration: estimate a sensor's noise parameters from its own raw files.
 
 Frames are read one at a time and reduced to statistics of small blocks of their
-CFA planes (R, Gr, Gb, B), so memory does not grow with the number of frames.
-Per ISO and channel, block variance = K · mean + σ_read² + 1/12 is fitted over
-signal bins (log-spaced), by weighted least squares with outlier bins dropped,
-in two passes: the second normalises each block by the first line, so a bin's
-spread of levels does not bias it, and drops blocks within 5 σ of the white
-level (clipping lowers the variance). Every figure gets a standard error from a
-bootstrap over image regions (4×4 per frame) or, for dark frames, over bands.
+CFA's phase planes, so memory does not grow with the number of frames. A phase
+plane holds one site of the CFA period in every period (``m[r::ph, c::pw]``): R,
+Gr, Gb and B for Bayer; the 36 sites of a 6×6 X-Trans period, pooled by colour
+(8 R, 20 G, 8 B), or those of any periodic layout. Per ISO and channel, block
+variance = K · mean + σ_read² + 1/12 is fitted over signal bins (log-spaced),
+by weighted least squares with outlier bins dropped, in two passes: the second
+normalises each block by the first line, so a bin's spread of levels does not
+bias it, and drops blocks within 5 σ of the white level (clipping lowers the
+variance). Every figure gets a standard error from a bootstrap over image
+regions (4×4 per frame) or, for dark frames, over bands.
 
 * ``flat`` (photon transfer, EMVA 1288 style): flat-field frames, ideally with
   an illumination gradient or at several exposures, and optional dark frames.
@@ -50,6 +53,7 @@ from rawsim.io.raw import RawImage
 from rawsim.noise.models import QUANTIZATION_VARIANCE, tukey_lambda_variance
 
 METHODS = ("flat", "patches")
+#: The channels of a profile's ``noise.channel_bias`` (a Bayer CFA's; see :func:`_bias`).
 CHANNELS = ("R", "Gr", "Gb", "B")
 #: Tile side of the flat method and block side of the patch method (plane pixels).
 TILE = 32
@@ -106,7 +110,8 @@ class Camera:
 @dataclass
 class FrameStats:
     """One frame reduced to block statistics; arrays have shape (C, N), DN above black
-    (float32: about a tenth of the frame's size is kept per frame).
+    (float32: about a tenth of the frame's size is kept per frame), one row per
+    phase plane, ``channels`` (C,) naming each plane's colour channel.
 
     ``var`` is each block's noise variance estimate, ``row_var`` the variance of
     its rows' offsets (flat method) and ``group`` (N,) its region for the
@@ -120,6 +125,7 @@ class FrameStats:
     black: float
     white: float
     xyz_to_camera: np.ndarray | None
+    channels: tuple[str, ...]
     mean: np.ndarray
     var: np.ndarray
     row_var: np.ndarray | None
@@ -134,11 +140,13 @@ class FrameStats:
 
 @dataclass
 class DarkStats:
-    """A dark frame per channel: bias, and read and row variance per horizontal band (C, B)."""
+    """A dark frame per phase plane (``channels`` names each plane's colour): bias, and
+    read and row variance per horizontal band (C, B)."""
 
     path: str
     iso: float
     camera: Camera
+    channels: tuple[str, ...]
     bias: np.ndarray
     read_var: np.ndarray
     row_var: np.ndarray
@@ -148,7 +156,9 @@ class DarkStats:
 
 @dataclass
 class IsoFit:
-    """The fit at one ISO. Per-channel values are in R, Gr, Gb, B order.
+    """The fit at one ISO. Per-channel values (``channels``) are keyed by the CFA's
+    channels: R, Gr, Gb, B for Bayer, R, G, B for any other layout (X-Trans) and for
+    3-channel data.
 
     ``errors`` holds the standard error of K, read_sigma, row_sigma and lambda;
     ``problems`` why the fit is not to be trusted (empty when it is).
@@ -193,15 +203,25 @@ class IsoFit:
 # ---------------------------------------------------------------- frame statistics
 
 
-def planes_of(raw: RawImage) -> np.ndarray:
-    """The raw's planes above black, float64: (4, H/2, W/2) R, Gr, Gb, B, or (3, H, W)."""
+def planes_of(raw: RawImage) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The raw's planes above black (float64) and each plane's colour channel.
+
+    A CFA mosaic gives its phase planes (:attr:`~rawsim.cfa.CFA.phase_sites`), cut to
+    whole periods, each less its site's black level: (4, H/2, W/2) named R, Gr, Gb,
+    B for Bayer; (36, H/6, W/6) named R, G or B for X-Trans
+    (:attr:`~rawsim.cfa.CFA.phase_channels`). Data without a CFA: (3, H, W) named
+    R, G, B, or (1, H, W) named Y.
+    """
     data = raw.data.astype(np.float64)
     black = np.asarray(raw.black_level, dtype=np.float64)
     if raw.cfa is None:
-        return np.moveaxis(data - black, -1, 0)
-    h, w = data.shape[0] // 2 * 2, data.shape[1] // 2 * 2
-    black = np.broadcast_to(black, (2, 2))
-    return np.stack([data[i:h:2, j:w:2] - black[i, j] for i, j in raw.cfa.packed_sites])
+        names = ("R", "G", "B") if data.shape[-1] == 3 else ("Y",) * data.shape[-1]
+        return np.moveaxis(data - black, -1, 0), names
+    ph, pw = raw.cfa.period
+    h, w = data.shape[0] // ph * ph, data.shape[1] // pw * pw
+    black = np.broadcast_to(black, (ph, pw))
+    planes = np.stack([data[i:h:ph, j:w:pw] - black[i, j] for i, j in raw.cfa.phase_sites])
+    return planes, raw.cfa.phase_channels
 
 
 def high_pass(x: np.ndarray) -> np.ndarray:
@@ -237,7 +257,7 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
     """Block statistics of one flat frame (``flat``) or photo (``patches``)."""
     if method not in METHODS:
         raise ParameterError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    planes = planes_of(raw)
+    planes, channels = planes_of(raw)
     black = float(np.mean(raw.black_level))
     span = float(raw.white_level) - black
     floor = -np.asarray(raw.black_level, dtype=np.float64).min()  # raw DN 0, above black
@@ -269,6 +289,7 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         black=black,
         white=float(raw.white_level),
         xyz_to_camera=None if raw.xyz_to_camera is None else np.asarray(raw.xyz_to_camera),
+        channels=channels,
         mean=flat(mean).astype(np.float32),  # statistics: float32 halves what is kept
         var=flat(var).astype(np.float32),
         row_var=None if row_var is None else flat(row_var).astype(np.float32),
@@ -321,7 +342,7 @@ def _tile_stats(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def dark_stats(raw: RawImage, iso: float | None = None, bands: int = 16) -> DarkStats:
     """Bias, read and row variance per horizontal band, and a residual sample of a dark frame."""
-    planes = planes_of(raw)
+    planes, channels = planes_of(raw)
     c, h, w = planes.shape
     bands = max(1, min(bands, h // 8))
     edges = np.linspace(0, h, bands + 1).astype(int)
@@ -342,6 +363,7 @@ def dark_stats(raw: RawImage, iso: float | None = None, bands: int = 16) -> Dark
         path=str(raw.path),
         iso=float(iso or raw.iso),
         camera=camera_of(raw),
+        channels=channels,
         bias=bias,
         read_var=read_var,
         row_var=row_var,
@@ -565,18 +587,19 @@ def calibrate_iso(
                 f"{d.path} is not a dark frame ({d.mean_above_black:.4g} DN above black, over "
                 f"{DARK_LEVEL:.1%} of the range); shoot with the lens cap on at the same ISO"
             )
-    nch = flats[0].mean.shape[0]
-    names = CHANNELS if nch == 4 else ("R", "G", "B")
+    planes = channel_planes(flats[0].channels)
+    names = tuple(planes)
     per_channel = []
-    for c in range(nch):
-        m = [f.mean[c][f.valid[c]] for f in flats]
-        v = [f.var[c][f.valid[c]] for f in flats]
-        g = [f.group[f.valid[c]] + i * REGIONS**2 for i, f in enumerate(flats)]
+    for idx in planes.values():  # the phase planes of one colour channel, pooled
+        m = [f.mean[c][f.valid[c]] for f in flats for c in idx]
+        v = [f.var[c][f.valid[c]] for f in flats for c in idx]
+        g = [f.group[f.valid[c]] + i * REGIONS**2 for i, f in enumerate(flats) for c in idx]
         if method == "flat":  # dark frames' tiles anchor the line at zero signal
             for i, d in enumerate(darks):
-                m.append(np.zeros(d.read_var.shape[1]))
-                v.append(d.read_var[c])
-                g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
+                for c in idx:
+                    m.append(np.zeros(d.read_var.shape[1]))
+                    v.append(d.read_var[c])
+                    g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
         per_channel.append(ChannelData(*(np.concatenate(a) for a in (m, v, g))))
     if min(d.mean.size for d in per_channel) < 8:
         raise CalibrationRefused(
@@ -609,10 +632,10 @@ def calibrate_iso(
         errors["row_sigma"] = _sqrt_error(
             row_var.mean(), row_var.std(ddof=1) / math.sqrt(row_var.size)
         )
-        for name, c in zip(names, range(nch), strict=True):
-            channels[name]["bias"] = float(np.mean([d.bias[c].mean() for d in darks]))
+        for name, idx in planes.items():
+            channels[name]["bias"] = float(np.mean([d.bias[idx].mean() for d in darks]))
             channels[name]["read_sigma"] = math.sqrt(
-                max(np.mean([d.read_var[c].mean() for d in darks]) - QUANTIZATION_VARIANCE, 0.0)
+                max(np.mean([d.read_var[idx].mean() for d in darks]) - QUANTIZATION_VARIANCE, 0.0)
             )
         residual = np.concatenate([d.residual for d in darks])
         lam = fit_lambda(residual)
@@ -639,6 +662,26 @@ def calibrate_iso(
         problems=[f"ISO {iso:g}: {p}" for p in problems],
         points=points,
     )
+
+
+def channel_planes(channels: tuple[str, ...]) -> dict[str, list[int]]:
+    """The phase planes of each colour channel, channels in order of first appearance:
+    ``{"R": [0], "Gr": [1], "Gb": [2], "B": [3]}`` for Bayer, ``{"G": [0, 1, 3, …],
+    "R": [2, …], "B": [5, …]}`` (20, 8, 8 planes) for X-Trans."""
+    planes: dict[str, list[int]] = {}
+    for i, name in enumerate(channels):
+        planes.setdefault(name, []).append(i)
+    return planes
+
+
+def _bias(channels: dict, name: str) -> float:
+    """A fit's dark-frame bias of ``name``, one of :data:`CHANNELS`: a CFA without
+    separate greens (X-Trans, 3-channel data) gives its G bias to Gr and Gb, which
+    the noise model reads back as the G sites' bias (their mean); one grey channel
+    (Y) gives its bias to all four."""
+    if name in channels:
+        return channels[name]["bias"]
+    return channels.get("G", channels.get("Y"))["bias"]
 
 
 def _sqrt_error(var: float, var_error: float) -> float:
@@ -782,7 +825,7 @@ def build_profile(
         noise["tukey_sigma"] = sigma_curve([f.tukey_sigma for f in fits])
         noise["tukey_lambda"] = {"k": ks, "lambda": [f.lam for f in fits]}
         noise["row_sigma"] = sigma_curve([f.row_sigma for f in fits])
-        bias = [np.mean([f.channels[c]["bias"] for f in fits]) for c in CHANNELS]
+        bias = [np.mean([_bias(f.channels, c) for f in fits]) for c in CHANNELS]
         noise["channel_bias"] = [float(b) for b in bias]
         for key in ("tukey_sigma", "tukey_lambda", "row_sigma", "channel_bias"):
             source[f"noise.{key}"] = how + "; from the dark frames"

@@ -9,13 +9,15 @@ import torch
 from torch.utils.data import Dataset
 
 from rawsim.api import unprocess
-from rawsim.errors import ParameterError, UnsupportedInputError
+from rawsim.errors import ParameterError, UnsupportedInputError, check_choice
 from rawsim.io.images import IMAGE_EXTENSIONS, read_image
 from rawsim.isp.levels import normalize_levels
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import image_tensor
 from rawsim.run.batch import discover
 from rawsim.sensors import MonoSensor, ProfileSensor
+
+LAYOUTS = ("auto", "packed", "mosaic")
 
 
 class UnprocessDataset(Dataset):
@@ -31,8 +33,9 @@ class UnprocessDataset(Dataset):
     Each item is a dict:
 
     * ``noisy``, ``clean``: float32, black at 0 and white at 1 (``normalize``) or
-      DN; shape (4, S/2, S/2) in R, Gr, Gb, B order (``layout="packed"``) or
-      (1, S, S) (``"mosaic"``; a mono sensor always gives (1, S, S));
+      DN; shape (4, S/2, S/2) in R, Gr, Gb, B order (``layout="packed"``, Bayer
+      CFAs only) or (1, S, S) (``"mosaic"``: the mosaic as the sensor records it,
+      in its CFA, ``sensor.cfa``; a mono sensor always gives (1, S, S));
     * ``iso``, ``gain`` (K, DN/e⁻), ``read_sigma`` (DN): float32 scalars;
     * ``wb_gains`` (3,) and ``xyz_to_camera`` (3, 3): the parameters used;
     * ``index``: the item's index.
@@ -40,15 +43,18 @@ class UnprocessDataset(Dataset):
     Args:
         root: folder of images (searched recursively, as the CLI does).
         sensor: the sensor simulated.
-        crop: crop size S in pixels, even; crops start on even rows and columns,
-            so every crop has the sensor's CFA phase.
+        crop: crop size S in pixels, even; crops start on whole CFA periods (even
+            rows and columns for Bayer, multiples of 6 for X-Trans), so every crop
+            has the sensor's CFA phase: its top-left site is the pattern's.
         seed: the dataset's seed.
         iso: one ISO for every item, as for :func:`rawsim.api.unprocess`.
         iso_range: (MIN, MAX), each item's ISO drawn log-uniformly (default,
             with ``iso`` None too: the profile's whole range).
         randomize: sample colour matrix, white balance and brightness per item.
         noise: the noise model, as ``--noise``.
-        layout: ``packed`` or ``mosaic``.
+        layout: ``packed``, ``mosaic``, or ``auto`` (default): ``packed`` for a
+            Bayer sensor, ``mosaic`` for any other CFA (X-Trans has no 4-plane
+            packing) and for mono.
         normalize: scale DN to [0, 1] above black.
     """
 
@@ -63,13 +69,21 @@ class UnprocessDataset(Dataset):
         iso_range: tuple[float, float] | None = None,
         randomize: bool = True,
         noise: str = "poisson-gaussian",
-        layout: str = "packed",
+        layout: str = "auto",
         normalize: bool = True,
     ) -> None:
         if crop < 2 or crop % 2:
             raise ParameterError(f"crop must be an even number of pixels ≥ 2, got {crop}")
-        if layout not in ("packed", "mosaic"):
-            raise ParameterError(f"layout must be 'packed' or 'mosaic', got {layout!r}")
+        check_choice("layout", layout, LAYOUTS)
+        bayer = not isinstance(sensor, MonoSensor) and sensor.cfa.is_bayer
+        if layout == "auto":
+            layout = "packed" if bayer else "mosaic"
+        elif layout == "packed" and not bayer and not isinstance(sensor, MonoSensor):
+            raise ParameterError(
+                f"layout 'packed' (R, Gr, Gb, B planes) needs a Bayer CFA; the sensor's "
+                f"is {sensor.cfa.name} ({sensor.cfa.period[0]}×{sensor.cfa.period[1]}): "
+                "use layout='mosaic' (or 'auto')"
+            )
         found, missing, _ = discover([root], IMAGE_EXTENSIONS)
         if missing or not found:
             raise ParameterError(f"{root}: no images found")
@@ -80,6 +94,8 @@ class UnprocessDataset(Dataset):
         self.iso, self.iso_range = iso, iso_range
         self.randomize, self.noise = randomize, noise
         self.layout, self.normalize = layout, normalize
+        #: Crops start on multiples of this (rows, columns): the CFA period (2, 2) for mono.
+        self.period = (2, 2) if isinstance(sensor, MonoSensor) else sensor.cfa.period
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch whose crops, parameters and noise the items use."""
@@ -97,8 +113,9 @@ class UnprocessDataset(Dataset):
         if h < s or w < s:
             raise UnsupportedInputError(f"{path}: {w}×{h} is smaller than the {s}×{s} crop")
         g = torch.Generator().manual_seed(derive_seed(seed, "crop"))
-        top = 2 * int(torch.randint((h - s) // 2 + 1, (1,), generator=g))
-        left = 2 * int(torch.randint((w - s) // 2 + 1, (1,), generator=g))
+        ph, pw = self.period
+        top = ph * int(torch.randint((h - s) // ph + 1, (1,), generator=g))
+        left = pw * int(torch.randint((w - s) // pw + 1, (1,), generator=g))
         image = image_tensor(decoded.pixels[top : top + s, left : left + s].copy())
         noisy, clean, meta = unprocess(
             image,

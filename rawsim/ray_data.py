@@ -60,7 +60,8 @@ class RawPairs:
 
     * ``key``: the image's path relative to ``root``; ``file_seed``: its seed;
     * ``noisy``, ``clean``: uint16 (H', W') mosaics in DN, H' and W' the image's
-      size cropped to even numbers (``clean`` only if ``clean``);
+      size cropped to even numbers (``clean`` only if ``clean``), in the profile's
+      CFA (or ``cfa``) from the top-left pixel: Bayer, X-Trans or any periodic layout;
     * ``iso``: float; ``metadata``: JSON of what was drawn and used (seed, ISO, CFA,
       levels, colour and noise parameters), as in :func:`rawsim.api.unprocess`.
 
@@ -78,6 +79,8 @@ class RawPairs:
         vignetting: as ``--vignetting``.
         safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
         sensor: ``rgb`` or ``mono``, as ``--sensor``.
+        cfa: another CFA layout for the profile, as ``--cfa`` (e.g. ``"XTRANS"``);
+            None keeps the profile's.
         clean: also return the noise-free mosaic.
     """
 
@@ -97,6 +100,7 @@ class RawPairs:
         vignetting: float = 0.0,
         safe_white_balance: bool = True,
         sensor: str = "rgb",
+        cfa: str | None = None,
         clean: bool = True,
     ) -> None:
         prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
@@ -116,7 +120,7 @@ class RawPairs:
             safe_white_balance=safe_white_balance,
             seed=seed,
             sensor=sensor,
-        )
+        ).with_cfa(cfa)
         self.options.check_isos()
         self.sensor = self.options.make_sensor()
         self.root, self.seed = root, seed

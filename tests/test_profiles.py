@@ -21,7 +21,7 @@ def test_bundled_profiles_load_with_sources():
     for name in names:
         p = load_profile(name)
         assert p.name == name == name.lower()
-        assert p.cfa.pattern in ("RGGB", "BGGR", "GRBG", "GBRG")
+        assert p.cfa.name in ("RGGB", "BGGR", "GRBG", "GBRG", "XTRANS")
         assert 0 <= p.black_level < p.white_level <= 2**p.bit_depth - 1
         assert all(isinstance(p.source[k], str) for k in SOURCED_KEYS)
         lo, hi = p.iso_range
