@@ -28,6 +28,8 @@ COMMANDS = {
 
 
 EXIT_INTERNAL, EXIT_INTERRUPTED = 3, 130
+#: 128 + SIGPIPE, as a shell reports a program its pipe reader left.
+EXIT_BROKEN_PIPE = 141
 
 
 def _version() -> str:
@@ -57,6 +59,10 @@ class LazyGroup(click.Group):
         except KeyboardInterrupt:
             click.echo("rawsim: interrupted", err=True)
             ctx.exit(EXIT_INTERRUPTED)
+        except BrokenPipeError:  # the reader of stdout left (`rawsim info … | head`)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # nothing more to say there, quietly
+            ctx.exit(EXIT_BROKEN_PIPE)
         except Exception as err:  # a bug: one line, or the traceback with --debug
             if ctx.obj and ctx.obj.get("debug"):
                 raise
@@ -92,6 +98,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
       2  usage error: bad option, unknown or malformed profile, no inputs
       3  internal error (a bug: please report it, with --debug output)
     130  interrupted
+    141  the reader of the standard output went away (e.g. '| head')
 
     \b
     Example:

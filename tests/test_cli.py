@@ -428,3 +428,17 @@ def test_slurm_array_shards_union_is_the_single_run(photos, tmp_path):
         env={"SLURM_ARRAY_TASK_ID": None},
     )
     assert r.exit_code == 2 and "needs a Slurm array job" in r.output
+
+
+def test_a_closed_pipe_stops_quietly():
+    """`rawsim info … | head -1`: the reader of stdout leaves; no internal error, 141."""
+    proc = subprocess.Popen(
+        ["rawsim", "info", str(DATA / "raw")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    proc.stdout.close()  # gone before anything is written: every write fails
+    stderr = proc.stderr.read()
+    assert proc.wait() == 141, stderr
+    assert "internal error" not in stderr and "Traceback" not in stderr
