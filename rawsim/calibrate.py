@@ -58,6 +58,13 @@ CHANNELS = ("R", "Gr", "Gb", "B")
 #: Tile side of the flat method and block side of the patch method (plane pixels).
 TILE = 32
 BLOCK = 8
+#: A flat tile spans at most this many sensor pixels a side (the plane removed from a
+#: tile cancels an illumination gradient's linear part only; what curves across it
+#: grows with its footprint), but keeps at least MIN_TILE plane pixels a side (a tile's
+#: median variance is biased low by ~2/(9·dof)): 32 for Bayer (64 pixels), 16 for
+#: X-Trans (96 pixels; 32 would span 192 and overestimate K by 4 % at low ISO).
+TILE_FOOTPRINT = 96
+MIN_TILE = 16
 #: The high-pass of the patch method and the flatness check (unit white-noise gain).
 HIGH_PASS = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / math.sqrt(70.0)
 #: Quantile of block variances taken as the noise in a level set (patch method).
@@ -115,7 +122,8 @@ class FrameStats:
 
     ``var`` is each block's noise variance estimate, ``row_var`` the variance of
     its rows' offsets (flat method) and ``group`` (N,) its region for the
-    bootstrap. ``flatness`` is the median ratio of tile variance to high-pass
+    bootstrap. ``tile`` is the flat method's tile side (:func:`tile_side`).
+    ``flatness`` is the median ratio of tile variance to high-pass
     noise (flat method; ≈ 1 for a flat field).
     """
 
@@ -132,6 +140,7 @@ class FrameStats:
     valid: np.ndarray
     group: np.ndarray
     flatness: float | None = None
+    tile: int = TILE
 
     @property
     def span(self) -> float:
@@ -253,6 +262,14 @@ def camera_of(raw: RawImage) -> Camera:
     return Camera(raw.make, raw.model, raw.cfa.pattern if raw.cfa else None, raw.data.ndim)
 
 
+def tile_side(cfa) -> int:
+    """The flat method's tile side in plane pixels for a raw of ``cfa`` (None: no CFA):
+    :data:`TILE`, cut so the tile spans at most :data:`TILE_FOOTPRINT` sensor pixels,
+    down to :data:`MIN_TILE`."""
+    period = 1 if cfa is None else max(cfa.period)
+    return max(MIN_TILE, min(TILE, TILE_FOOTPRINT // period))
+
+
 def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameStats:
     """Block statistics of one flat frame (``flat``) or photo (``patches``)."""
     if method not in METHODS:
@@ -261,8 +278,9 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
     black = float(np.mean(raw.black_level))
     span = float(raw.white_level) - black
     floor = -np.asarray(raw.black_level, dtype=np.float64).min()  # raw DN 0, above black
+    tile = tile_side(raw.cfa)
     if method == "flat":
-        x = _blocks(planes, TILE)
+        x = _blocks(planes, tile)
         stats = _tile_stats(x)
         peak, low = x.max(axis=(-2, -1)), x.min(axis=(-2, -1))
         hp = (high_pass(x) ** 2).mean(axis=(-2, -1))
@@ -296,6 +314,7 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         valid=flat(valid),
         group=_regions(ny, nx).astype(np.int32),
         flatness=flatness,
+        tile=tile,
     )
 
 
@@ -446,7 +465,7 @@ class _Bins:
 
 
 def _line_from_bins(
-    levels: np.ndarray, values: np.ndarray, counts: np.ndarray, method: str
+    levels: np.ndarray, values: np.ndarray, counts: np.ndarray, method: str, tile: int = TILE
 ) -> Line:
     """Weighted least squares (weight ∝ count / variance²), dropping bins off the line by
     more than 4 expected standard errors (+2 %) and refitting."""
@@ -455,7 +474,7 @@ def _line_from_bins(
     levels = np.where(counts > 0, levels, np.nan)
     if ok.sum() < 2:
         return Line(math.nan, math.nan, values, levels)
-    rel_err = math.sqrt(2 / (TILE * TILE - 3)) if method == "flat" else math.sqrt(2.7 / BLOCK**2)
+    rel_err = math.sqrt(2 / (tile * tile - 3)) if method == "flat" else math.sqrt(2.7 / BLOCK**2)
     keep = ok.copy()
     for _ in range(3):
         w = counts[keep] / np.maximum(values[keep], 1e-12) ** 2
@@ -482,6 +501,7 @@ class ChannelData:
     mean: np.ndarray
     var: np.ndarray
     group: np.ndarray  # bootstrap unit: frame × region
+    tile: int = TILE  # the flat tiles' side (plane pixels): their variances' precision
 
 
 def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, np.ndarray]:
@@ -497,7 +517,7 @@ def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, 
     q, divisor = _bin_statistic(method)
     ones = np.ones(data.mean.size)
     level, value, count = _Bins(data.mean, data.var, edges, q)(ones)
-    first = _line_from_bins(level, value / divisor, count, method)
+    first = _line_from_bins(level, value / divisor, count, method, data.tile)
     draws = np.full((RESAMPLES, 2 + len(edges) - 1), np.nan)
     if not math.isfinite(first.slope):
         return first, draws
@@ -509,7 +529,7 @@ def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, 
     def second(weights: np.ndarray) -> Line:
         level, ratio, count = bins(weights)
         at = np.maximum(first.slope * level + first.offset, 1e-12)
-        return _line_from_bins(level, ratio / divisor * at, count, method)
+        return _line_from_bins(level, ratio / divisor * at, count, method, data.tile)
 
     line = second(np.ones(group.size))
     groups, inverse = np.unique(group, return_inverse=True)
@@ -600,13 +620,14 @@ def calibrate_iso(
                     m.append(np.zeros(d.read_var.shape[1]))
                     v.append(d.read_var[c])
                     g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
-        per_channel.append(ChannelData(*(np.concatenate(a) for a in (m, v, g))))
+        per_channel.append(ChannelData(*(np.concatenate(a) for a in (m, v, g)), flats[0].tile))
     if min(d.mean.size for d in per_channel) < 8:
         raise CalibrationRefused(
             [f"ISO {iso:g}: too few unsaturated blocks to fit; expose the frames below white"]
         )
     pooled = ChannelData(
-        *(np.concatenate([getattr(d, k) for d in per_channel]) for k in ("mean", "var", "group"))
+        *(np.concatenate([getattr(d, k) for d in per_channel]) for k in ("mean", "var", "group")),
+        flats[0].tile,
     )
     line, draws = fit_with_errors(pooled, method, span)
     problems += _line_problems(line, draws, darks, span)
@@ -750,7 +771,7 @@ _LEVELS_HINT = (
 def _row_sigma_from_tiles(flats: list[FrameStats]) -> tuple[float, float]:
     """Inverse-variance weighted mean of the tiles' row variances → (row σ, its error)."""
     rv = np.concatenate([f.row_var[f.valid] for f in flats])
-    w = 1 / np.maximum(np.concatenate([f.var[f.valid] for f in flats]) / TILE, 1e-12) ** 2
+    w = 1 / np.maximum(np.concatenate([f.var[f.valid] / f.tile for f in flats]), 1e-12) ** 2
     value = float((rv * w).sum() / w.sum())
     err = math.sqrt(float((w**2 * (rv - value) ** 2).sum())) / float(w.sum())
     return math.sqrt(max(value, 0.0)), _sqrt_error(value, err)

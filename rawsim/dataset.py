@@ -112,10 +112,7 @@ class UnprocessDataset(Dataset):
         s = self.crop
         if h < s or w < s:
             raise UnsupportedInputError(f"{path}: {w}×{h} is smaller than the {s}×{s} crop")
-        g = torch.Generator().manual_seed(derive_seed(seed, "crop"))
-        ph, pw = self.period
-        top = ph * int(torch.randint((h - s) // ph + 1, (1,), generator=g))
-        left = pw * int(torch.randint((w - s) // pw + 1, (1,), generator=g))
+        top, left = self.crop_origin(h, w, seed)
         image = image_tensor(decoded.pixels[top : top + s, left : left + s].copy())
         noisy, clean, meta = unprocess(
             image,
@@ -139,6 +136,16 @@ class UnprocessDataset(Dataset):
             "xyz_to_camera": torch.tensor(m["params"]["xyz_to_camera"], dtype=torch.float32),
             "index": index,
         }
+
+    def crop_origin(self, height: int, width: int, seed: int) -> tuple[int, int]:
+        """(top, left) of the crop an item of ``seed`` takes from a height × width
+        image: uniform over the positions on whole CFA periods (:attr:`period`) where
+        the crop fits, drawn from ``derive_seed(seed, "crop")``."""
+        g = torch.Generator().manual_seed(derive_seed(seed, "crop"))
+        (ph, pw), s = self.period, self.crop
+        top = ph * int(torch.randint((height - s) // ph + 1, (1,), generator=g))
+        left = pw * int(torch.randint((width - s) // pw + 1, (1,), generator=g))
+        return top, left
 
     def _arrange(self, dn: torch.Tensor) -> torch.Tensor:
         """(1, 1, S, S) DN → the item's layout and scale."""
