@@ -40,6 +40,8 @@ from rawsim.color import srgb_from_camera
 from rawsim.colorspaces import OUTPUT_SPACES as COLOR_SPACES
 from rawsim.colorspaces import space_from_srgb, space_transfer
 from rawsim.errors import ParameterError
+from rawsim.io.lensfun import CORRECTIONS as LENS_CORRECTIONS
+from rawsim.io.lensfun import DEFAULT_DISTANCE
 from rawsim.isp.curves import TransferSpec
 
 if TYPE_CHECKING:
@@ -152,6 +154,20 @@ def _shading_k(value):
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise ParameterError(f"expected a list of 3 numbers, got {value!r}")
     return tuple(_number()(v) for v in value)
+
+
+def _lens_name(value):
+    if not isinstance(value, str) or not value.strip():
+        raise ParameterError(f"expected auto or a lens name, got {value!r}")
+    return " ".join(value.split())
+
+
+def _corrections(value):
+    if isinstance(value, str):
+        value = [v.strip() for v in value.split(",")]
+    if not isinstance(value, (list, tuple)) or not all(v in LENS_CORRECTIONS for v in value):
+        raise ParameterError(f"{value!r}; valid: a list of {', '.join(LENS_CORRECTIONS)}")
+    return tuple(c for c in LENS_CORRECTIONS if c in value)
 
 
 def _param(default: Any, check: Callable[[Any], Any], help: str):
@@ -367,6 +383,59 @@ class DenoiseStage(Stage):
 
 
 @dataclass(frozen=True)
+class LensCorrectionStage(Stage):
+    """The lens's distortion, lateral chromatic aberration and vignetting, from lensfun."""
+
+    name: ClassVar[str] = "lens_correction"
+    on_by_default: ClassVar[bool] = False
+    rgb_only: ClassVar[bool] = True
+    lens: str = _param(
+        "auto", _lens_name, "auto (the raw's LensModel), or the lens's name as lensfun lists it"
+    )
+    focal_length: float | str = _param(
+        "auto", _auto_or(_number(1e-3, 1e5), "mm"), "mm, or auto (the raw's FocalLength)"
+    )
+    aperture: float | str = _param(
+        "auto",
+        _auto_or(_number(0.5, 1000), "an f-number"),
+        "f-number, or auto (the raw's FNumber); without one, vignetting stays",
+    )
+    distance: float | str = _param(
+        "auto",
+        _auto_or(_number(1e-3, 1e6), "metres"),
+        f"focus distance in m, or auto (the raw's SubjectDistance, else {DEFAULT_DISTANCE:g})",
+    )
+    corrections: tuple[str, ...] = _param(
+        LENS_CORRECTIONS, _corrections, "which to correct: distortion, tca, vignetting"
+    )
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["lens"]``: the lens and its settings (:class:`~rawsim.io.lensfun.LensParams`
+        as a dict) from lensfun's database for the raw's camera and metadata (values not
+        ``auto`` replace the metadata's), or None where the raw cannot be corrected, with
+        a warning in ``info["warnings"]`` saying why and what to pass. A lens named here
+        that lensfun does not know is an error."""
+        from pathlib import Path
+
+        from rawsim.io.lensfun import raw_lens
+        from rawsim.io.metadata import PhotoMetadata, read_metadata
+
+        meta = read_metadata(raw.path) if Path(raw.path).is_file() else PhotoMetadata()
+        params, warnings = raw_lens(
+            raw.make,
+            raw.model,
+            meta,
+            self.lens,
+            self.focal_length,
+            self.aperture,
+            self.distance,
+            self.corrections,
+        )
+        info["warnings"].extend(warnings)
+        info["lens"] = None if params is None else params.to_dict()
+
+
+@dataclass(frozen=True)
 class ColorMatrixStage(Stage):
     """Camera RGB (white-balanced) → the output space."""
 
@@ -515,6 +584,7 @@ STAGES: dict[str, type[Stage]] = {
         HighlightsStage,
         DemosaicStage,
         DenoiseStage,
+        LensCorrectionStage,
         ColorMatrixStage,
         ExposureStage,
         ToneStage,
@@ -537,6 +607,9 @@ _FLAGS: dict[str, tuple[type[Stage], str]] = {
     "exposure": (ExposureStage, "ev"),
     "output_space": (ColorMatrixStage, "output_space"),
     "transfer": (TransferStage, "function"),
+    "lens": (LensCorrectionStage, "lens"),
+    "focal_length": (LensCorrectionStage, "focal_length"),
+    "aperture": (LensCorrectionStage, "aperture"),
 }
 
 
@@ -628,10 +701,22 @@ class IspConfig:
     def override(self, **flags) -> IspConfig:
         """The config with the CLI's flags applied (``wb``, ``white_level``, ``demosaic``,
         ``highlights``, ``tone``, ``tone_exposure``, ``tone_white``, ``exposure``,
-        ``baseline_exposure``, ``output_space``, ``transfer``); None leaves a value as
-        it is. A flag enables its stage (adding it, if missing, at the end); ``highlights
-        blend`` moves the stage to just after demosaic. Errors name the flag."""
+        ``baseline_exposure``, ``output_space``, ``transfer``, ``lens``, ``focal_length``,
+        ``aperture``, ``lens_correction``); None leaves a value as it is. A flag enables
+        its stage (adding it, if missing, where the default order has it); ``highlights
+        blend`` moves the stage to just after demosaic; ``lens_correction`` ``auto``
+        enables the lens stage, ``off`` disables it (then no other lens flag may be
+        given). Errors name the flag."""
         tables = self.to_tables()
+        switch = flags.pop("lens_correction", None)
+        if switch is not None:
+            _choice(("auto", "off"))(switch)
+            given = [f for f in ("lens", "focal_length", "aperture") if flags.get(f) is not None]
+            if switch == "off" and given:
+                flag = "--" + given[0].replace("_", "-")
+                raise ParameterError(f"--lens-correction off: {flag} corrects the lens; drop one")
+            table = _table_of(tables, LensCorrectionStage)
+            table["enabled"] = switch == "auto"
         for flag, value in flags.items():
             if value is None:
                 continue
@@ -641,10 +726,7 @@ class IspConfig:
             except ParameterError as err:
                 why = str(err).removeprefix(f"{value!r}; ")  # the value is said once
                 raise ParameterError(f"--{flag.replace('_', '-')} {value!r}: {why}") from None
-            table = next((t for t in tables if t["name"] == stage.name), None)
-            if table is None:
-                table = {"name": stage.name}
-                tables.append(table)
+            table = _table_of(tables, stage)
             table[key] = value
             table["enabled"] = True
             if stage is HighlightsStage and value == "blend":
@@ -673,6 +755,19 @@ class IspConfig:
         """Whether ``stage`` comes before the demosaic: it acts on the mosaic."""
         kinds = [type(s) for s in self.stages]
         return kinds.index(type(stage)) < kinds.index(DemosaicStage)
+
+
+def _table_of(tables: list[dict], stage: type[Stage]) -> dict:
+    """The table of ``stage`` in ``tables``, added (as ``{"name": …}``) where it is
+    missing: before the first stage that follows it in the default order."""
+    table = next((t for t in tables if t["name"] == stage.name), None)
+    if table is None:
+        order = list(STAGES)
+        later = order[order.index(stage.name) + 1 :]
+        at = next((i for i, t in enumerate(tables) if t["name"] in later), len(tables))
+        table = {"name": stage.name}
+        tables.insert(at, table)
+    return table
 
 
 def _check_order(enabled: tuple[Stage, ...], origin: str) -> None:

@@ -33,6 +33,7 @@ from rawsim.isp.config import (
     ExposureStage,
     HighlightsStage,
     IspConfig,
+    LensCorrectionStage,
     LensShadingStage,
     OrientationStage,
     ResolvedIsp,
@@ -49,6 +50,7 @@ from rawsim.isp.exposure import Exposure
 from rawsim.isp.filters import AntiAliasing, Denoise
 from rawsim.isp.half_size import HalfSize
 from rawsim.isp.highlights import Highlights
+from rawsim.isp.lens import LensCorrection
 from rawsim.isp.lens_shading import LensShading
 from rawsim.isp.levels import Levels
 from rawsim.isp.orientation import Orientation
@@ -67,8 +69,10 @@ class Isp(nn.Module):
     rows of context on each side): the result is the same, the memory a
     fraction. Every strip starts on a whole CFA period and is at least a strip
     tall, so stages that need a few periods of image (the X-Trans demosaics,
-    the per-site filters of :mod:`rawsim.isp.planes`) get them. Orientation, a
-    global reindexing, runs once at the end.
+    the per-site filters of :mod:`rawsim.isp.planes`) get them. The stages that
+    move pixels across the image (:data:`WHOLE_IMAGE`: lens correction, which
+    works through the image in row chunks itself, and orientation) run once on
+    the whole image, the stages between them strip by strip.
     """
 
     def __init__(self, stages: list[tuple[str, nn.Module]], info: dict, period: int = 2) -> None:
@@ -83,7 +87,10 @@ class Isp(nn.Module):
         """Rows of context a strip needs on each side: the sum of the stages' ``radius``
         (rows each output row depends on, on each side), rounded up to whole CFA
         periods so strips keep the CFA phase."""
-        total = sum(getattr(m, "radius", 0) for m in self.stages)
+        return self._halo(self.stages)
+
+    def _halo(self, modules) -> int:
+        total = sum(getattr(m, "radius", 0) for m in modules)
         return -(-total // self.period) * self.period
 
     @property
@@ -91,39 +98,46 @@ class Isp(nn.Module):
         """:data:`STRIP_ROWS`, cut to whole CFA periods."""
         return STRIP_ROWS - STRIP_ROWS % self.period
 
-    def _run(self, x: torch.Tensor, region: tuple[int, int]) -> torch.Tensor:
-        for m in self.stages:
-            if isinstance(m, Orientation):
-                continue
+    def _run(self, x: torch.Tensor, region: tuple[int, int], modules) -> torch.Tensor:
+        for m in modules:
             x = m(x, region) if getattr(m, "positional", False) else m(x)
         return x
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        run: list[nn.Module] = []
+        for m in self.stages:
+            if isinstance(m, WHOLE_IMAGE):
+                x = m(self._strips(x, run)) if run else m(x)
+                run = []
+            else:
+                run.append(m)
+        return self._strips(x, run) if run else x
+
+    def _strips(self, x: torch.Tensor, modules: list[nn.Module]) -> torch.Tensor:
+        """``modules`` (none of :data:`WHOLE_IMAGE`) on ``x``, strip by strip where that helps."""
         h = x.shape[-2]
         strip = self.strip_rows
-        whole = any(isinstance(m, HalfSize) for m in self.stages)  # strips keep the size
+        whole = any(isinstance(m, HalfSize) for m in modules)  # strips keep the size
         if torch.is_grad_enabled() or h <= 2 * strip or whole:
-            out = self._run(x, (0, h))
-        else:
-            out = None
-            halo = self.halo
-            count = h // strip  # the last strip takes the rest: none is shorter than a strip
-            for k in range(count):
-                top = k * strip
-                size = strip if k < count - 1 else h - top
-                lo, hi = max(0, top - halo), min(h, top + size + halo)
-                part = self._run(x[..., lo:hi, :], (lo, h))
-                rows = part[..., top - lo : top - lo + size, :]
-                if out is None:
-                    out = rows.new_empty(*rows.shape[:-2], h, rows.shape[-1])
-                out[..., top : top + size, :] = rows
-        for m in self.stages:
-            if isinstance(m, Orientation):
-                out = m(out)
+            return self._run(x, (0, h), modules)
+        out = None
+        halo = self._halo(modules)
+        count = h // strip  # the last strip takes the rest: none is shorter than a strip
+        for k in range(count):
+            top = k * strip
+            size = strip if k < count - 1 else h - top
+            lo, hi = max(0, top - halo), min(h, top + size + halo)
+            part = self._run(x[..., lo:hi, :], (lo, h), modules)
+            rows = part[..., top - lo : top - lo + size, :]
+            if out is None:
+                out = rows.new_empty(*rows.shape[:-2], h, rows.shape[-1])
+            out[..., top : top + size, :] = rows
         return out
 
 
 STRIP_ROWS = 256
+#: Stages that run once on the whole image (they move pixels across strips).
+WHOLE_IMAGE = (LensCorrection, Orientation)
 
 
 def build_isp(config: IspConfig | list[dict], raw) -> Isp:
@@ -159,6 +173,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
         s.sigma,
         s.sigma_color,
     ),
+    LensCorrectionStage: lambda s, r: LensCorrection(r.info.get("lens")),
     ColorMatrixStage: lambda s, r: ColorMatrix(
         torch.as_tensor(r.color_matrix, dtype=torch.float32)
     ),

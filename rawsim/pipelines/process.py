@@ -41,6 +41,7 @@ from rawsim.isp.config import (
     ExposureStage,
     HighlightsStage,
     IspConfig,
+    LensCorrectionStage,
     LensShadingStage,
     OrientationStage,
     ResolvedIsp,
@@ -147,6 +148,10 @@ class EnginePlan:
     gamma: float
     orientation: int
     info: dict
+    #: The lens stage's lens (:meth:`~rawsim.io.lensfun.LensParams.to_dict`), or None:
+    #: then the kernel renders in two passes, the post ops before ``lens_at`` first.
+    lens: dict | None = None
+    lens_at: int = 0
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -226,7 +231,13 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     tail: list[Stage] = []
     orientation = 1
     method = "bilinear"
+    lens, lens_at = None, 0
     for stage in resolved.stages:
+        if isinstance(stage, LensCorrectionStage):
+            if tail:
+                return None  # after tone/transfer: the reference's order
+            lens, lens_at = resolved.info.get("lens"), len(post)
+            continue
         if isinstance(stage, DemosaicStage):
             bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
             method = stage.method if bayer else XTRANS_METHOD[stage.method]
@@ -260,6 +271,8 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         gamma,
         orientation,
         resolved.info,
+        lens,
+        lens_at,
     )
 
 
@@ -339,6 +352,9 @@ def engine_render(
     dtype = np.float32 if plan.out_mode == ep.OUT_FLOAT else np.uint16
     scale = 1.0 if plan.out_mode == ep.OUT_FLOAT else 2.0**bits - 1
     out = np.empty(shape, dtype=dtype)
+    if plan.lens is not None:
+        _render_with_lens(raw, plan, out, scale, tile)
+        return _samples(out, fmt, bits)
     if raw.cfa.is_bayer:
         colors = np.array(raw.cfa.colors, dtype=np.int64)
     else:  # levels and white balance per colour: the table's rows are R, G, B
@@ -370,9 +386,51 @@ def engine_render(
         ep.periodic_kernel(
             data, rows, cols, geo.args(), table, *stages, *output, threads, *tile, *geo.halo
         )
+    return _samples(out, fmt, bits)
+
+
+def _samples(out: np.ndarray, fmt: str, bits: int) -> np.ndarray:
+    """The kernels' output (uint16 codes or float32) as the samples of ``fmt``/``bits``."""
     if fmt == "exr" and bits == 16:
         return out.astype(np.float16)
-    return out.astype(np.uint8) if bits == 8 and dtype == np.uint16 else out
+    return out.astype(np.uint8) if bits == 8 and out.dtype == np.uint16 else out
+
+
+def _render_with_lens(raw: RawImage, plan: EnginePlan, out: np.ndarray, scale: float, tile):
+    """The engine's two passes for a config that corrects the lens, into ``out``: the
+    stages up to the lens stage as linear floats in the raw's orientation, then
+    :func:`rawsim.engine.lens.lens_kernel` (the remap, the later RGB stages, the
+    output) on them."""
+    import numba
+
+    from rawsim.engine import lens as el
+    from rawsim.engine import process as ep
+    from rawsim.io.lensfun import lens_field
+
+    k = plan.lens_at  # the post ops before the lens stage, and after it
+    early = plan.post_ops[:k], plan.post_f[: max(k, 1)]
+    late_f = plan.post_f[k:] if len(plan.post_f) > k else np.zeros((1, plan.post_f.shape[1]))
+    late = plan.post_ops[k:], late_f
+    first = replace(plan, post_ops=early[0], post_f=early[1], out_mode=ep.OUT_FLOAT)
+    first = replace(first, orientation=1, lens=None)
+    linear = engine_render(raw, first, "exr", 32, tile)
+    field = lens_field(plan.lens, *linear.shape[:2])
+    orient = np.array(ORIENTATION_OPS[plan.orientation])
+    tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
+    el.lens_kernel(
+        linear,
+        *el.field_args(field),
+        el.PADDING_CODES["zeros"],
+        *late,
+        plan.out_mode,
+        plan.lut,
+        plan.gamma,
+        scale,
+        orient,
+        out,
+        numba.get_num_threads(),
+        *tile,
+    )
 
 
 def use_engine(device: str) -> bool:

@@ -1,0 +1,194 @@
+"""Lens correction as a compiled kernel: the twin of :mod:`rawsim.isp.lens`.
+
+:func:`lens_kernel` is the process engine's second pass when the config corrects
+the lens: it reads the first pass's linear render (H, W, 3) float32, fills each
+tile's RGB buffers with the remapped pixels (per channel: the radial tables of
+a :class:`~rawsim.io.lensfun.LensField`, a bilinear sample, the gain), then runs
+the same :func:`rawsim.engine.process._finish` as the other kernels (the RGB
+stages after the lens stage, tone/transfer, quantisation, orientation).
+:func:`correct_lens` and :func:`add_lens` are the numpy twins of the torch
+functions, for pipelines without gradients (unprocess).
+
+Arithmetic is float32 in the reference's order of operations, so the two agree
+to rounding. numba caches this kernel keyed on this file only: after editing
+:mod:`rawsim.engine.process` alone, touch this file (see :mod:`rawsim.engine`).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from rawsim.engine import configure
+from rawsim.engine.process import HALO, OUT_FLOAT, TILE_COLS, TILE_ROWS, _finish, _rgb_buffers
+from rawsim.errors import ParameterError, check_choice
+from rawsim.io.lensfun import LensField, LensParams, lens_field
+
+configure()
+
+_JIT = {"cache": True, "error_model": "numpy"}
+
+#: ``padding`` codes, in :data:`rawsim.isp.lens.PADDINGS` order.
+PADDING_CODES = {"zeros": 0, "border": 1, "reflect": 2}
+
+
+@njit(inline="always", **_JIT)
+def _index(i, n, padding):
+    """Index ``i`` of an axis of ``n``, or −1 for zeros outside (see ``padding``)."""
+    if 0 <= i < n:
+        return i
+    if padding == 0:
+        return -1
+    if padding == 2:
+        i = -i if i < 0 else i
+        i = 2 * (n - 1) - i if i > n - 1 else i
+    return min(max(i, 0), n - 1)
+
+
+@njit(inline="always", **_JIT)
+def _tap(src, y, x, k, h, w, padding):
+    yy, xx = _index(y, h, padding), _index(x, w, padding)
+    if yy < 0 or xx < 0:
+        return np.float32(0.0)
+    return src[yy, xx, k]
+
+
+@njit(**_JIT)
+def _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1):
+    """Output pixels [r0, r1) × [c0, c1) into the tile buffers ``rgb`` (offset HALO)."""
+    h, w = src.shape[0], src.shape[1]
+    n = table.shape[0]
+    one = np.float32(1.0)
+    for i in range(r0, r1):
+        dy = np.float32(i) - cy
+        for j in range(c0, c1):
+            dx = np.float32(j) - cx
+            r = np.float32(np.sqrt(np.float64(dx * dx + dy * dy)))
+            t = min(int(r), n - 2)
+            f = r - np.float32(t)
+            for k in range(3):
+                lo_r, hi_r = table[t, k, 0], table[t + 1, k, 0]
+                lo_g, hi_g = table[t, k, 1], table[t + 1, k, 1]
+                ratio = lo_r + f * (hi_r - lo_r)
+                gain = lo_g + f * (hi_g - lo_g)
+                m = ratio - one
+                ox, oy = dx * m, dy * m
+                fx, fy = np.floor(ox), np.floor(oy)
+                ax, ay = ox - fx, oy - fy
+                x0, y0 = j + int(fx), i + int(fy)
+                v00 = _tap(src, y0, x0, k, h, w, padding)
+                v01 = _tap(src, y0, x0 + 1, k, h, w, padding)
+                v10 = _tap(src, y0 + 1, x0, k, h, w, padding)
+                v11 = _tap(src, y0 + 1, x0 + 1, k, h, w, padding)
+                top = (one - ax) * v00 + ax * v01
+                bottom = (one - ax) * v10 + ax * v11
+                rgb[k][HALO + i - r0, HALO + j - c0] = ((one - ay) * top + ay * bottom) * gain
+
+
+@njit(parallel=True, **_JIT)
+def lens_kernel(
+    src,
+    table,
+    cy,
+    cx,
+    padding,
+    post_ops,
+    post_f,
+    out_mode,
+    lut,
+    gamma,
+    scale,
+    orient,
+    out,
+    threads,
+    tile_rows,
+    tile_cols,
+):
+    """Remap ``src`` (H, W, 3) float32 through the field (``table`` (n, 3, 2) float32,
+    centre ``cy``, ``cx`` float32; ``padding`` a :data:`PADDING_CODES` value), then the
+    RGB stages ``post_ops``/``post_f``, tone/transfer and quantisation of
+    :func:`rawsim.engine.process._finish` into ``out`` (oriented). Tiles of
+    ``tile_rows`` × ``tile_cols``, parallel over ``threads``."""
+    h, w = src.shape[0], src.shape[1]
+    rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
+    tiles = rows * cols
+    threads = max(1, min(tiles, threads))
+    for t in prange(threads):
+        rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
+        for tile in range(t, tiles, threads):
+            r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
+            r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
+            _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1)
+            _finish(
+                rgb,
+                post_ops,
+                post_f,
+                out_mode,
+                lut,
+                gamma,
+                scale,
+                orient,
+                out,
+                r0,
+                r1,
+                c0,
+                c1,
+                h,
+                w,
+            )
+
+
+def field_args(field: LensField) -> tuple[np.ndarray, np.float32, np.float32]:
+    """The kernel's (table, cy, cx) for ``field``."""
+    cy, cx = field.centre
+    return np.ascontiguousarray(field.table), np.float32(cy), np.float32(cx)
+
+
+def remap_lens(image: np.ndarray, field: LensField, padding: str = "zeros") -> np.ndarray:
+    """:func:`rawsim.isp.lens.remap_lens` compiled: ``image`` (H, W, 3) float32, linear
+    RGB of the field's size → (H, W, 3) float32."""
+    check_choice("padding", padding, PADDING_CODES)
+    image = np.ascontiguousarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.float32:
+        raise ParameterError(f"image must be (H, W, 3) float32, got {image.shape} {image.dtype}")
+    if image.shape[:2] != (field.height, field.width):
+        raise ParameterError(
+            f"lens field is for {field.height} × {field.width} pixels, "
+            f"the image is {image.shape[0]} × {image.shape[1]}"
+        )
+    if not np.isfinite(image).all():
+        raise ParameterError("image contains NaN or infinite values")
+    out = np.empty_like(image)
+    ops, opf = np.zeros(0, np.int64), np.zeros((1, 18))
+    lut = np.zeros(2, np.float32)
+    orient = np.zeros(3, np.bool_)
+    lens_kernel(
+        image,
+        *field_args(field),
+        PADDING_CODES[padding],
+        ops,
+        opf,
+        OUT_FLOAT,
+        lut,
+        1.0,
+        1.0,
+        orient,
+        out,
+        numba.get_num_threads(),
+        TILE_ROWS,
+        TILE_COLS,
+    )
+    return out
+
+
+def correct_lens(
+    image: np.ndarray, params: LensParams | dict, padding: str = "zeros"
+) -> np.ndarray:
+    """:func:`rawsim.isp.lens.correct_lens` compiled, on (H, W, 3) float32."""
+    return remap_lens(image, lens_field(params, *np.shape(image)[:2]), padding)
+
+
+def add_lens(image: np.ndarray, params: LensParams | dict, padding: str = "reflect") -> np.ndarray:
+    """:func:`rawsim.isp.lens.add_lens` compiled, on (H, W, 3) float32."""
+    return remap_lens(image, lens_field(params, *np.shape(image)[:2], reverse=True), padding)

@@ -1,0 +1,145 @@
+"""Lens correction (torch reference): lensfun's distortion, TCA and vignetting, both ways.
+
+:func:`remap_lens` applies a :class:`~rawsim.io.lensfun.LensField` (the radial
+tables of :mod:`rawsim.io.lensfun`) to linear RGB: each output pixel's channel k
+samples the input bilinearly at its own source position and is multiplied by
+its gain. :func:`correct_lens` takes the lens out of a photo (what ``rawsim
+process --lens-correction auto`` does after the demosaic); :func:`add_lens`
+puts it into a clean image (the unprocessing direction). The compiled engine's
+twin is :mod:`rawsim.engine.lens`; both evaluate the same float32 arithmetic.
+
+Differentiable in the image (the field is fixed). Values are linear, any range,
+never clipped. Positions outside the input take ``padding``: ``zeros`` (black:
+there is no image there), ``border`` (the nearest edge pixel) or ``reflect``
+(mirrored about the edge pixel, which is not repeated).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from rawsim.errors import ParameterError, check_choice, check_image
+from rawsim.io.lensfun import LensField, LensParams, lens_field
+
+PADDINGS = ("zeros", "border", "reflect")
+#: Output pixels per chunk: the per-pixel temporaries stay a few tens of MB.
+CHUNK_PIXELS = 1 << 18
+
+
+def remap_lens(image: torch.Tensor, field: LensField, padding: str = "zeros") -> torch.Tensor:
+    """Apply ``field`` to ``image`` (B, 3, H, W), linear RGB with H × W the field's size:
+    channel k of output pixel p is ``gain_k · bilinear(image_k, source_k(p))``.
+    Returns (B, 3, H, W) in ``image``'s dtype, computed in chunks of rows."""
+    check_image(image, "image", channels=3)
+    check_choice("padding", padding, PADDINGS)
+    h, w = image.shape[-2:]
+    if (h, w) != (field.height, field.width):
+        raise ParameterError(
+            f"lens field is for {field.height} × {field.width} pixels, the image is {h} × {w}"
+        )
+    table = torch.tensor(field.table, dtype=image.dtype, device=image.device)
+    rows = max(1, CHUNK_PIXELS // w)
+    parts = [
+        _remap_rows(image, field, table, top, min(h, top + rows), padding)
+        for top in range(0, h, rows)
+    ]
+    return torch.cat(parts, dim=-2)
+
+
+def _remap_rows(image, field, table, top, bottom, padding):
+    """Output rows [top, bottom): (B, 3, rows, W). The engine's arithmetic, in order."""
+    b, _, h, w = image.shape
+    dev, dt = image.device, image.dtype
+    cy, cx = (torch.tensor(v, dtype=torch.float32).to(dt) for v in field.centre)
+    xi = torch.arange(w, device=dev)
+    yi = torch.arange(top, bottom, device=dev)
+    dx = (xi.to(dt) - cx.to(dev))[None, :].expand(bottom - top, w)
+    dy = (yi.to(dt) - cy.to(dev))[:, None].expand(bottom - top, w)
+    # √ in float64: correctly rounded, as the engine's (torch's float32 √ may be off by an ulp)
+    r = torch.sqrt((dx * dx + dy * dy).double()).to(dt)
+    i = r.long().clamp(max=table.shape[0] - 2)  # r ≥ 0: truncation is floor
+    f = r - i.to(dt)
+    out = []
+    for k in range(3):
+        lo, hi = table[i, k], table[i + 1, k]  # (rows, W, 2): ratio, gain
+        ratio = lo[..., 0] + f * (hi[..., 0] - lo[..., 0])
+        gain = lo[..., 1] + f * (hi[..., 1] - lo[..., 1])
+        m = ratio - 1
+        ox, oy = dx * m, dy * m  # source − output, small: kept apart from the position
+        fx, fy = torch.floor(ox), torch.floor(oy)
+        ax, ay = ox - fx, oy - fy
+        x0 = xi[None, :] + fx.long()
+        y0 = yi[:, None] + fy.long()
+        plane = image[:, k].reshape(b, h * w)
+        v00 = _tap(plane, y0, x0, h, w, padding)
+        v01 = _tap(plane, y0, x0 + 1, h, w, padding)
+        v10 = _tap(plane, y0 + 1, x0, h, w, padding)
+        v11 = _tap(plane, y0 + 1, x0 + 1, h, w, padding)
+        one = torch.ones((), dtype=dt, device=dev)
+        top_row = (one - ax) * v00 + ax * v01
+        bottom_row = (one - ax) * v10 + ax * v11
+        out.append(((one - ay) * top_row + ay * bottom_row) * gain)
+    return torch.stack(out, dim=1)
+
+
+def _tap(plane: torch.Tensor, y: torch.Tensor, x: torch.Tensor, h: int, w: int, padding: str):
+    """``plane`` (B, H·W) at integer positions (y, x) (rows, W), outside per ``padding``."""
+    if padding == "zeros":
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        v = plane[:, y.clamp(0, h - 1) * w + x.clamp(0, w - 1)]
+        return torch.where(inside, v, torch.zeros((), dtype=plane.dtype, device=plane.device))
+    if padding == "border":
+        return plane[:, y.clamp(0, h - 1) * w + x.clamp(0, w - 1)]
+    if padding == "reflect":
+        return plane[:, _reflect(y, h) * w + _reflect(x, w)]
+    raise ParameterError(f"unknown padding {padding!r}; valid: {', '.join(PADDINGS)}")
+
+
+def _reflect(i: torch.Tensor, n: int) -> torch.Tensor:
+    """Indices mirrored about the first and last (not repeated), then held in [0, n − 1]."""
+    i = torch.where(i < 0, -i, i)
+    i = torch.where(i > n - 1, 2 * (n - 1) - i, i)
+    return i.clamp(0, n - 1)
+
+
+def correct_lens(
+    image: torch.Tensor, params: LensParams | dict, padding: str = "zeros"
+) -> torch.Tensor:
+    """Take the lens of ``params`` (a :class:`~rawsim.io.lensfun.LensParams` or its dict)
+    out of ``image`` (B, 3, H, W), linear camera RGB of the whole frame: distortion,
+    TCA and vignetting, as lensfun corrects them. Where the lens saw nothing
+    (pincushion corners): ``padding``, black by default."""
+    check_image(image, "image", channels=3)
+    return remap_lens(image, lens_field(params, *image.shape[-2:]), padding)
+
+
+def add_lens(
+    image: torch.Tensor, params: LensParams | dict, padding: str = "reflect"
+) -> torch.Tensor:
+    """Give ``image`` (B, 3, H, W), clean linear RGB of the whole frame, the distortion,
+    TCA and vignetting of the lens of ``params``: what the lens would have made of the
+    scene (:func:`correct_lens` undoes it, up to resampling). Where the lens would
+    see beyond the image (barrel corners): ``padding``, mirrored by default."""
+    check_image(image, "image", channels=3)
+    return remap_lens(image, lens_field(params, *image.shape[-2:], reverse=True), padding)
+
+
+class LensCorrection(nn.Module):
+    """Lens-correction stage: ``forward`` corrects the lens, ``reverse`` adds it.
+
+    ``params``: the lens (:class:`~rawsim.io.lensfun.LensParams` or its dict), or None
+    for a raw whose lens is unknown: then both directions return the image as it is.
+    The field follows the input's size (a half-size render gets its own).
+    """
+
+    def __init__(self, params: LensParams | dict | None, padding: str = "zeros") -> None:
+        super().__init__()
+        self.params = None if params is None else LensParams.of(params)
+        self.padding = check_choice("padding", padding, PADDINGS)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x if self.params is None else correct_lens(x, self.params, self.padding)
+
+    def reverse(self, x: torch.Tensor) -> torch.Tensor:
+        return x if self.params is None else add_lens(x, self.params, self.padding)
