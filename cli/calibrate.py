@@ -52,9 +52,10 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
 
     RAWS are flat-field frames of one camera (or ordinary photos with --method
     patches); folders are searched for raws. Frames are grouped by the ISO in
-    their metadata and read one at a time. Per ISO and CFA channel, block
-    variance versus mean is fitted robustly: the slope is K, the offset the read
-    noise. Dark frames (--dark) give the read σ, the row σ (full-width row
+    their metadata and read one at a time. Per ISO and CFA channel (R, Gr, Gb, B
+    for Bayer; R, G, B for X-Trans and other layouts, each pooling its sites of
+    the period), block variance versus mean is fitted robustly: the slope is K,
+    the offset the read noise. Dark frames (--dark) give the read σ, the row σ (full-width row
     means), the per-channel bias and the Tukey-lambda shape λ; without them λ is
     not fitted and the profile has no physics model. Every figure comes with a
     standard error (±, a bootstrap over image regions).
