@@ -95,6 +95,32 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "rec2020; ROMM's (1.8, linear toe) for prophoto.",
 )
 @click.option(
+    "--lens-correction",
+    type=click.Choice(["auto", "off"]),
+    help="Correct the lens's distortion, lateral chromatic aberration and vignetting "
+    "with lensfun's data for the raw's camera, lens, focal length, aperture and focus "
+    "distance (from its metadata). Default off, as LibRaw.",
+)
+@click.option(
+    "--lens",
+    metavar="NAME",
+    help="The lens, as lensfun lists it (e.g. 'Canon EF-S 18-55mm f/3.5-5.6 IS STM'), "
+    "for raws whose metadata lacks it; corrects the lens.",
+)
+@click.option(
+    "--focal-length",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="MM",
+    help="Focal length in mm, for raws whose metadata lacks it; corrects the lens.",
+)
+@click.option(
+    "--aperture",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="F",
+    help="f-number, for raws whose metadata lacks it (else vignetting is not "
+    "corrected); corrects the lens.",
+)
+@click.option(
     "--format",
     "fmt",
     type=click.Choice(FORMATS + tuple(FORMAT_ALIASES), case_sensitive=False),
@@ -149,6 +175,10 @@ def command(
     baseline_exposure,
     output_space,
     transfer,
+    lens_correction,
+    lens,
+    focal_length,
+    aperture,
     fmt,
     bits,
     resize,
@@ -169,9 +199,10 @@ def command(
     stages in the config (default: 'rawsim isp show'): black level, white
     balance, highlights, demosaic, colour matrix, exposure, tone, transfer,
     orientation, with optional dead-pixel, lens-shading, anti-aliasing,
-    denoise and YCbCr stages. No automatic brightening by default: at exposure
-    0 the white level maps to 1.0 (--exposure auto brightens as LibRaw does; a
-    render whose 99th percentile is below 1/8 of full scale gets a warning).
+    denoise, lens-correction (lensfun) and YCbCr stages. No automatic
+    brightening by default: at exposure 0 the white level maps to 1.0
+    (--exposure auto brightens as LibRaw does; a render whose 99th percentile
+    is below 1/8 of full scale gets a warning).
 
     Each file gives <stem>.<ext> and <stem>.process.json (camera data, warnings, the
     white balance and matrix used, and the effective config). The image keeps
@@ -206,7 +237,15 @@ def command(
         baseline_exposure=baseline_exposure,
         output_space=output_space,
         transfer=transfer,
+        lens_correction=lens_correction,
+        lens=lens,
+        focal_length=focal_length,
+        aperture=aperture,
     )
+    if lens:  # a name lensfun does not know is a usage error, before any file
+        from rawsim.io.lensfun import find_lens
+
+        find_lens(lens, required=True)
     if thumbnail:
         if ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT and fmt != "jpg":
             raise click.UsageError("--thumbnail writes the raw's embedded JPEG: --format jpg", ctx)

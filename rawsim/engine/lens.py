@@ -55,7 +55,7 @@ def _tap(src, y, x, k, h, w, padding):
 
 
 @njit(**_JIT)
-def _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1):
+def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
     """Output pixels [r0, r1) × [c0, c1) into the tile buffers ``rgb`` (offset HALO)."""
     h, w = src.shape[0], src.shape[1]
     n = table.shape[0]
@@ -65,8 +65,9 @@ def _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1):
         for j in range(c0, c1):
             dx = np.float32(j) - cx
             r = np.float32(np.sqrt(np.float64(dx * dx + dy * dy)))
-            t = min(int(r), n - 2)
-            f = r - np.float32(t)
+            u = r * knots
+            t = min(int(u), n - 2)
+            f = u - np.float32(t)
             for k in range(3):
                 lo_r, hi_r = table[t, k, 0], table[t + 1, k, 0]
                 lo_g, hi_g = table[t, k, 1], table[t + 1, k, 1]
@@ -90,6 +91,7 @@ def _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1):
 def lens_kernel(
     src,
     table,
+    knots,
     cy,
     cx,
     padding,
@@ -105,9 +107,10 @@ def lens_kernel(
     tile_rows,
     tile_cols,
 ):
-    """Remap ``src`` (H, W, 3) float32 through the field (``table`` (n, 3, 2) float32,
-    centre ``cy``, ``cx`` float32; ``padding`` a :data:`PADDING_CODES` value), then the
-    RGB stages ``post_ops``/``post_f``, tone/transfer and quantisation of
+    """Remap ``src`` (H, W, 3) float32 through a field (:func:`field_args`: ``table``
+    (n, 3, 2), ``knots`` per pixel of radius, centre ``cy``, ``cx``, all float32;
+    ``padding`` a :data:`PADDING_CODES` value), then the RGB stages
+    ``post_ops``/``post_f``, tone/transfer and quantisation of
     :func:`rawsim.engine.process._finish` into ``out`` (oriented). Tiles of
     ``tile_rows`` × ``tile_cols``, parallel over ``threads``."""
     h, w = src.shape[0], src.shape[1]
@@ -119,7 +122,7 @@ def lens_kernel(
         for tile in range(t, tiles, threads):
             r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
-            _remap_tile(src, table, cy, cx, padding, rgb, r0, r1, c0, c1)
+            _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1)
             _finish(
                 rgb,
                 post_ops,
@@ -139,10 +142,11 @@ def lens_kernel(
             )
 
 
-def field_args(field: LensField) -> tuple[np.ndarray, np.float32, np.float32]:
-    """The kernel's (table, cy, cx) for ``field``."""
+def field_args(field: LensField) -> tuple:
+    """The kernel's (table, knots, cy, cx) for ``field``."""
     cy, cx = field.centre
-    return np.ascontiguousarray(field.table), np.float32(cy), np.float32(cx)
+    knots = np.float32(field.scale)
+    return np.ascontiguousarray(field.table), knots, np.float32(cy), np.float32(cx)
 
 
 def remap_lens(image: np.ndarray, field: LensField, padding: str = "zeros") -> np.ndarray:

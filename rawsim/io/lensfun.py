@@ -47,8 +47,11 @@ from rawsim.errors import ParameterError
 CORRECTIONS = ("distortion", "tca", "vignetting")
 #: Focus distance (m) when the metadata has none: lensfunpy's default, "far".
 DEFAULT_DISTANCE = 1000.0
-#: Table step: one entry per pixel of radius.
+#: Radius step (px) of lensfun's profile where the reverse samples it beyond the frame.
 STEP = 1.0
+#: Fewest intervals of a field's table: small images too resolve steep vignetting
+#: (1/V of lensfun's data rises tenfold within 2 % of the radius at some corners).
+MIN_KNOTS = 4096
 #: Largest disagreement (px) between the radial tables and lensfun at the frame's
 #: corners before a model counts as not radial.
 RADIAL_TOLERANCE = 0.02
@@ -235,7 +238,7 @@ def lens_params(
         )
     if camera is None:
         crop = found.crop_factor
-        who = f"{make} {model}".strip() or "the camera"
+        who = _camera_text(make, model) or "the camera"
         warnings.append(
             f"lens correction: {who} is not in lensfun's database: assuming the sensor "
             f"{found.model} was calibrated on (crop factor {crop:.3g})"
@@ -264,7 +267,7 @@ def lens_params(
         aperture=aperture,
         distance=distance,
         corrections=tuple(c for c in CORRECTIONS if c in corrections and c in available),
-        camera="" if camera is None else f"{camera.maker} {camera.model}",
+        camera="" if camera is None else _camera_text(camera.maker, camera.model),
         lensfun=lensfun_version(),
     )
     return params, warnings
@@ -320,11 +323,20 @@ def raw_lens(
     as does an explicit focal length outside the lens's range.
     """
     name = metadata.get("Exif.Photo.LensModel") if lens == "auto" else lens
-    camera_name = f"{make} {model}".strip()
+    camera_name = _camera_text(make, model)
     if not name:
         return None, [
             f"lens correction: the raw names no lens (no LensModel){_of(camera_name)}: "
             "not corrected; pass --lens NAME as lensfun lists it"
+        ]
+    camera = find_camera(make, model)
+    if lens != "auto":
+        find_lens(name, camera, required=True)  # a name the user gave: an error
+    elif find_lens(name, camera) is None:
+        return None, [
+            f"lens correction: lens {name!r} (from the metadata) is not in lensfun's "
+            f"database{_of(camera_name)}{_closest(name, camera)}: not corrected; "
+            "pass --lens NAME if it is that lens"
         ]
     focal = focal_length
     if focal == "auto":
@@ -338,21 +350,19 @@ def raw_lens(
     if distance == "auto":
         distance = _number(metadata.get("Exif.Photo.SubjectDistance"))
         distance = None if distance is None or distance > 1e6 else distance  # 2³²−1: infinity
-    camera = find_camera(make, model)
-    if lens != "auto":
-        find_lens(name, camera, required=True)  # a name the user gave: an error
-    elif find_lens(name, camera) is None:
-        return None, [
-            f"lens correction: lens {name!r} (from the metadata) is not in lensfun's "
-            f"database{_of(camera_name)}{_closest(name, camera)}: not corrected; "
-            "pass --lens NAME if it is that lens"
-        ]
     try:
         return lens_params(name, focal, fnumber, distance, make, model, corrections)
     except ParameterError as err:  # a focal length outside the lens's range
         if focal_length != "auto":
             raise
         return None, [f"lens correction: {err}: not corrected"]
+
+
+def _camera_text(make: str, model: str) -> str:
+    """ "Canon EOS 60D" for make Canon, model "Canon EOS 60D"; "SONY ILCE-6000"."""
+    if model.casefold().startswith(make.casefold()):
+        return model.strip()
+    return f"{make} {model}".strip()
 
 
 def _of(camera: str) -> str:
@@ -367,12 +377,14 @@ class LensField:
     Output pixel (y, x) (integers) lies at radius r = |(x − cx, y − cy)| from the lens
     centre; channel k of it is ``gain_k(r) · I_k(centre + (p − centre) · ratio_k(r))``,
     sampled bilinearly, where ``ratio_k`` and ``gain_k`` are interpolated linearly in
-    ``table`` (n, 3, 2) float32 (``[:, k, 0]`` ratio, ``[:, k, 1]`` gain) at t = r
-    (one entry per pixel of radius, :data:`STEP`; n covers the farthest pixel).
+    ``table`` (n, 3, 2) float32 (``[:, k, 0]`` ratio, ``[:, k, 1]`` gain) at t = r · scale
+    (float32): knots at most a pixel of radius apart (at least :data:`MIN_KNOTS`
+    intervals), from the centre (t = 0) to the farthest pixel (t = n − 1).
 
     Attributes:
         height, width: the image it is for (pixels).
         centre: (cy, cx), the lens centre in pixel coordinates.
+        scale: knots per pixel of radius (≥ 1), float32-exact.
         table: (n, 3, 2) float32, read-only.
         reverse: False: corrects the lens; True: adds it to a clean image.
     """
@@ -380,6 +392,7 @@ class LensField:
     height: int
     width: int
     centre: tuple[float, float]
+    scale: float
     table: np.ndarray = field(repr=False)
     reverse: bool = False
 
@@ -409,9 +422,10 @@ def _field(params: LensParams, height: int, width: int, reverse: bool) -> LensFi
     size = min(wm, hm)
     cx, cy = (wm + lens.center_x * size) / 2, (hm + lens.center_y * size) / 2
     corners = [(0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)]
-    reach = max(math.hypot(x - cx, y - cy) for x, y in corners)
-    n = int(math.ceil(reach / STEP)) + 2
-    radii = np.arange(n) * STEP
+    reach = max(max(math.hypot(x - cx, y - cy) for x, y in corners), 1.0)
+    n = max(int(math.ceil(reach)), MIN_KNOTS) + 1  # ≤ 1 px apart, the last at the farthest pixel
+    radii = np.linspace(0.0, reach, n)
+    scale = float(np.float32((n - 1) / reach))
 
     flags = 0
     if "distortion" in params.corrections:
@@ -444,7 +458,7 @@ def _field(params: LensParams, height: int, width: int, reverse: bool) -> LensFi
         # g_k over enough radius that it passes the farthest output pixel, then inverted.
         top = reach + 2 * STEP
         while True:
-            r_u = np.arange(int(math.ceil(top / STEP)) + 2) * STEP
+            r_u = np.arange(int(math.ceil(top / STEP)) + 1) * STEP
             g = profile(r_u)
             if (g[-1] >= reach + STEP).all() or top > 8 * reach + 8:
                 break
@@ -471,9 +485,12 @@ def _field(params: LensParams, height: int, width: int, reverse: bool) -> LensFi
     if "vignetting" in params.corrections:
         vig = lens.interpolate_vignetting(params.focal_length, params.aperture, params.distance)
         k1, k2, k3 = vig.terms[:3]
-        # ρ = 1 at the corner of the calibration sensor (lensfun's vignetting unit).
+        # ρ = 1 at the corner of the calibration sensor (lensfun's vignetting unit). Where a
+        # channel samples beyond the frame's farthest pixel (there is only padding there)
+        # the gain holds its value at that radius.
         unit = 2 * params.lens_crop_factor / (params.crop_factor * math.hypot(wm, hm))
-        rho2 = (unit * (radii[:, None] if reverse else source)) ** 2
+        at = radii[:, None] if reverse else np.minimum(source, reach)
+        rho2 = (unit * at) ** 2
         v = 1 + k1 * rho2 + k2 * rho2**2 + k3 * rho2**3
         if not (v > 0).all():
             raise ParameterError(
@@ -483,7 +500,7 @@ def _field(params: LensParams, height: int, width: int, reverse: bool) -> LensFi
         gain = v * np.ones((1, 3)) if reverse else 1 / v
     table = np.stack([ratio, gain], axis=-1).astype(np.float32)
     table.flags.writeable = False
-    return LensField(height, width, (float(cy), float(cx)), table, reverse)
+    return LensField(height, width, (float(cy), float(cx)), scale, table, reverse)
 
 
 def _radial_profile(modifier, cx: float, cy: float, radii: np.ndarray) -> np.ndarray:

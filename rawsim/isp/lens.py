@@ -58,8 +58,9 @@ def _remap_rows(image, field, table, top, bottom, padding):
     dy = (yi.to(dt) - cy.to(dev))[:, None].expand(bottom - top, w)
     # √ in float64: correctly rounded, as the engine's (torch's float32 √ may be off by an ulp)
     r = torch.sqrt((dx * dx + dy * dy).double()).to(dt)
-    i = r.long().clamp(max=table.shape[0] - 2)  # r ≥ 0: truncation is floor
-    f = r - i.to(dt)
+    t = r * torch.tensor(field.scale, dtype=torch.float32).to(dt)
+    i = t.long().clamp(max=table.shape[0] - 2)  # t ≥ 0: truncation is floor
+    f = t - i.to(dt)
     out = []
     for k in range(3):
         lo, hi = table[i, k], table[i + 1, k]  # (rows, W, 2): ratio, gain
@@ -130,7 +131,9 @@ class LensCorrection(nn.Module):
 
     ``params``: the lens (:class:`~rawsim.io.lensfun.LensParams` or its dict), or None
     for a raw whose lens is unknown: then both directions return the image as it is.
-    The field follows the input's size (a half-size render gets its own).
+    ``padding``: what the correction samples outside the image (black by default);
+    ``reverse`` mirrors, as :func:`add_lens`. The field follows the input's size (a
+    half-size render gets its own).
     """
 
     def __init__(self, params: LensParams | dict | None, padding: str = "zeros") -> None:
@@ -142,4 +145,4 @@ class LensCorrection(nn.Module):
         return x if self.params is None else correct_lens(x, self.params, self.padding)
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
-        return x if self.params is None else add_lens(x, self.params, self.padding)
+        return x if self.params is None else add_lens(x, self.params)

@@ -1,0 +1,471 @@
+"""Lens correction from lensfun (distortion, TCA, vignetting), both ways, both backends.
+
+* The correction agrees with lensfun's own ``Modifier`` (its coordinates, its
+  devignetting) on a photo; vignetting gains match lensfun's.
+* The compiled engine equals the torch reference: the remap functions, and whole
+  renders through the process pipeline (Bayer, X-Trans, half size, orientations,
+  strips and tiles).
+* gradcheck in float64; adding the lens then correcting it gives the photo back.
+* Lookups: the metadata's lens, a named lens, and one-line warnings and errors.
+* ``rawsim process --lens-correction auto`` and ``--lens`` on DNGs built here.
+"""
+
+from __future__ import annotations
+
+import json
+
+import exiv2
+import lensfunpy
+import numba
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from PIL import Image
+
+from rawsim.cfa import CFA
+from rawsim.engine import lens as engine_lens
+from rawsim.errors import ParameterError
+from rawsim.io.dng import DngInfo, write_dng
+from rawsim.io.lensfun import (
+    LensParams,
+    database,
+    lens_field,
+    lens_params,
+    raw_lens,
+)
+from rawsim.io.metadata import PhotoMetadata
+from rawsim.isp.config import IspConfig, LensCorrectionStage, default_config, override
+from rawsim.isp.lens import PADDINGS, LensCorrection, add_lens, correct_lens, remap_lens
+from rawsim.pipelines.process import engine_plan, engine_render, render
+from rawsim_cli.main import cli
+from tests.conftest import DATA, psnr
+from tests.test_engine_process import _assert_close, _both, synthetic_raw
+
+#: A kit zoom with strong barrel distortion at its widest (8 % at the corners),
+#: lateral CA (poly3) and vignetting in lensfun, on the APS-C camera it came with.
+KIT = dict(lens="E PZ 16-50mm f/3.5-5.6 OSS", make="SONY", model="ILCE-6000")
+#: lensfun's other models and conventions: poly3 distortion with poly3 TCA (its √
+#: term too); poly5 on a compact; a Four Thirds (4:3) calibration; a full-frame
+#: calibration on an APS-C camera.
+OTHERS = [
+    ("Tamron SP AF 10-24mm f/3.5-4.5 Di II LD Aspherical (IF)", "NIKON CORPORATION",
+     "NIKON D7000", 10.0),
+    ("Canon PowerShot G12 & compatibles (Standard)", "Canon", "Canon PowerShot G12", 6.1),
+    ("Olympus M.Zuiko Digital ED 12-50mm f/3.5-6.3 EZ", "OLYMPUS IMAGING CORP.", "E-M5", 12.0),
+    ("Canon EF 24-105mm f/4L IS USM", "Canon", "Canon EOS 700D", 24.0),
+]  # fmt: skip
+
+
+def kit(aperture: float | None = 8.0, focal: float = 16.0, **kw) -> LensParams:
+    params, warnings = lens_params(
+        KIT["lens"], focal, aperture, None, KIT["make"], KIT["model"], **kw
+    )
+    assert aperture is None or not warnings
+    return params
+
+
+def photo(name: str = "chelsea.png") -> np.ndarray:
+    """A photo as (H, W, 3) float32 in [0, 1] (its values taken as linear)."""
+    with Image.open(DATA / "srgb" / name) as im:
+        return np.asarray(im.convert("RGB"), np.float32) / 255
+
+
+def _tensor(image: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(image).permute(2, 0, 1)[None]
+
+
+def _numpy(image: torch.Tensor) -> np.ndarray:
+    return image[0].permute(1, 2, 0).numpy()
+
+
+def _centre(a: np.ndarray, share: float = 0.9) -> np.ndarray:
+    """The central ``share`` of an (H, W, …) array's width and height."""
+    h, w = a.shape[:2]
+    mh, mw = round(h * (1 - share) / 2), round(w * (1 - share) / 2)
+    return a[mh : h - mh, mw : w - mw]
+
+
+# ---- agreement with lensfun --------------------------------------------------------------
+
+
+def _lensfun(params: LensParams, h: int, w: int, flags: int, reverse: bool = False):
+    """lensfun's own Modifier for ``params`` on an image of h × w."""
+    lens = next(
+        lens
+        for lens in database().lenses
+        if lens.model == params.lens and abs(lens.crop_factor - params.lens_crop_factor) < 1e-3
+    )
+    modifier = lensfunpy.Modifier(lens, params.crop_factor, w, h)
+    modifier.initialize(
+        params.focal_length,
+        params.aperture,
+        params.distance,
+        scale=1.0,
+        targeom=lens.type,
+        pixel_format=np.float32,
+        flags=flags,
+        reverse=reverse,
+    )
+    return modifier
+
+
+def _lensfun_coordinates(modifier, h: int, w: int) -> np.ndarray:
+    """(H, W, 3, 2) lensfun's source coordinates, one point per call: its scalar code.
+    (Its rows use SSE's approximate 1/√ and float32 accumulation: 0.2 px off here.)"""
+    out = np.empty((h, w, 3, 2), np.float64)
+    apply = modifier.apply_subpixel_geometry_distortion
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = apply(float(x), float(y), 1, 1)[0, 0]
+    return out
+
+
+def _bilinear(plane: np.ndarray, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+    """``plane`` sampled bilinearly at (sy, sx), 0 outside: numpy, independent of rawsim."""
+    h, w = plane.shape
+    x0, y0 = np.floor(sx).astype(int), np.floor(sy).astype(int)
+    ax, ay = sx - x0, sy - y0
+
+    def tap(y, x):
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        return np.where(inside, plane[y.clip(0, h - 1), x.clip(0, w - 1)], 0.0)
+
+    top = (1 - ax) * tap(y0, x0) + ax * tap(y0, x0 + 1)
+    bottom = (1 - ax) * tap(y0 + 1, x0) + ax * tap(y0 + 1, x0 + 1)
+    return (1 - ay) * top + ay * bottom
+
+
+@pytest.mark.parametrize("lens", ["kit", *[o[0] for o in OTHERS]])
+def test_correction_agrees_with_lensfun(lens):
+    """lensfun's own correction (devignette the photo, then remap it with lensfun's
+    per-pixel coordinates, in numpy) and ours agree to > 60 dB."""
+    image = photo()[:, :450]  # 300 × 450: the 3:2 of the cameras
+    h, w = image.shape[:2]
+    if lens == "kit":
+        params = kit()
+    else:
+        name, make, model, focal = next(o for o in OTHERS if o[0] == lens)
+        params, _ = lens_params(name, focal, 8.0, None, make, model)
+        assert params.camera, "the camera is in lensfun"
+    F = lensfunpy.ModifyFlags
+    coords = _lensfun_coordinates(_lensfun(params, h, w, F.DISTORTION | F.TCA), h, w)
+    devignetted = image.copy()
+    if "vignetting" in params.corrections:
+        _lensfun(params, h, w, F.VIGNETTING).apply_color_modification(devignetted)
+    ref = np.stack(
+        [_bilinear(devignetted[..., k], coords[..., k, 0], coords[..., k, 1]) for k in range(3)],
+        -1,
+    )
+    ours = _numpy(correct_lens(_tensor(image), params))
+    inside = ((coords >= 0) & (coords <= [w - 1, h - 1])).all(axis=(2, 3))
+    assert inside.mean() > 0.95
+    moved = np.abs(coords[..., 0] - np.arange(w)[None, :, None]).max()
+    assert moved > 1.5, "the lens moves pixels"
+    assert psnr(ours[inside], ref[inside]) > 60
+
+
+@pytest.mark.parametrize("aperture", [3.5, 8.0])
+def test_vignetting_gains_are_lensfuns(aperture):
+    """Vignetting alone: our gains are lensfun's, correcting divides by them and adding
+    multiplies (lensfun accumulates its radius in float32: relative 1e-3)."""
+    params = kit(aperture, corrections=("vignetting",))
+    h, w = 40, 60
+    ones = np.ones((h, w, 3), np.float32)
+    theirs = ones.copy()
+    _lensfun(params, h, w, lensfunpy.ModifyFlags.VIGNETTING).apply_color_modification(theirs)
+    gain = correct_lens(_tensor(ones), params)
+    np.testing.assert_allclose(_numpy(gain), theirs, rtol=2e-3)
+    assert theirs.max() > 3  # strong at the corners of this kit zoom
+    added = add_lens(_tensor(ones), params)  # V and 1/V each interpolated in their table
+    np.testing.assert_allclose((gain * added).numpy(), 1, rtol=1e-4)
+
+
+def test_field_is_small_and_follows_the_image():
+    """A 24 MP frame needs tables, not full-resolution coordinate maps; the centre is
+    lensfun's (pixel centres at integers), and a half-size frame gets its own field."""
+    params = kit()
+    full = lens_field(params, 4000, 6000)
+    assert full.table.nbytes < 200_000 and full.centre == (1999.5, 2999.5)
+    half = lens_field(params, 2000, 3000)
+    assert half.centre == (999.5, 1499.5)
+    # the same relative displacement at a corner, whatever the size
+    r_full, r_half = np.hypot(1999.5, 2999.5), np.hypot(999.5, 1499.5)
+    ratio_full = np.interp(r_full * full.scale, np.arange(len(full.table)), full.table[:, 1, 0])
+    ratio_half = np.interp(r_half * half.scale, np.arange(len(half.table)), half.table[:, 1, 0])
+    assert abs(ratio_full - ratio_half) < 1e-3 and ratio_full < 0.93  # barrel: 7 % in
+
+
+# ---- both backends ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("padding", PADDINGS)
+@pytest.mark.parametrize("reverse", [False, True], ids=["correct", "add"])
+def test_engine_remap_equals_torch(padding, reverse):
+    image = np.random.default_rng(0).random((67, 101, 3)).astype(np.float32) * 2 - 0.25
+    field = lens_field(kit(), 67, 101, reverse)
+    ours = engine_lens.remap_lens(image, field, padding)
+    ref = _numpy(remap_lens(_tensor(image), field, padding))
+    np.testing.assert_array_equal(ours, ref)  # the same float32 arithmetic
+
+
+def _lens_config(**changes) -> list[dict]:
+    return override(default_config(), lens=KIT["lens"], focal_length=16.0, aperture=8.0, **changes)
+
+
+@pytest.mark.parametrize(
+    "pattern, changes, orientation",
+    [
+        ("RGGB", {}, 1),
+        ("GBRG", dict(demosaic="menon", tone="aces", exposure=0.5), 6),
+        ("RGGB", dict(demosaic="half"), 3),
+        ("XTRANS", dict(highlights="blend"), 8),
+    ],
+)
+def test_engine_render_equals_torch(pattern, changes, orientation):
+    raw = synthetic_raw(pattern, h=90, w=138, orientation=orientation)
+    config = _lens_config(**changes)
+    _assert_close(*_both(raw, config))
+    _assert_close(*_both(raw, config, "exr", 32))
+    plan = engine_plan(raw, config, "tiff")
+    assert plan.lens == plan.info["lens"] and plan.lens["lens"] == KIT["lens"]
+    # the lens stage moves pixels: without it the render differs
+    plain = engine_render(raw, engine_plan(raw, default_config(), "tiff"), "tiff", 16)
+    if orientation == 1:
+        assert np.abs(plain.astype(int) - engine_render(raw, plan, "tiff", 16)).max() > 1000
+
+
+def test_tall_image_strips_and_tiles():
+    """Torch runs the stages around the lens stage in strips (the image is taller than
+    two strips); the engine gives the same bits for every tile size and thread count."""
+    raw = synthetic_raw("RGGB", h=600, w=60)
+    config = _lens_config()
+    base, ref = _both(raw, config)
+    _assert_close(base, ref)
+    plan = engine_plan(raw, config, "tiff")
+    threads = numba.get_num_threads()
+    try:
+        for tile in ((16, 16), (64, 512)):
+            for n in sorted({1, threads}):
+                numba.set_num_threads(n)
+                assert np.array_equal(engine_render(raw, plan, "tiff", 16, tile), base)
+    finally:
+        numba.set_num_threads(threads)
+
+
+@pytest.mark.parametrize("padding", PADDINGS)
+def test_gradcheck(padding):
+    params = kit(3.5)
+    x = torch.rand(1, 3, 7, 11, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: correct_lens(t, params, padding), (x,))
+    assert torch.autograd.gradcheck(lambda t: add_lens(t, params, padding), (x,))
+
+
+def test_module_equals_functions_and_checks_input():
+    params = kit()
+    x = torch.rand(2, 3, 20, 30)
+    module = LensCorrection(params.to_dict())
+    assert torch.equal(module(x), correct_lens(x, params))
+    assert torch.equal(module.reverse(x), add_lens(x, params))
+    assert torch.equal(LensCorrection(None)(x), x)  # a raw whose lens is unknown
+    with pytest.raises(ParameterError, match="NaN or infinite"):
+        correct_lens(torch.full((1, 3, 8, 8), float("nan")), params)
+    with pytest.raises(ParameterError, match="3 channel"):
+        correct_lens(torch.rand(1, 1, 8, 8), params)
+    with pytest.raises(ParameterError, match="for 8 × 8 pixels, the image is 9 × 8"):
+        remap_lens(torch.rand(1, 3, 9, 8), lens_field(params, 8, 8))
+    with pytest.raises(ParameterError, match="padding"):
+        correct_lens(x, params, "wrap")
+    with pytest.raises(ParameterError, match=r"\(H, W, 3\) float32"):
+        engine_lens.correct_lens(np.zeros((8, 8, 3)), params)
+
+
+# ---- round trip --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("backend", ["torch", "engine"])
+def test_add_then_correct_gives_the_photo_back(backend):
+    """The kit zoom at 16 mm added to a photo, then corrected: the photo again (≥ 30 dB
+    over the central 90 %), far from the distorted image."""
+    image = photo()
+    params = kit()
+    if backend == "torch":
+        distorted = _numpy(add_lens(_tensor(image), params))
+        corrected = _numpy(correct_lens(_tensor(distorted), params))
+    else:
+        distorted = engine_lens.add_lens(image, params)
+        corrected = engine_lens.correct_lens(distorted, params)
+    back = psnr(_centre(corrected), _centre(image))
+    off = psnr(_centre(distorted), _centre(image))
+    assert back >= 30 and off < 22, (back, off)
+    # without vignetting the distortion alone still costs > 10 dB
+    geometric = kit(None)
+    moved = _numpy(add_lens(_tensor(image), geometric))
+    assert psnr(_centre(moved), _centre(image)) < back - 10
+
+
+# ---- lookups and messages ----------------------------------------------------------------
+
+
+def _meta(**tags) -> PhotoMetadata:
+    keys = {"lens": "Exif.Photo.LensModel", "focal": "Exif.Photo.FocalLength"}
+    keys |= {"f": "Exif.Photo.FNumber", "distance": "Exif.Photo.SubjectDistance"}
+    return PhotoMetadata(tuple((keys[k], v) for k, v in tags.items()))
+
+
+def test_lens_from_metadata():
+    meta = _meta(lens="E PZ 16-50mm F3.5-5.6 OSS", focal="160/10", f="56/10", distance="3/1")
+    params, warnings = raw_lens("SONY", "ILCE-6000", meta)
+    assert not warnings
+    assert (params.lens, params.focal_length, params.aperture, params.distance) == (
+        KIT["lens"],
+        16.0,
+        5.6,
+        3.0,
+    )
+    assert params.camera == "Sony ILCE-6000" and params.crop_factor == pytest.approx(1.534)
+    assert LensParams.of(json.loads(json.dumps(params.to_dict()))) == params
+    # explicit values replace the metadata's
+    params, _ = raw_lens("SONY", "ILCE-6000", meta, focal_length=24.0, aperture=11.0)
+    assert (params.focal_length, params.aperture) == (24.0, 11.0)
+
+
+def _one_line(text: str) -> str:
+    assert "\n" not in text
+    return text
+
+
+def test_what_cannot_be_corrected_says_why_in_one_line():
+    # an old raw: no LensModel
+    none, warnings = raw_lens("Canon", "Canon EOS 60D", _meta(focal="50/1"))
+    assert none is None and "--lens NAME" in _one_line(*warnings)
+    # a lens lensfun does not know, from the metadata: a warning naming the closest
+    none, warnings = raw_lens("SONY", "ILCE-6000", _meta(lens="Sony PZ 16-50 Mk IX", focal="16/1"))
+    assert none is None and "not in lensfun's database" in _one_line(*warnings)
+    assert "the closest is 'E PZ 16-50mm f/3.5-5.6 OSS'" in warnings[0]
+    # no focal length
+    none, warnings = raw_lens("SONY", "ILCE-6000", _meta(lens=KIT["lens"]))
+    assert none is None and "--focal-length MM" in _one_line(*warnings)
+    # no aperture: corrected without vignetting
+    params, warnings = raw_lens("SONY", "ILCE-6000", _meta(lens=KIT["lens"], focal="16/1"))
+    assert params.corrections == ("distortion", "tca") and "--aperture F" in _one_line(*warnings)
+    # a camera lensfun does not know: the lens's own sensor, said
+    params, warnings = raw_lens("Acme", "X1", _meta(lens=KIT["lens"], focal="16/1", f="8/1"))
+    assert params.crop_factor == params.lens_crop_factor and "Acme X1" in _one_line(*warnings)
+    # a focal length the lens does not have, from the metadata: not corrected
+    none, warnings = raw_lens("SONY", "ILCE-6000", _meta(lens=KIT["lens"], focal="85/1"))
+    assert none is None and "outside" in _one_line(*warnings)
+    # named by the user: errors
+    with pytest.raises(ParameterError, match="not in lensfun's database") as err:
+        raw_lens("SONY", "ILCE-6000", _meta(), lens="Nonexistent 17-71mm f/9")
+    _one_line(str(err.value))
+    with pytest.raises(ParameterError, match="outside"):
+        raw_lens("SONY", "ILCE-6000", _meta(lens=KIT["lens"]), focal_length=85.0)
+    with pytest.raises(ParameterError, match="missing key 'lens_maker'"):
+        LensParams.of({"lens": KIT["lens"]})
+
+
+def test_config_stage_toml_and_flags():
+    config = IspConfig.default()
+    stage = config.enabled_stage(LensCorrectionStage)
+    assert stage is None, "off by default, as LibRaw"
+    toml = config.to_toml()
+    assert 'name = "lens_correction"' in toml and IspConfig.from_toml(toml) == config
+    on = config.override(lens_correction="auto")
+    assert on.enabled_stage(LensCorrectionStage).lens == "auto"
+    named = config.override(lens=KIT["lens"], focal_length=16)
+    assert named.enabled_stage(LensCorrectionStage).focal_length == 16.0
+    assert on.override(lens_correction="off").enabled_stage(LensCorrectionStage) is None
+    with pytest.raises(ParameterError, match="--lens-correction off: --lens"):
+        config.override(lens_correction="off", lens=KIT["lens"])
+    with pytest.raises(ParameterError, match="corrections"):
+        LensCorrectionStage(corrections=("coma",))
+    # a config without the stage gets it where the default order has it
+    tables = [t for t in config.to_tables() if t["name"] != "lens_correction"]
+    names = [s.name for s in IspConfig.from_tables(tables).override(lens_correction="auto").stages]
+    assert names.index("lens_correction") == names.index("denoise") + 1
+    with pytest.raises(ParameterError, match="must come after 'demosaic'"):
+        IspConfig.from_tables([{"name": "lens_correction"}, *tables])
+
+
+# ---- the CLI -----------------------------------------------------------------------------
+
+
+def _dng(path, image: np.ndarray, lens: str | None, focal: int | None = 16, f: int = 8):
+    """A Bayer DNG of ``image`` (RGGB, white balanced) from the kit's camera, with the
+    lens tags exiv2 writes into its EXIF (what unprocess records)."""
+    h, w = image.shape[:2]
+    mosaic = np.empty((h, w))
+    mosaic[0::2, 0::2], mosaic[0::2, 1::2] = image[0::2, 0::2, 0], image[0::2, 1::2, 1]
+    mosaic[1::2, 0::2], mosaic[1::2, 1::2] = image[1::2, 0::2, 1], image[1::2, 1::2, 2]
+    info = DngInfo(CFA("RGGB"), 0, 65535, np.eye(3).tolist(), (1, 1, 1), "SONY", "ILCE-6000",
+                   "Sony ILCE-6000", 100)  # fmt: skip
+    write_dng(path, np.round(mosaic * 65535).astype(np.uint16), info)
+    img = exiv2.ImageFactory.open(str(path))
+    img.readMetadata()
+    exif = img.exifData()
+    if lens:
+        exif["Exif.Photo.LensModel"] = lens
+    if focal:
+        exif["Exif.Photo.FocalLength"] = exiv2.URationalValue([(focal, 1)])
+    exif["Exif.Photo.FNumber"] = exiv2.URationalValue([(f, 1)])
+    img.writeMetadata()
+    return path
+
+
+def _process(*args):
+    return CliRunner().invoke(cli, ["process", *map(str, args)], catch_exceptions=False)
+
+
+def test_cli_lens_correction(tmp_path):
+    image = photo()[:200, :300]
+    distorted = engine_lens.add_lens(image, kit())
+    tagged = _dng(tmp_path / "kit.dng", distorted, "E PZ 16-50mm F3.5-5.6 OSS")
+    bare = _dng(tmp_path / "old.dng", distorted, None)
+    common = ["--demosaic", "bilinear", "--output-space", "camera", "--format", "exr"]
+    common += ["--bits", "32", "--wb", "1,1,1"]
+
+    def run(src, out, *flags):
+        result = _process(src, "-o", tmp_path / out, *common, *flags)
+        assert result.exit_code == 0, result.output
+        stem = tmp_path / out / src.stem
+        meta = json.loads(stem.with_suffix(".process.json").read_text())
+        import OpenImageIO as oiio
+
+        return oiio.ImageBuf(str(stem.with_suffix(".exr"))).get_pixels(), meta, result.output
+
+    plain, meta, _ = run(tagged, "plain")
+    assert "lens" not in meta  # off by default
+    fixed, meta, _ = run(tagged, "auto", "--lens-correction", "auto")
+    assert meta["lens"]["lens"] == KIT["lens"] and meta["lens"]["focal_length"] == 16
+    assert meta["lens"]["aperture"] == 8 and not meta["warnings"]
+    # the lens is gone: the render is the photo again (demosaic aside), not the distorted one
+    assert psnr(_centre(fixed), _centre(image)) > psnr(_centre(plain), _centre(image)) + 8
+    # an old raw without LensModel: a warning saying what to pass, rendered uncorrected
+    same, meta, output = run(bare, "bare", "--lens-correction", "auto")
+    assert meta["lens"] is None and "pass --lens NAME" in output
+    np.testing.assert_array_equal(same, plain)
+    named, meta, _ = run(bare, "named", "--lens", KIT["lens"])
+    assert meta["lens"]["lens"] == KIT["lens"]
+    np.testing.assert_array_equal(named, fixed)
+    # usage errors, in one line, before any file
+    bad = _process(bare, "-o", tmp_path / "bad", "--lens", "Nonexistent 17-71mm f/9")
+    assert bad.exit_code == 2 and "not in lensfun's database" in bad.output
+    both = _process(bare, "-o", tmp_path / "bad", "--lens-correction", "off", "--lens", "x")
+    assert both.exit_code == 2 and "--lens-correction off" in both.output
+    shown = CliRunner().invoke(cli, ["isp", "show"])
+    assert 'name = "lens_correction"' in shown.output
+
+
+def test_reference_render_of_a_real_dng():
+    """A real raw with its lens in the metadata (a linear DNG: the torch reference
+    renders it): the stage finds camera and lens, and moves the pixels."""
+    from rawsim.io.raw import read_raw
+
+    raw = read_raw(DATA / "raw" / "canon_eos6d_linear_raw_no_cfa.dng")
+    config = override(default_config(), lens_correction="auto")
+    out, info = render(raw, config)
+    assert info["lens"]["lens"] == "Canon EF 24-105mm f/4L IS USM"
+    assert info["lens"]["focal_length"] == 65 and info["lens"]["camera"] == "Canon EOS 6D"
+    plain, _ = render(raw, default_config())
+    assert out.shape == plain.shape and (out - plain).abs().max() > 0.05
