@@ -78,10 +78,14 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
                 fx, fy = np.floor(ox), np.floor(oy)
                 ax, ay = ox - fx, oy - fy
                 x0, y0 = j + int(fx), i + int(fy)
-                v00 = _tap(src, y0, x0, k, h, w, padding)
-                v01 = _tap(src, y0, x0 + 1, k, h, w, padding)
-                v10 = _tap(src, y0 + 1, x0, k, h, w, padding)
-                v11 = _tap(src, y0 + 1, x0 + 1, k, h, w, padding)
+                if 0 <= x0 < w - 1 and 0 <= y0 < h - 1:  # all four taps inside
+                    v00, v01 = src[y0, x0, k], src[y0, x0 + 1, k]
+                    v10, v11 = src[y0 + 1, x0, k], src[y0 + 1, x0 + 1, k]
+                else:
+                    v00 = _tap(src, y0, x0, k, h, w, padding)
+                    v01 = _tap(src, y0, x0 + 1, k, h, w, padding)
+                    v10 = _tap(src, y0 + 1, x0, k, h, w, padding)
+                    v11 = _tap(src, y0 + 1, x0 + 1, k, h, w, padding)
                 top = (one - ax) * v00 + ax * v01
                 bottom = (one - ax) * v10 + ax * v11
                 rgb[k][HALO + i - r0, HALO + j - c0] = ((one - ay) * top + ay * bottom) * gain
