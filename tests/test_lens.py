@@ -37,7 +37,7 @@ from rawsim.io.lensfun import (
 from rawsim.io.metadata import PhotoMetadata
 from rawsim.isp.config import IspConfig, LensCorrectionStage, default_config, override
 from rawsim.isp.lens import PADDINGS, LensCorrection, add_lens, correct_lens, remap_lens
-from rawsim.pipelines.process import engine_plan, engine_render, render
+from rawsim.pipelines.process import engine_plan, engine_render, render, render_float
 from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr
 from tests.test_engine_process import _assert_close, _both, synthetic_raw
@@ -229,6 +229,8 @@ def test_engine_render_equals_torch(pattern, changes, orientation):
     _assert_close(*_both(raw, config, "exr", 32))
     plan = engine_plan(raw, config, "tiff")
     assert plan.lens == plan.info["lens"] and plan.lens["lens"] == KIT["lens"]
+    floats, _ = render_float(raw, config)  # the engine's linear part, then torch's tail
+    assert (floats - render(raw, config)[0]).abs().max() < 1e-5
     # the lens stage moves pixels: without it the render differs
     plain = engine_render(raw, engine_plan(raw, default_config(), "tiff"), "tiff", 16)
     if orientation == 1:

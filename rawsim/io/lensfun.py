@@ -14,7 +14,7 @@ clean image (``reverse=True``).
 **The field.** lensfun's distortion and TCA models (``poly3``, ``poly5``,
 ``ptlens``; ``linear``, ``poly3``) are radial about the lens centre: channel k of
 the output pixel at radius r (pixels) samples the input at radius g_k(r) along
-the same ray. g_k is sampled every pixel of radius from lensfun's own
+the same ray. g_k is sampled at least every pixel of radius from lensfun's own
 ``Modifier`` (``apply_subpixel_geometry_distortion``, one point per call: the
 scalar code; lensfun's vectorised rows approximate 1/√ with SSE's ``rsqrt`` and
 accumulate coordinates in float32, errors of 0.2–1 px on a 24 MP frame), so the
@@ -234,7 +234,7 @@ def lens_params(
     if not found.min_focal * 0.99 <= focal <= found.max_focal * 1.01:
         raise ParameterError(
             f"focal length {focal:g} mm is outside {found.model}'s "
-            f"{found.min_focal:g}–{found.max_focal:g} mm: is it the right lens?"
+            f"{found.min_focal:g}–{found.max_focal:g} mm: another lens? pass --lens NAME"
         )
     if camera is None:
         crop = found.crop_factor

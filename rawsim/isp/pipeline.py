@@ -7,8 +7,8 @@ per stage type (:data:`MODULES`).
 
 Data flow: DN mosaic (B, 1, H, W) — or (B, 3, H, W) for raws without a CFA —
 through black level (→ white = 1), optional mosaic filters, white balance,
-highlights, demosaic (→ RGB), denoise, colour matrix, exposure, tone curve,
-transfer, YCbCr and orientation.
+highlights, demosaic (→ RGB), denoise, lens correction, colour matrix, exposure,
+tone curve, transfer, YCbCr and orientation.
 """
 
 from __future__ import annotations
