@@ -272,8 +272,10 @@ def test_module_equals_functions_and_checks_input():
     assert torch.equal(LensCorrection(None)(x), x)  # a raw whose lens is unknown
     with pytest.raises(ParameterError, match="NaN or infinite"):
         correct_lens(torch.full((1, 3, 8, 8), float("nan")), params)
-    with pytest.raises(ParameterError, match="3 channel"):
-        correct_lens(torch.rand(1, 1, 8, 8), params)
+    with pytest.raises(ParameterError, match="3 channels"):
+        correct_lens(torch.rand(1, 2, 8, 8), params)
+    grey = correct_lens(x[:, 1:2], params)  # a monochrome raw: the green channel's remap
+    assert torch.equal(grey, correct_lens(x, params)[:, 1:2])
     with pytest.raises(ParameterError, match="for 8 × 8 pixels, the image is 9 × 8"):
         remap_lens(torch.rand(1, 3, 9, 8), lens_field(params, 8, 8))
     with pytest.raises(ParameterError, match="padding"):

@@ -29,9 +29,10 @@ CHUNK_PIXELS = 1 << 18
 
 def remap_lens(image: torch.Tensor, field: LensField, padding: str = "zeros") -> torch.Tensor:
     """Apply ``field`` to ``image`` (B, 3, H, W), linear RGB with H × W the field's size:
-    channel k of output pixel p is ``gain_k · bilinear(image_k, source_k(p))``.
-    Returns (B, 3, H, W) in ``image``'s dtype, computed in chunks of rows."""
-    check_image(image, "image", channels=3)
+    channel k of output pixel p is ``gain_k · bilinear(image_k, source_k(p))``. A grey
+    image (B, 1, H, W) takes the green channel's remap. Returns the image's shape and
+    dtype, computed in chunks of rows."""
+    _check(image)
     check_choice("padding", padding, PADDINGS)
     h, w = image.shape[-2:]
     if (h, w) != (field.height, field.width):
@@ -62,7 +63,7 @@ def _remap_rows(image, field, table, top, bottom, padding):
     i = t.long().clamp(max=table.shape[0] - 2)  # t ≥ 0: truncation is floor
     f = t - i.to(dt)
     out = []
-    for k in range(3):
+    for c, k in enumerate(range(3) if image.shape[1] == 3 else (1,)):
         lo, hi = table[i, k], table[i + 1, k]  # (rows, W, 2): ratio, gain
         ratio = lo[..., 0] + f * (hi[..., 0] - lo[..., 0])
         gain = lo[..., 1] + f * (hi[..., 1] - lo[..., 1])
@@ -72,7 +73,7 @@ def _remap_rows(image, field, table, top, bottom, padding):
         ax, ay = ox - fx, oy - fy
         x0 = xi[None, :] + fx.long()
         y0 = yi[:, None] + fy.long()
-        plane = image[:, k].reshape(b, h * w)
+        plane = image[:, c].reshape(b, h * w)
         v00 = _tap(plane, y0, x0, h, w, padding)
         v01 = _tap(plane, y0, x0 + 1, h, w, padding)
         v10 = _tap(plane, y0 + 1, x0, h, w, padding)
@@ -82,6 +83,12 @@ def _remap_rows(image, field, table, top, bottom, padding):
         bottom_row = (one - ax) * v10 + ax * v11
         out.append(((one - ay) * top_row + ay * bottom_row) * gain)
     return torch.stack(out, dim=1)
+
+
+def _check(image: torch.Tensor) -> None:
+    check_image(image, "image")
+    if image.shape[1] not in (1, 3):
+        raise ParameterError(f"image must have 3 channels (or 1), got shape {tuple(image.shape)}")
 
 
 def _tap(plane: torch.Tensor, y: torch.Tensor, x: torch.Tensor, h: int, w: int, padding: str):
@@ -108,21 +115,22 @@ def correct_lens(
     image: torch.Tensor, params: LensParams | dict, padding: str = "zeros"
 ) -> torch.Tensor:
     """Take the lens of ``params`` (a :class:`~rawsim.io.lensfun.LensParams` or its dict)
-    out of ``image`` (B, 3, H, W), linear camera RGB of the whole frame: distortion,
-    TCA and vignetting, as lensfun corrects them. Where the lens saw nothing
-    (pincushion corners): ``padding``, black by default."""
-    check_image(image, "image", channels=3)
+    out of ``image`` (B, 3, H, W), linear camera RGB of the whole frame (or grey, (B, 1,
+    H, W)): distortion, TCA and vignetting, as lensfun corrects them. Where the lens
+    saw nothing (pincushion corners): ``padding``, black by default."""
+    _check(image)
     return remap_lens(image, lens_field(params, *image.shape[-2:]), padding)
 
 
 def add_lens(
     image: torch.Tensor, params: LensParams | dict, padding: str = "reflect"
 ) -> torch.Tensor:
-    """Give ``image`` (B, 3, H, W), clean linear RGB of the whole frame, the distortion,
-    TCA and vignetting of the lens of ``params``: what the lens would have made of the
-    scene (:func:`correct_lens` undoes it, up to resampling). Where the lens would
-    see beyond the image (barrel corners): ``padding``, mirrored by default."""
-    check_image(image, "image", channels=3)
+    """Give ``image`` (B, 3, H, W), clean linear RGB of the whole frame (or grey, (B, 1,
+    H, W)), the distortion, TCA and vignetting of the lens of ``params``: what the lens
+    would have made of the scene (:func:`correct_lens` undoes it, up to resampling).
+    Where the lens would see beyond the image (barrel corners): ``padding``, mirrored
+    by default."""
+    _check(image)
     return remap_lens(image, lens_field(params, *image.shape[-2:], reverse=True), padding)
 
 
