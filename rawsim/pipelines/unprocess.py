@@ -3,11 +3,11 @@
 The mosaic follows the profile's CFA: a 2×2 Bayer pattern, Fujifilm's 6×6
 X-Trans or any periodic R/G/B layout (:class:`~rawsim.cfa.CFA`).
 :func:`unprocess_tensor` is the tensor core, used by the files job here and by
-the Python API. It runs the sensor's stages over strips of
-:data:`STRIP_ROWS` rows (whole CFA periods: 126 for X-Trans), so that
-temporaries stay small and cache-resident. The
-noise is drawn per pixel from a counter-based generator (:mod:`rawsim.noise.reference`),
-so any strip height, device, job count or run split gives the same bits.
+the Python API. It runs the sensor's stages over strips of :data:`STRIP_ROWS`
+rows, cut to whole CFA periods (126 for X-Trans, :func:`strip_rows`), so that
+temporaries stay small and cache-resident. The noise is drawn per pixel from a
+counter-based generator (:mod:`rawsim.noise.reference`), so any strip height,
+device, job count or run split gives the same bits.
 Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
 and fused (:func:`simulate` chooses).
 """
