@@ -20,7 +20,9 @@ from torch import nn
 from rawsim.cfa import CFA
 from rawsim.color import camera_from_srgb
 from rawsim.errors import ParameterError, check_choice, check_image
+from rawsim.io.lensfun import LensParams
 from rawsim.isp.color_matrix import apply_color_matrix
+from rawsim.isp.lens import add_lens
 from rawsim.isp.lens_shading import invert_lens_shading, radial_gain
 from rawsim.isp.levels import denormalize_levels, normalize_levels, quantize, saturate
 from rawsim.isp.tone import invert_tone_curve
@@ -197,18 +199,29 @@ class RGBSensor(ProfileSensor):
         )
         return torch.einsum("cl,blhw->bchw", resp / resp[1].sum(), spectral)
 
-    def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
+    def unprocess(
+        self,
+        image: torch.Tensor,
+        in_type: str = "rgb",
+        params=None,
+        lens: LensParams | dict | None = None,
+    ) -> torch.Tensor:
         """sRGB or linear sRGB (B, 3, H, W) → linear camera RGB as the sensor records it.
 
         Steps: display decode (``in_type="rgb"``: inverse tone, transfer), exposure
-        and brightness, sRGB → camera matrix, inverse white balance. Values above 1
-        are kept (they saturate later at the white level); nothing is clipped.
+        and brightness, sRGB → camera matrix, the ``lens``'s distortion, TCA and
+        vignetting (:func:`~rawsim.isp.lens.add_lens`; ``image`` must then be the
+        whole frame), inverse white balance. The lens acts on white-balanced camera
+        RGB: where ``rawsim process`` corrects it. Values above 1 are kept (they
+        saturate later at the white level); nothing is clipped.
         """
         p = self._params(params)
         x = self._linear_light(image, in_type, p)
         if p.ccm_bias is not None:
             x = x - torch.tensor(p.ccm_bias, dtype=x.dtype, device=x.device).reshape(1, 3, 1, 1)
         x = apply_color_matrix(x, camera_from_srgb(p.xyz_to_camera))
+        if lens is not None:
+            x = add_lens(x, lens)
         if p.safe_white_balance:
             return safe_invert_white_balance(x, p.wb_gains)
         return invert_white_balance(x, p.wb_gains)
@@ -252,13 +265,22 @@ class MonoSensor(ProfileSensor):
         w = torch.tensor(spec["green"], dtype=x.dtype, device=x.device)
         return torch.einsum("l,blhw->bhw", w / w.sum(), x).unsqueeze(1)
 
-    def unprocess(self, image: torch.Tensor, in_type: str = "rgb", params=None) -> torch.Tensor:
+    def unprocess(
+        self,
+        image: torch.Tensor,
+        in_type: str = "rgb",
+        params=None,
+        lens: LensParams | dict | None = None,
+    ) -> torch.Tensor:
         """(B, 3, H, W) display or linear sRGB → linear grey (B, 1, H, W).
 
         Display decode (``in_type="rgb"``), exposure and brightness as for RGB,
-        then :meth:`response_curve`. No matrix or white balance: there is no filter.
+        then :meth:`response_curve`, then the ``lens`` (its green channel's remap, as
+        ``rawsim process`` corrects a grey raw; ``image`` the whole frame). No matrix
+        or white balance: there is no filter.
         """
-        return self.response_curve(self._linear_light(image, in_type, self._params(params)))
+        grey = self.response_curve(self._linear_light(image, in_type, self._params(params)))
+        return grey if lens is None else add_lens(grey, lens)
 
     def linrgb2raw(
         self, x: torch.Tensor, params=None, shading: torch.Tensor | None = None

@@ -1,6 +1,7 @@
 """The fused unprocess kernel: display or linear RGB → noisy (and clean) mosaic codes.
 
-One pass per row, parallel over rows: decode (lookup table of the display
+One pass per row, parallel over rows (two passes through a lens, which moves
+pixels: :func:`lens_camera`): decode (lookup table of the display
 transform, or linear floats) → exposure and brightness → seed matrix bias →
 sRGB → camera matrix → inverse white balance (exact or Brooks's safe one) →
 mosaic (only the site's channel is kept) → vignetting → levels → noise →
@@ -204,6 +205,46 @@ def _camera_row(r, g, b, colors, matrix, wb, safe, threshold, out):
             out[x] = v * (inv + t * t * max(1.0 - inv, 0.0))
         else:
             out[x] = v / gain
+
+
+@njit(parallel=True, **_JIT)
+def camera_kernel(pixels, lut, scale, ccm_bias, matrix, mono, out):
+    """The stages before the inverse white balance, for a lens's whole-image pass:
+    ``pixels`` as :func:`unprocess_kernel` takes them (with ``lut``, ``scale``,
+    ``ccm_bias``) → white-balanced camera RGB (sRGB → camera ``matrix``) into ``out``
+    (H, W, 3) float32; for ``mono`` the grey (mean of linear R, G, B) in all three."""
+    h, w = out.shape[0], out.shape[1]
+    m = matrix
+    for y in prange(h):
+        r, g, b = np.empty(w), np.empty(w), np.empty(w)
+        _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
+        for x in range(w):
+            if mono:
+                grey = (r[x] + g[x] + b[x]) / 3.0
+                out[y, x, 0], out[y, x, 1], out[y, x, 2] = grey, grey, grey
+            else:
+                out[y, x, 0] = m[0, 0] * r[x] + m[0, 1] * g[x] + m[0, 2] * b[x]
+                out[y, x, 1] = m[1, 0] * r[x] + m[1, 1] * g[x] + m[1, 2] * b[x]
+                out[y, x, 2] = m[2, 0] * r[x] + m[2, 1] * g[x] + m[2, 2] * b[x]
+
+
+def lens_camera(pixels, lut, scale, ccm_bias, matrix, mono, lens) -> np.ndarray:
+    """A capture through ``lens`` (:class:`~rawsim.io.lensfun.LensParams`), first part:
+    :func:`camera_kernel` on the whole image, then the lens added by
+    :func:`rawsim.engine.lens.add_lens` (it samples anywhere in the frame, so this
+    pass ends before the per-row kernel starts). Returns (H, W, 3) float32, which
+    :func:`unprocess_kernel` takes as linear floats with scale 1, no bias and the
+    identity matrix (each channel unchanged, exactly); for ``mono``, the green
+    channel's remap in all three channels (their mean is it, exactly)."""
+    from rawsim.engine.lens import add_lens
+
+    h, w = pixels.shape[:2]
+    camera = np.empty((h, w, 3), np.float32)
+    camera_kernel(pixels, lut, scale, ccm_bias, matrix, mono, camera)
+    out = add_lens(camera, lens)
+    if mono:
+        out[:] = out[:, :, 1:2]
+    return out
 
 
 @njit(**_JIT)

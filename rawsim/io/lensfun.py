@@ -144,10 +144,14 @@ def lensfun_version() -> str:
 
 
 def find_camera(make: str, model: str):
-    """lensfun's camera for EXIF ``make`` and ``model``, or None."""
+    """lensfun's camera for EXIF ``make`` and ``model``, or None. A model without its
+    make (``Canon``, ``EOS 700D``: rawsim's sensor profiles and the DNGs they write)
+    is looked up as lensfun spells it too (``Canon EOS 700D``)."""
     if not make or not model:
         return None
     found = database().find_cameras(make, model)
+    if not found and _camera_text(make, model) != model.strip():
+        found = database().find_cameras(make, _camera_text(make, model))
     return found[0] if found else None
 
 
@@ -211,25 +215,36 @@ def _lens_by_identity(params: LensParams):
 # ------------------------------------------------------------------ parameters
 def lens_params(
     lens: str,
-    focal_length: float,
+    focal_length: float | None,
     aperture: float | None = None,
     distance: float | None = None,
     make: str = "",
     model: str = "",
     corrections: tuple[str, ...] = CORRECTIONS,
+    adding: bool = False,
 ) -> tuple[LensParams, list[str]]:
     """The record of lens ``lens`` (its name as lensfun lists it) at ``focal_length``
-    (mm), ``aperture`` (f-number, or None: no vignetting) and ``distance`` (m; None:
+    (mm; None: a prime's own, a zoom needs one), ``aperture`` (f-number, or None: no
+    vignetting) and ``distance`` (m; None:
     :data:`DEFAULT_DISTANCE`) on the camera ``make``/``model`` (EXIF names), with
     one-line warnings: a camera lensfun does not know (the lens's calibration crop
-    factor is assumed), corrections lensfun has no data for.
+    factor is assumed), corrections lensfun has no data for. ``adding``: the warnings
+    speak of adding the lens (``rawsim unprocess --lens``), not of correcting it.
 
     Raises :class:`ParameterError` for a lens lensfun does not know (naming the
-    closest) or a focal length outside the lens's range.
+    closest), a focal length outside the lens's range, or none for a zoom.
     """
     warnings: list[str] = []
+    what, done = ("lens", "added") if adding else ("lens correction", "corrected")
     camera = find_camera(make, model)
     found = find_lens(lens, camera, required=True)
+    if focal_length is None:
+        if found.max_focal > found.min_focal * 1.001:
+            raise ParameterError(
+                f"{found.model} is a zoom ({found.min_focal:g}–{found.max_focal:g} mm): "
+                "pass --focal-length MM"
+            )
+        focal_length = found.min_focal
     focal = _positive(focal_length, "focal length")
     if not found.min_focal * 0.99 <= focal <= found.max_focal * 1.01:
         raise ParameterError(
@@ -240,7 +255,7 @@ def lens_params(
         crop = found.crop_factor
         who = _camera_text(make, model) or "the camera"
         warnings.append(
-            f"lens correction: {who} is not in lensfun's database: assuming the sensor "
+            f"{what}: {who} is not in lensfun's database: assuming the sensor "
             f"{found.model} was calibrated on (crop factor {crop:.3g})"
         )
     else:
@@ -249,14 +264,12 @@ def lens_params(
     aperture = None if aperture is None else _positive(aperture, "aperture")
     available = _available(found, focal, aperture, distance)
     if "vignetting" in corrections and aperture is None:
-        warnings.append(
-            "lens correction: no aperture known: vignetting not corrected; pass --aperture F"
-        )
+        warnings.append(f"{what}: no aperture known: vignetting not {done}; pass --aperture F")
     missing = [c for c in corrections if c not in available and (c != "vignetting" or aperture)]
     if missing:
         warnings.append(
-            f"lens correction: lensfun has no {' or '.join(missing)} data for {found.model} "
-            f"at {focal:g} mm: not corrected"
+            f"{what}: lensfun has no {' or '.join(missing)} data for {found.model} "
+            f"at {focal:g} mm: not {done}"
         )
     params = LensParams(
         lens=found.model,
