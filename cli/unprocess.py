@@ -95,6 +95,25 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
     help="Scale linear light by 2^EV. For EXR/float inputs 1.0 is the white level at 0 EV.",
 )
 @click.option(
+    "--lens",
+    metavar="NAME",
+    help="Add this lens's distortion, lateral chromatic aberration and vignetting "
+    "(lensfun's data, on the profile's camera), as lensfun lists it (e.g. 'Canon EF-S "
+    "18-55mm f/3.5-5.6 IS STM'); 'rawsim process --lens-correction auto' takes it out.",
+)
+@click.option(
+    "--focal-length",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="MM",
+    help="With --lens: its focal length in mm (needed for a zoom).",
+)
+@click.option(
+    "--aperture",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="F",
+    help="With --lens: its f-number (without one, no vignetting is added).",
+)
+@click.option(
     "--vignetting",
     type=click.FloatRange(min=0),
     default=0.0,
@@ -107,6 +126,12 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
     default="safe",
     show_default=True,
     help="Inverse white balance: highlight-preserving, or exact.",
+)
+@click.option(
+    "--strip-metadata",
+    is_flag=True,
+    help="Write none of the input's metadata (capture time, exposure, GPS, artist, "
+    "copyright, XMP) into the DNGs; by default it is carried over.",
 )
 @batch_options
 @click.pass_context
@@ -128,8 +153,12 @@ def command(
     tone,
     transfer,
     exposure,
+    lens,
+    focal_length,
+    aperture,
     vignetting,
     wb_inverse,
+    strip_metadata,
     jobs,
     executor,
     address,
@@ -146,10 +175,14 @@ def command(
     scene-linear. Then: sRGB → camera RGB through the profile's matrix, inverse
     white balance, mosaic in the profile's CFA (or --cfa: a Bayer pattern, XTRANS
     or any periodic R/G/B layout), optional vignetting, black/white levels, noise
-    at the ISO, rounding and saturation at the white level.
+    at the ISO, rounding and saturation at the white level. --lens adds a real
+    lens (lensfun's distortion, lateral CA and vignetting) to the white-balanced
+    camera RGB, where 'rawsim process --lens-correction auto' corrects it.
 
     Each file gives <stem>.dng (and <stem>.clean.dng with --clean, <stem>.npz with
-    --format npz|both) and <stem>.json with every parameter used. The npz holds
+    --format npz|both) and <stem>.json with every parameter used. The DNGs keep the
+    input's EXIF (capture time, exposure, GPS, artist, copyright) and XMP, with the
+    profile's camera and the simulated ISO and lens, unless --strip-metadata. The npz holds
     R, Gr, Gb, B planes (4, H/2, W/2) for a Bayer CFA, the whole mosaic (1, H, W)
     with cfa_pattern and cfa_colors for any other. Existing outputs are skipped
     unless --overwrite; files are written atomically.
@@ -169,6 +202,8 @@ def command(
       rawsim unprocess photos/ renders/ -o raw/ --profile sony_a7s2 --iso 1600 --clean
       rawsim unprocess photos/ -o xtrans/ --profile fujifilm_xt3 --iso 3200
       rawsim unprocess photos/ -o xt-a7s2/ --profile sony_a7s2 --cfa XTRANS --iso 800
+      rawsim unprocess photos/ -o kit/ --profile canon_eos_700d --iso 400 \\
+        --lens "Canon EF-S 18-55mm f/3.5-5.6 IS STM" --focal-length 18 --aperture 3.5
     """
     from rawsim.device import resolve_device
     from rawsim.io.images import IMAGE_EXTENSIONS
@@ -181,6 +216,17 @@ def command(
     prof = load_profile(profile)
     if iso is None and iso_range[0] > iso_range[1]:
         raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
+    if (focal_length or aperture) and not lens:
+        raise click.UsageError("--focal-length and --aperture go with --lens NAME", ctx)
+    lens_record = None
+    if lens:  # lensfun's lens on the profile's camera; an unknown name is a usage error
+        from rawsim.io.lensfun import lens_params
+
+        lens_record, warnings = lens_params(
+            lens, focal_length, aperture, None, prof.make, prof.model, adding=True
+        )
+        for warning in warnings:
+            click.echo(f"warning: {warning}", err=True)
     resolve_device(device)
     options = UnprocessOptions(
         profile=prof,
@@ -198,6 +244,8 @@ def command(
         device=device,
         seed=seed,
         sensor=sensor_kind,
+        strip_metadata=strip_metadata,
+        lens=lens_record,
     ).with_cfa(cfa)
     options.check_isos()
     run_files(

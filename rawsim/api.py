@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from rawsim.errors import ParameterError
+from rawsim.io.lensfun import LensParams
 from rawsim.io.raw import RawImage
 from rawsim.isp.config import IspConfig
 from rawsim.isp.pipeline import build_isp
@@ -50,6 +51,7 @@ def unprocess(
     safe_white_balance: bool = True,
     display_referred: bool = True,
     code_max: int | None = None,
+    lens: LensParams | dict | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, list[dict]]:
     """Simulate the raw captures of a batch: returns ``(noisy, clean, metadata)``.
 
@@ -75,6 +77,9 @@ def unprocess(
         safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
         display_referred: False for scene-linear float images (as EXR inputs).
         code_max: the full-scale code of integer ``images`` (255 for 8-bit).
+        lens: as ``--lens``, ``--focal-length``, ``--aperture``: a
+            :class:`~rawsim.io.lensfun.LensParams` (:func:`~rawsim.io.lensfun.lens_params`
+            builds one) or its record; each image is the whole frame the lens saw.
 
     Returns:
         ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
@@ -102,6 +107,7 @@ def unprocess(
         vignetting=vignetting,
         safe_white_balance=safe_white_balance,
         sensor="mono" if isinstance(sensor, MonoSensor) else "rgb",
+        lens=lens,
     )
     if grad and images.dtype in INTEGER_DTYPES:
         raise ParameterError("gradients need float images")
@@ -117,9 +123,8 @@ def unprocess(
         )
         if grad:
             in_type = "rgb" if display_referred else "linear_rgb"
-            c = sensor.linrgb2raw(
-                sensor.unprocess(images[i : i + 1], in_type, sim.params), sim.params
-            )
+            camera = sensor.unprocess(images[i : i + 1], in_type, sim.params, options.lens)
+            c = sensor.linrgb2raw(camera, sim.params)
             noisy.append(sim.noisy.float() + (c - c.detach()))  # the capture's values, c's graph
             clean.append(c)
         else:
@@ -142,7 +147,7 @@ def capture_metadata(sensor: ProfileSensor, options: UnprocessOptions, seed: int
         "white_level": p.white_level,
         "params": sim.params.to_dict(),
         "noise": sim.levels.to_dict(),
-    }
+    } | ({} if options.lens is None else {"lens": options.lens.to_dict()})
 
 
 def process(

@@ -35,6 +35,7 @@ import numpy as np
 from rawsim.api import capture_metadata
 from rawsim.errors import ParameterError
 from rawsim.io.images import even_rgb
+from rawsim.io.lensfun import LensParams
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
 from rawsim.profiles import SensorProfile, load_profile
@@ -82,6 +83,8 @@ class RawPairs:
         cfa: another CFA layout for the profile, as ``--cfa`` (e.g. ``"XTRANS"``);
             None keeps the profile's.
         clean: also return the noise-free mosaic.
+        lens: as ``--lens`` (with its focal length and aperture): a
+            :class:`~rawsim.io.lensfun.LensParams` or its record, or None.
     """
 
     def __init__(
@@ -102,6 +105,7 @@ class RawPairs:
         sensor: str = "rgb",
         cfa: str | None = None,
         clean: bool = True,
+        lens: LensParams | dict | None = None,
     ) -> None:
         prof = profile if isinstance(profile, SensorProfile) else load_profile(profile)
         if (iso is None) == (iso_range is None):
@@ -120,6 +124,7 @@ class RawPairs:
             safe_white_balance=safe_white_balance,
             seed=seed,
             sensor=sensor,
+            lens=lens,
         ).with_cfa(cfa)
         self.options.check_isos()
         self.sensor = self.options.make_sensor()

@@ -1,6 +1,6 @@
 """The compiled engine against the torch reference: the counter-based generator bit for
 bit, the noise bit for bit, the fused unprocess kernel within one code value, for every
-noise model, option, CFA pattern, input kind, strip split and thread count."""
+noise model, option (a lens too), CFA pattern, input kind, strip split and thread count."""
 
 from dataclasses import replace
 
@@ -14,6 +14,7 @@ from scipy import stats
 from rawsim.cfa import CFA
 from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_tables, noise_vector
 from rawsim.io.images import read_image
+from rawsim.io.lensfun import lens_params
 from rawsim.noise import kernels as eng
 from rawsim.noise import reference as ref
 from rawsim.noise.models import NOISE_MODELS, site_bias
@@ -258,6 +259,8 @@ OPTIONS = [
     {"safe_white_balance": False, "exposure_ev": 1.5},
     {"vignetting": 0.8, "tone": "reinhard", "transfer": "gamma:2.2"},
     {"iso_range": (100, 12800), "iso": None},
+    # a kit zoom at its widest: distortion, lateral CA and vignetting (--lens)
+    {"lens": lens_params("Canon EF-S 18-55mm f/3.5-5.6 IS STM", 18.0, 3.5)[0], "vignetting": 0.5},
 ]
 
 

@@ -1,13 +1,19 @@
-"""Writing CFA DNG files with tifffile (Adobe DNG Specification 1.7.1.0).
+"""Writing CFA DNG files (Adobe DNG Specification 1.7.1.0) with their EXIF.
 
 The files are uncompressed 16-bit, which LibRaw/rawpy, dcraw, darktable and
-RawTherapee all open.
+RawTherapee all open. They are laid out by :func:`rawsim.io.tiff.write_tiff`:
+the EXIF block exiv2 encodes (IFD0's photo fields, the Exif and GPS IFDs) heads
+the file, then IFD0 with the DNG tags, then the mosaic, in one pass.
+
+What the EXIF says (:func:`dng_metadata`): the input photo's capture (time,
+exposure, aperture, focal length, flash, GPS, artist, copyright, description,
+its XMP less what describes another camera or its development), with the
+simulated camera (Make, Model: the profile's), ISO and lens.
 """
 
 from __future__ import annotations
 
-import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
@@ -15,12 +21,29 @@ import numpy as np
 
 from rawsim.cfa import CFA
 from rawsim.color import ILLUMINANT_D65
+from rawsim.io.lensfun import LensParams
+from rawsim.io.metadata import Output, PhotoMetadata, exif_block, xmp_without
+from rawsim.io.tiff import ASCII, BYTE, DOUBLE, LONG, RATIONAL, SHORT, SRATIONAL, write_tiff
 
 _DENOMINATOR = 10000
-_EXIF_IFD = 34665
-# tifffile refuses to write tag 34665 itself; an unused code that sorts in the same
-# place in IFD0 is written instead and renamed once the EXIF IFD exists.
-_EXIF_PLACEHOLDER = 34666
+#: The input photo's EXIF fields that describe its camera and lens, not the
+#: simulated capture: a DNG names the profile's camera, its ISO and lens.
+_DEVICE_KEYS = frozenset(
+    {
+        "Exif.Image.Make",
+        "Exif.Image.Model",
+        "Exif.Photo.BodySerialNumber",
+        "Exif.Photo.LensMake",
+        "Exif.Photo.LensModel",
+        "Exif.Photo.LensSpecification",
+        "Exif.Photo.LensSerialNumber",
+        "Exif.Photo.ISOSpeedRatings",
+    }
+)
+#: XMP namespaces dropped from the input's packet: the camera, lens and EXIF
+#: duplicates (tiff, exif, exifEX, aux), a raw developer's settings for the input
+#: (crs: Lightroom would apply them to the DNG), and its document history (xmpMM).
+_XMP_DROPPED = ("tiff", "exif", "exifEX", "aux", "crs", "xmpMM")
 
 
 @dataclass(frozen=True)
@@ -41,9 +64,11 @@ class DngInfo:
         baseline_exposure: stops.
         orientation: TIFF orientation 1–8.
         software: writer name.
-        datetime: the capture time ``"YYYY:MM:DD HH:MM:SS"`` (DateTime and EXIF
-            DateTimeOriginal), e.g. from the input image, or None for no time tag
-            (never the time of writing: outputs are byte-identical run to run).
+        metadata: the input photo's EXIF and XMP (:func:`dng_metadata` says what
+            is kept); its capture time gives DateTime (never the time of writing:
+            outputs are byte-identical run to run).
+        lens: the simulated lens, recorded in the lens tags (LensMake, LensModel,
+            FocalLength, FNumber, SubjectDistance), or None.
     """
 
     cfa: CFA | None
@@ -59,7 +84,8 @@ class DngInfo:
     baseline_exposure: float = 0.0
     orientation: int = 1
     software: str = "rawsim"
-    datetime: str | None = None
+    metadata: PhotoMetadata = field(default_factory=PhotoMetadata)
+    lens: LensParams | None = None
 
 
 def _rationals(values, signed: bool) -> tuple[int, ...]:
@@ -72,39 +98,85 @@ def _rationals(values, signed: bool) -> tuple[int, ...]:
     return tuple(out)
 
 
-def dng_tags(info: DngInfo) -> list[tuple]:
-    """tifffile ``extratags`` for ``info``: (code, type, count, value, writeonce)."""
-    matrix = [v for row in info.xyz_to_camera for v in row] if info.cfa is not None else []
-    iso = int(round(info.iso))
-    tags = [
-        (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
-        (50707, "B", 4, (1, 1, 0, 0), True),  # DNGBackwardVersion
-        (50708, "s", 0, info.unique_model, True),  # UniqueCameraModel
-        (271, "s", 0, info.make, True),
-        (272, "s", 0, info.model, True),
-        (274, "H", 1, int(info.orientation), True),
-        (50713, "H", 2, (1, 1), True),  # BlackLevelRepeatDim
-        (50714, "2I", 1, _rationals([info.black_level], False), True),  # BlackLevel
-        (50717, "I", 1, int(round(info.white_level)), True),  # WhiteLevel
-        (50730, "2i", 1, _rationals([info.baseline_exposure], True), True),  # BaselineExposure
+def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
+    """IFD0's DNG tags for ``info``: code → (TIFF field type, values), as
+    :func:`rawsim.io.tiff.write_tiff` takes them."""
+    tags = {
+        254: (LONG, [0]),  # NewSubfileType: the main image
+        262: (SHORT, [32803 if info.cfa is not None else 34892]),  # CFA, else LinearRaw
+        271: (ASCII, info.make),
+        272: (ASCII, info.model),
+        274: (SHORT, [int(info.orientation)]),
         # ISO as TIFF/EP places it, in IFD0 (Adobe, exiftool); LibRaw reads the EXIF IFD.
-        (34855, "H", 1, min(iso, 65535), True),
-        (_EXIF_PLACEHOLDER, "I", 1, 0, True),  # becomes the ExifIFD pointer, see below
-    ]
+        34855: (SHORT, [min(int(round(info.iso)), 65535)]),
+        50706: (BYTE, bytes((1, 4, 0, 0))),  # DNGVersion
+        50707: (BYTE, bytes((1, 1, 0, 0))),  # DNGBackwardVersion
+        50708: (ASCII, info.unique_model),  # UniqueCameraModel
+        50713: (SHORT, [1, 1]),  # BlackLevelRepeatDim
+        50714: (RATIONAL, _rationals([info.black_level], False)),  # BlackLevel
+        50717: (LONG, [int(round(info.white_level))]),  # WhiteLevel
+        50730: (SRATIONAL, _rationals([info.baseline_exposure], True)),  # BaselineExposure
+    }
     if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
-        pattern = tuple(info.cfa.dng_pattern)
-        tags += [
-            (33421, "H", 2, info.cfa.dng_repeat, True),  # CFARepeatPatternDim: 2×2, 6×6
-            (33422, "B", len(pattern), pattern, True),  # CFAPattern
-            (50710, "B", 3, (0, 1, 2), True),  # CFAPlaneColor
-            (50711, "H", 1, 1, True),  # CFALayout: rectangular
-            (50721, "2i", 9, _rationals(matrix, True), True),  # ColorMatrix1
-            (50778, "H", 1, ILLUMINANT_D65, True),  # CalibrationIlluminant1
-            (50728, "2I", 3, _rationals(info.as_shot_neutral, False), True),  # AsShotNeutral
-        ]
+        matrix = [v for row in info.xyz_to_camera for v in row]
+        tags |= {
+            33421: (SHORT, list(info.cfa.dng_repeat)),  # CFARepeatPatternDim: 2×2, 6×6
+            33422: (BYTE, bytes(info.cfa.dng_pattern)),  # CFAPattern
+            50710: (BYTE, bytes((0, 1, 2))),  # CFAPlaneColor
+            50711: (SHORT, [1]),  # CFALayout: rectangular
+            50721: (SRATIONAL, _rationals(matrix, True)),  # ColorMatrix1
+            50728: (RATIONAL, _rationals(info.as_shot_neutral, False)),  # AsShotNeutral
+            50778: (SHORT, [ILLUMINANT_D65]),  # CalibrationIlluminant1
+        }
     if info.noise_profile is not None:
-        tags.append((51041, "d", 2, tuple(float(v) for v in info.noise_profile), True))
+        tags[51041] = (DOUBLE, [float(v) for v in info.noise_profile])  # NoiseProfile
     return tags
+
+
+def dng_metadata(info: DngInfo) -> PhotoMetadata:
+    """The EXIF and XMP a DNG carries: the input photo's, less its camera and lens
+    (:data:`_DEVICE_KEYS`, :data:`_XMP_DROPPED`), with the simulated ISO
+    (ISOSpeedRatings, SensitivityType 3: ISO speed, ISOSpeed), the capture time
+    also as DateTime, and the simulated lens if any (its focal length and
+    aperture replace the photo's; no FNumber when it has none)."""
+    fields = {k: v for k, v in info.metadata.exif if k not in _DEVICE_KEYS}
+    iso = int(round(info.iso))
+    fields["Exif.Photo.ISOSpeedRatings"] = str(min(iso, 65535))
+    fields["Exif.Photo.SensitivityType"] = "3"
+    fields["Exif.Photo.ISOSpeed"] = str(iso)
+    if "Exif.Photo.DateTimeOriginal" in fields:
+        fields["Exif.Image.DateTime"] = fields["Exif.Photo.DateTimeOriginal"]
+    lens = info.lens
+    if lens is not None:
+        for key in ("Exif.Photo.FNumber", "Exif.Photo.FocalLengthIn35mmFilm"):
+            fields.pop(key, None)
+        fields["Exif.Photo.LensMake"] = lens.lens_maker
+        fields["Exif.Photo.LensModel"] = lens.lens
+        fields["Exif.Photo.FocalLength"] = _rational_text(lens.focal_length)
+        fields["Exif.Photo.FocalLengthIn35mmFilm"] = str(
+            int(round(lens.focal_length * lens.crop_factor))
+        )
+        if lens.aperture is not None:
+            fields["Exif.Photo.FNumber"] = _rational_text(lens.aperture)
+        fields["Exif.Photo.SubjectDistance"] = _rational_text(lens.distance)
+    xmp = xmp_without(info.metadata.xmp, _XMP_DROPPED)
+    return PhotoMetadata(tuple(fields.items()), xmp)
+
+
+def _rationals(values, signed: bool) -> list[int]:
+    out: list[int] = []
+    for v in values:
+        f = Fraction(float(v)).limit_denominator(_DENOMINATOR)
+        if not signed and f < 0:
+            raise ValueError(f"unsigned rational cannot hold {v}")
+        out += [f.numerator, f.denominator]
+    return out
+
+
+def _rational_text(value: float) -> str:
+    """A positive number as exiv2 reads a rational ("35/10")."""
+    numerator, denominator = _rationals([value], False)
+    return f"{numerator}/{denominator}"
 
 
 def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
@@ -112,66 +184,9 @@ def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
 
     A CFA mosaic when ``info.cfa`` is set; otherwise monochrome LinearRaw data.
     """
-    import tifffile
-
-    mosaic = np.ascontiguousarray(mosaic)
     if mosaic.ndim != 2 or mosaic.dtype != np.uint16:
         raise ValueError(f"mosaic must be a (H, W) uint16 array, got {mosaic.shape} {mosaic.dtype}")
-    tifffile.imwrite(
-        path,
-        mosaic,
-        # tifffile refuses one-sample LinearRaw: mono is written MinIsBlack, then retagged
-        photometric=32803 if info.cfa is not None else "minisblack",
-        subfiletype=0,
-        metadata=None,
-        software=info.software,
-        datetime=info.datetime,
-        extratags=dng_tags(info),
-    )
-    _append_exif_ifd(path, int(round(info.iso)), info.datetime)
-    if info.cfa is None:
-        with tifffile.TiffFile(path, mode="r+") as tif:
-            tif.pages.first.tags["PhotometricInterpretation"].overwrite(34892)  # LinearRaw
-
-
-def _append_exif_ifd(path: str | Path, iso: int, datetime: str | None = None) -> None:
-    """Append a minimal EXIF IFD (ISO speed, and DateTimeOriginal when ``datetime`` is
-    given) and point IFD0's ExifIFD tag at it.
-
-    tifffile writes no EXIF sub-IFD, and LibRaw and dcraw read the ISO only from
-    there. EXIF 2.3: ISOSpeedRatings is a SHORT, 65535 meaning "see ISOSpeed".
-    The placeholder entry in IFD0 is rewritten in place: code → 34665, value →
-    the new IFD's offset (its type, LONG, is what EXIF prescribes).
-    """
-    import tifffile
-
-    entries = [
-        (34855, 3, 1, min(iso, 65535)),  # ISOSpeedRatings, SHORT
-        (34864, 3, 1, 3),  # SensitivityType: ISO speed, SHORT
-        (34867, 4, 1, iso),  # ISOSpeed, LONG
-    ]
-    text = (datetime.encode("ascii") + b"\0") if datetime else b""
-    if text:
-        entries.append((36867, 2, len(text), 0))  # DateTimeOriginal, ASCII after the IFD
-    with tifffile.TiffFile(path, mode="r+") as tif:
-        order = tif.byteorder
-        fh = tif.filehandle
-        fh.seek(0, 2)
-        if fh.tell() % 2:
-            fh.write(b"\0")
-        offset = fh.tell()
-        after = offset + 2 + 12 * len(entries) + 4  # where the ASCII value goes
-        body = struct.pack(order + "H", len(entries))
-        for code, kind, count, value in entries:
-            if kind == 2:
-                packed = struct.pack(order + "I", after)
-            else:
-                packed = struct.pack(order + ("H2x" if kind == 3 else "I"), value)
-            body += struct.pack(order + "HHI", code, kind, count) + packed
-        body += struct.pack(order + "I", 0) + text
-        fh.write(body)
-        placeholder = tif.pages.first.tags[_EXIF_PLACEHOLDER]
-        fh.seek(placeholder.offset)
-        fh.write(struct.pack(order + "H", _EXIF_IFD))
-        fh.seek(placeholder.valueoffset)
-        fh.write(struct.pack(order + "I", offset))
+    meta = dng_metadata(info)
+    h, w = mosaic.shape
+    exif = exif_block(meta, Output(info.software, "dng", w, h, orientation=info.orientation))
+    write_tiff(path, mosaic[:, :, None], exif, meta.xmp, tags=dng_tags(info))

@@ -148,10 +148,11 @@ class PhotoMetadata:
         if output is not None:
             for key, value in _OUTPUT_TAGS + (_JPEG_TAGS if output.fmt == "jpg" else ()):
                 data[key] = value
-            if output.fmt != "tiff":  # TIFF has its own ImageWidth and ImageLength
+            if output.fmt not in ("tiff", "dng"):  # these have ImageWidth and ImageLength
                 data["Exif.Photo.PixelXDimension"] = str(output.width)
                 data["Exif.Photo.PixelYDimension"] = str(output.height)
-            data["Exif.Photo.ColorSpace"] = "1" if output.srgb else "65535"
+            if output.fmt != "dng":  # a raw's colours are the camera's
+                data["Exif.Photo.ColorSpace"] = "1" if output.srgb else "65535"
             data["Exif.Image.Orientation"] = str(output.orientation)
             data[SOFTWARE_KEY] = output.software
         return data
@@ -160,7 +161,7 @@ class PhotoMetadata:
 @dataclass(frozen=True)
 class Output:
     """What an output's own EXIF tags say: its Software, format (``png``, ``tiff``,
-    ``jpg``, ``exr``), pixel size, and whether it is sRGB."""
+    ``jpg``, ``exr``, ``dng``), pixel size, and whether it is sRGB."""
 
     software: str
     fmt: str
@@ -170,16 +171,16 @@ class Output:
     orientation: int = 1  # rawsim rotates what it renders; embedded previews keep the raw's
 
 
-def read_metadata(path: str | Path) -> PhotoMetadata:
+def read_metadata(path: str | Path, libraw: bool = True) -> PhotoMetadata:
     """The photo metadata of a raw or image file (see the module doc); empty where the
-    file has none or neither exiv2 nor LibRaw can read any."""
+    file has none or neither exiv2 nor (if ``libraw``: for raws) LibRaw can read any."""
     import exiv2
 
     try:
         image = exiv2.ImageFactory.open(str(path))
         image.readMetadata()
     except exiv2.Exiv2Error:
-        return _from_libraw(path)
+        return _from_libraw(path) if libraw else PhotoMetadata()
     data = image.exifData()
     fields: list[tuple[str, str]] = []
     for key, sources in FIELDS.items():
@@ -300,6 +301,31 @@ def exif_block(meta: PhotoMetadata, output: Output) -> bytes:
             return data[at + 8 : at + 8 + size]
         at += 12 + size
     raise RuntimeError("exiv2 wrote no eXIf chunk")  # exiv2 always writes one for EXIF data
+
+
+def xmp_without(packet: str, groups: tuple[str, ...]) -> str:
+    """The XMP ``packet`` less the properties of the namespaces ``groups`` (prefixes
+    as exiv2 names them: ``"crs"``, ``"tiff"``, …), re-encoded by exiv2; ``""`` when
+    nothing is left."""
+    import exiv2
+
+    if not packet:
+        return ""
+    image = exiv2.ImageFactory.open(_TINY_PNG)
+    image.setXmpPacket(packet)
+    image.writeMetadata()
+    image.readMetadata()
+    prefixes = tuple(f"Xmp.{g}." for g in groups)
+    kept = exiv2.XmpData()
+    for datum in image.xmpData():
+        if not datum.key().startswith(prefixes):
+            kept[datum.key()] = datum.value()
+    if not kept.count():
+        return ""
+    image.setXmpData(kept)
+    image.writeMetadata()
+    image.readMetadata()
+    return image.xmpPacket()
 
 
 def embed_jpeg(path: str | Path, meta: PhotoMetadata, output: Output) -> None:

@@ -1,4 +1,4 @@
-"""Baseline TIFF writing around exiv2's EXIF block: uncompressed 8/16-bit strips.
+"""Baseline TIFF (and DNG) writing around exiv2's EXIF block: uncompressed 8/16-bit strips.
 
 A TIFF's metadata and its image share one directory (IFD0), so adding EXIF to a
 written TIFF means rewriting the file (exiv2 does: 0.3 s for a 144 MB 24 MP
@@ -9,6 +9,7 @@ IFD0 (exiv2's entries, the image's own and the XMP and ICC tags, sorted), to
 which the header then points, and the pixels, written straight from the array.
 The old IFD0 stays behind unreferenced (a few hundred bytes).
 
+DNGs are written the same way, their tags added to IFD0 (:mod:`rawsim.io.dng`).
 Uncompressed, as ``dcraw -T`` writes (deflate costs seconds per 24 MP image);
 classic TIFF, so files stop at 4 GiB.
 """
@@ -22,8 +23,9 @@ import numpy as np
 
 from rawsim.errors import UnsupportedInputError
 
-_SHORT, _LONG, _BYTE, _UNDEFINED = 3, 4, 1, 7
-_SIZES = {_BYTE: 1, 2: 1, _SHORT: 2, _LONG: 4, 5: 8, 6: 1, _UNDEFINED: 1, 8: 2, 9: 4, 10: 8}
+#: TIFF field types this writer packs, and their struct codes.
+BYTE, ASCII, SHORT, LONG, RATIONAL, UNDEFINED, SRATIONAL, DOUBLE = 1, 2, 3, 4, 5, 7, 10, 12
+_CODES = {SHORT: "H", LONG: "I", RATIONAL: "I", SRATIONAL: "i", DOUBLE: "d"}
 #: Bytes per strip (about): small enough for any reader, few enough offsets.
 STRIP_BYTES = 1 << 18
 #: Tags this writer sets itself (image structure, XMP, ICC); exiv2's copies are dropped.
@@ -31,11 +33,21 @@ _OWN_TAGS = {256, 257, 258, 259, 262, 273, 274, 277, 278, 279, 284, 338, 339, 70
 
 
 def write_tiff(
-    path: str | Path, data: np.ndarray, exif: bytes, xmp: str = "", icc: bytes | None = None
+    path: str | Path,
+    data: np.ndarray,
+    exif: bytes,
+    xmp: str = "",
+    icc: bytes | None = None,
+    tags: dict[int, tuple[int, object]] | None = None,
 ) -> None:
     """Write (H, W, C) uint8/uint16 samples (C = 1 grey, 3 RGB; 2 and 4 with alpha)
     as a TIFF whose metadata is the EXIF block ``exif``, with the ``xmp`` packet and
-    ``icc`` profile if given."""
+    ``icc`` profile if given.
+
+    ``tags``: more IFD0 entries, code → (field type, values), which replace the
+    writer's own and exiv2's (a DNG's tags, :mod:`rawsim.io.dng`). Values are a
+    ``str`` for ASCII, bytes for BYTE/UNDEFINED, else a sequence of numbers;
+    RATIONAL and SRATIONAL take numerator, denominator pairs, flattened."""
     h, w, c = data.shape
     if data.dtype not in (np.uint8, np.uint16) or not 1 <= c <= 4:
         raise UnsupportedInputError(f"tiff output cannot hold {data.dtype} × {c} samples")
@@ -46,31 +58,32 @@ def write_tiff(
     for k in range(count):
         raw = exif[ifd0 + 2 + 12 * k : ifd0 + 14 + 12 * k]
         tag = struct.unpack(order + "H", raw[:2])[0]
-        if tag not in _OWN_TAGS:
+        if tag not in _OWN_TAGS and tag not in (tags or {}):
             entries[tag] = raw
     bits = 8 * data.dtype.itemsize
     row_bytes = w * c * data.dtype.itemsize
     rows = max(1, STRIP_BYTES // row_bytes)
     strips = -(-h // rows)
-    own: dict[int, tuple[int, list | bytes]] = {
-        256: (_LONG, [w]),
-        257: (_LONG, [h]),
-        258: (_SHORT, [bits] * c),
-        259: (_SHORT, [1]),
-        262: (_SHORT, [2 if c >= 3 else 1]),
-        273: (_LONG, [0] * strips),  # filled in below, once the layout is known
-        274: (_SHORT, [1]),
-        277: (_SHORT, [c]),
-        278: (_LONG, [rows]),
-        279: (_LONG, [min(rows, h - s * rows) * row_bytes for s in range(strips)]),
-        284: (_SHORT, [1]),
+    own: dict[int, tuple[int, object]] = {
+        256: (LONG, [w]),
+        257: (LONG, [h]),
+        258: (SHORT, [bits] * c),
+        259: (SHORT, [1]),
+        262: (SHORT, [2 if c >= 3 else 1]),
+        273: (LONG, [0] * strips),  # filled in below, once the layout is known
+        274: (SHORT, [1]),
+        277: (SHORT, [c]),
+        278: (LONG, [rows]),
+        279: (LONG, [min(rows, h - s * rows) * row_bytes for s in range(strips)]),
+        284: (SHORT, [1]),
     }
     if c in (2, 4):
-        own[338] = (_SHORT, [2])  # unassociated alpha
+        own[338] = (SHORT, [2])  # unassociated alpha
     if xmp:
-        own[700] = (_BYTE, xmp.encode())
+        own[700] = (BYTE, xmp.encode())
     if icc:
-        own[34675] = (_UNDEFINED, bytes(icc))
+        own[34675] = (UNDEFINED, bytes(icc))
+    own.update(tags or {})
     start = len(exif) + len(exif) % 2
     tags = sorted([*entries, *own])
     values_at = start + 2 + 12 * len(tags) + 4
@@ -81,7 +94,7 @@ def write_tiff(
         raise UnsupportedInputError(
             f"{path}: a {w}×{h} TIFF of {bits}-bit samples is over 4 GiB; write EXR or PNG"
         )
-    own[273] = (_LONG, [pixels_at + s * rows * row_bytes for s in range(strips)])
+    own[273] = (LONG, [pixels_at + s * rows * row_bytes for s in range(strips)])
     ifd = bytearray(struct.pack(order + "H", len(tags)))
     extra = bytearray()
     for tag in tags:
@@ -89,8 +102,7 @@ def write_tiff(
             ifd += entries[tag]
             continue
         kind, values = own[tag]
-        payload = _pack(order, kind, values)
-        n = len(values)
+        payload, n = _pack(order, kind, values)
         if len(payload) <= 4:
             ifd += struct.pack(order + "HHI", tag, kind, n) + payload.ljust(4, b"\0")
         else:
@@ -111,16 +123,20 @@ def _values_layout(own: dict, values_at: int) -> dict[int, int]:
     """Where each out-of-line value ends, for sizing the head (tag → end offset)."""
     ends, at = {}, values_at
     for tag in sorted(own):
-        kind, values = own[tag]
-        size = len(values) * _SIZES[kind]
+        size = len(_pack("<", *own[tag])[0])
         if size > 4:
             at += size + size % 2
             ends[tag] = at
     return ends
 
 
-def _pack(order: str, kind: int, values) -> bytes:
-    if kind in (_BYTE, _UNDEFINED):
-        return bytes(values)
-    code = {_SHORT: "H", _LONG: "I"}[kind]
-    return struct.pack(f"{order}{len(values)}{code}", *values)
+def _pack(order: str, kind: int, values) -> tuple[bytes, int]:
+    """A field's value bytes and its count (characters with the NUL for ASCII,
+    pairs for rationals)."""
+    if kind == ASCII:
+        text = values.encode("ascii", "replace") + b"\0"
+        return text, len(text)
+    if kind in (BYTE, UNDEFINED):
+        return bytes(values), len(values)
+    packed = struct.pack(f"{order}{len(values)}{_CODES[kind]}", *values)
+    return packed, len(values) // (2 if kind in (RATIONAL, SRATIONAL) else 1)

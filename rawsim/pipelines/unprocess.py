@@ -27,6 +27,8 @@ from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
+from rawsim.io.lensfun import LensParams
+from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
@@ -86,6 +88,7 @@ def unprocess_tensor(
     display_referred: bool = True,
     code_max: int | None = None,
     clean: bool = False,
+    lens: LensParams | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Simulate the raw capture of ``image`` by ``sensor``.
 
@@ -103,6 +106,9 @@ def unprocess_tensor(
             the batch): see :func:`rawsim.noise.models.add_noise`. Needed unless the
             model is ``none``.
         clean: also return the noise-free mosaic.
+        lens: a lens whose distortion, lateral CA and vignetting the capture gets
+            (:meth:`RGBSensor.unprocess <rawsim.sensors.RGBSensor.unprocess>`), or
+            None. It moves pixels across the frame: the image then runs as one strip.
 
     Returns:
         ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a mosaic
@@ -131,6 +137,7 @@ def unprocess_tensor(
             shading,
             noisy,
             clean_out,
+            lens,
         )
     return noisy, clean_out
 
@@ -144,9 +151,10 @@ def strip_rows(sensor: ProfileSensor) -> int:
 
 
 def _run_strips(
-    sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out
+    sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out, lens
 ) -> None:
-    h, step = image.shape[-2], strip_rows(sensor)
+    h = image.shape[-2]
+    step = h if lens is not None else strip_rows(sensor)  # the lens samples the whole frame
     for top_row in range(0, h, step):
         rows = slice(top_row, top_row + step)
         strip = image[:, :, rows]
@@ -156,7 +164,7 @@ def _run_strips(
         else:
             linear = strip.float()
             in_type = "rgb" if display_referred else "linear_rgb"
-        camera = sensor.unprocess(linear, in_type, params)
+        camera = sensor.unprocess(linear, in_type, params, lens)
         dn = sensor.linrgb2raw(camera, params, None if shading is None else shading[..., rows, :])
         if clean_out is not None:
             clean_out[:, :, rows] = saturate(quantize(dn), sensor.white_level)
@@ -173,11 +181,14 @@ def engine_unprocess(
     display_referred: bool = True,
     code_max: int | None = None,
     clean: bool = False,
+    lens: LensParams | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`unprocess_tensor` for one (H, W, 3) image, by the compiled engine.
 
     Returns uint16 (H, W) noisy and clean codes. The same checks and lookup table
-    as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`.
+    as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`,
+    after a whole-image pass through the ``lens`` if any
+    (:func:`rawsim.engine.unprocess.lens_camera`).
     """
     from rawsim.engine import unprocess as kernels
     from rawsim.noise.kernels import np_key
@@ -192,12 +203,20 @@ def engine_unprocess(
     bias = np.zeros(period) + (0.0 if bias is None else np.asarray(bias, np.float64))
     noisy = np.empty((h, w), np.uint16)
     clean_out = np.empty((h, w) if clean else (0, 0), np.uint16)
+    pixels = np.ascontiguousarray(pixels)
+    lut = np.zeros(0, np.float32) if lut is None else lut.numpy()
+    scale = 2.0**params.exposure_ev / params.brightness
+    ccm_bias = np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0,) * 3, float)
+    matrix = camera_from_srgb(params.xyz_to_camera)
+    if lens is not None:  # camera RGB through the lens, whole; then the rows as linear floats
+        pixels = kernels.lens_camera(pixels, lut, scale, ccm_bias, matrix, mono, lens)
+        lut, scale, ccm_bias, matrix = np.zeros(0, np.float32), 1.0, np.zeros(3), np.eye(3)
     kernels.unprocess_kernel(
-        np.ascontiguousarray(pixels),
-        np.zeros(0, np.float32) if lut is None else lut.numpy(),
-        2.0**params.exposure_ev / params.brightness,
-        np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0, 0.0, 0.0), float),
-        camera_from_srgb(params.xyz_to_camera),
+        pixels,
+        lut,
+        scale,
+        ccm_bias,
+        matrix,
         np.asarray(params.wb_gains, np.float64),
         params.safe_white_balance,
         SAFE_WB_THRESHOLD,
@@ -238,6 +257,11 @@ class UnprocessOptions:
         sensor: ``rgb`` (the profile's CFA: Bayer, X-Trans or any periodic layout;
             :meth:`~rawsim.profiles.SensorProfile.with_cfa` gives a profile another)
             or ``mono`` (no filter, the profile's levels and noise).
+        strip_metadata: write none of the input's metadata (EXIF, GPS, XMP) into
+            the DNGs; they keep only what the simulation sets (camera, ISO, lens).
+        lens: the lens whose distortion, lateral chromatic aberration and
+            vignetting are added (lensfun's, :mod:`rawsim.io.lensfun`), or None;
+            its tags go into the DNG.
     """
 
     profile: SensorProfile
@@ -255,6 +279,12 @@ class UnprocessOptions:
     device: str = "cpu"
     seed: int = 0
     sensor: str = "rgb"
+    strip_metadata: bool = False
+    lens: LensParams | None = None
+
+    def __post_init__(self) -> None:
+        if self.lens is not None:  # a record (LensParams.to_dict()), e.g. from a sidecar
+            object.__setattr__(self, "lens", LensParams.of(self.lens))
 
     def with_cfa(self, cfa: str | None) -> UnprocessOptions:
         """These options with the profile's CFA replaced by ``cfa`` (``--cfa``: a Bayer
@@ -373,6 +403,7 @@ def simulate(
         display_referred=display_referred,
         code_max=code_max,
         clean=options.clean,
+        lens=options.lens,
     )
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
@@ -406,9 +437,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     metadata = _metadata(task, options, decoded, params, levels)
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
-    info = replace(
-        _dng_info(options, params, levels, decoded.orientation), datetime=decoded.datetime
-    )
+    info = _dng_info(options, params, levels, decoded.orientation, _photo(task, options, decoded))
     with atomic_outputs(task.outputs) as tmp:
         if "dng" in tmp:
             write_dng(tmp["dng"], noisy_np, info)
@@ -473,7 +502,21 @@ def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
     return planes[0].numpy().astype(np.uint16)
 
 
-def _dng_info(options: UnprocessOptions, params: UnprocessParams, levels, orientation) -> DngInfo:
+def _photo(task: Task, options: UnprocessOptions, decoded) -> PhotoMetadata:
+    """The input's EXIF, GPS and XMP for its DNGs (none with ``strip_metadata``); the
+    capture time OpenImageIO found (an EXR header's) where exiv2 finds none."""
+    if options.strip_metadata:
+        return PhotoMetadata()
+    photo = read_metadata(task.source, libraw=False)
+    if decoded.datetime and not photo.get("Exif.Photo.DateTimeOriginal"):
+        time = ("Exif.Photo.DateTimeOriginal", decoded.datetime)
+        photo = PhotoMetadata((time, *photo.exif), photo.xmp, photo.source)
+    return photo
+
+
+def _dng_info(
+    options: UnprocessOptions, params: UnprocessParams, levels, orientation, photo
+) -> DngInfo:
     profile = options.profile
     return DngInfo(
         cfa=None if options.sensor == "mono" else profile.cfa,
@@ -491,6 +534,8 @@ def _dng_info(options: UnprocessOptions, params: UnprocessParams, levels, orient
         baseline_exposure=params.baseline_exposure,
         orientation=orientation if 1 <= orientation <= 8 else 1,
         software=f"rawsim {__version__}",
+        metadata=photo,
+        lens=options.lens,
     )
 
 
@@ -530,6 +575,8 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "noise": levels.to_dict(),
         "outputs": {k: p.name for k, p in task.outputs.items()},
     }
+    if options.lens is not None:  # absent without one: outputs as before
+        meta["lens"] = options.lens.to_dict()
     if levels.model != "none":
         span = profile.white_level - profile.black_level
         a, b = levels.affine_variance(span)
