@@ -1,9 +1,10 @@
-"""The threaded PNG writer against real readers (OpenImageIO, libpng via imagecodecs)."""
+"""The threaded PNG writer against real readers (OpenImageIO, libpng via imagecodecs, Pillow)."""
 
 import imagecodecs
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from PIL import Image
 
 from rawsim.io import png
 from rawsim.io.png import write_png
@@ -32,6 +33,31 @@ def test_readers_get_the_samples_back(tmp_path, dtype, channels, shape):
     pixels = buf.get_pixels(oiio.UINT8 if dtype == np.uint8 else oiio.UINT16)
     assert np.array_equal(pixels.reshape(data.shape), data)
     assert buf.spec().get_string_attribute("Software") == "rawsim test"
+    if dtype == np.uint8:  # Pillow reads 16-bit colour as 8-bit
+        with Image.open(path) as image:
+            assert np.array_equal(np.asarray(image).reshape(data.shape), data)
+
+
+def test_average_filter_by_hand():
+    # one row, two RGB pixels, nothing above: the first pixel as is, the second less
+    # ⌊left / 2⌋; the second row less ⌊(left + above) / 2⌋, modulo 256
+    data = np.array([[[10, 200, 255], [20, 100, 0]], [[30, 0, 7], [40, 60, 9]]], np.uint8)
+    rows = png.filtered_rows(png._big_endian_bytes(data), 0, 2, 3)
+    assert rows.tolist() == [
+        [3, 10, 200, 255, 15, 0, 129],
+        [3, 25, 156, 136, 15, 10, 6],
+    ]
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_bands_filter_as_the_whole_image(dtype):
+    data = samples(png.BAND_ROWS + 5, 9, 2, dtype)
+    raw = png._big_endian_bytes(data)
+    step = 2 * data.dtype.itemsize
+    whole = png.filtered_rows(raw, 0, len(raw), step)
+    first = png.filtered_rows(raw, 0, png.BAND_ROWS, step)
+    bands = [first, png.filtered_rows(raw, png.BAND_ROWS, len(raw), step)]
+    assert np.array_equal(np.concatenate(bands), whole)
 
 
 def test_srgb_tag_reads_as_openimageio_own(tmp_path):

@@ -362,18 +362,18 @@ def write_image(
     """Write (H, W, C) samples: PNG with :mod:`rawsim.io.png`, TIFF with
     :mod:`rawsim.io.tiff`, JPEG and EXR with OpenImageIO.
 
-    PNG/TIFF/JPEG take uint8 or uint16 codes (JPEG 8-bit only); TIFF is
-    uncompressed, PNG deflated at zlib level 1 on several threads (measured on a
-    24 MP 8-bit render: 0.55 s for 32 MB on 2 cores; libpng's defaults, level 6
-    and adaptive filters, 9.2 s for 27 MB). EXR takes float32 (scene-linear,
-    written as float) or float16 (half), zip-compressed. ``color``: what the samples
-    are (:class:`~rawsim.colorspaces.Encoding`: space and transfer), tagged as each
-    format can (:func:`_color_tags`); None writes no colour tags (camera RGB,
-    YCbCr). ``metadata``: the photo's EXIF, GPS and XMP (:mod:`rawsim.io.metadata`:
-    PNG ``eXIf`` and ``iTXt``, TIFF tags, JPEG APP1, EXR header attributes), with
-    the ``Software`` of ``attributes``; None writes ``attributes`` alone (PNG text,
-    OpenImageIO attributes). No DateTime is written unless given: the same pixels
-    make the same bytes.
+    PNG/TIFF/JPEG take uint8 or uint16 codes (JPEG 8-bit only); TIFF is uncompressed,
+    PNG Average-filtered and deflated Huffman-only on several threads
+    (:mod:`rawsim.io.png`; a 24 MP 8-bit render: 25.6 MB, two thirds of the time of zlib
+    level 1 with the Sub filter, which wrote 32.1 MB; libpng's defaults, level 6 and
+    adaptive filters, 9.2 s for 27 MB). EXR takes float32 (scene-linear, written as
+    float) or float16 (half), zip-compressed. ``color``: what the samples are
+    (:class:`~rawsim.colorspaces.Encoding`: space and transfer), tagged as each format
+    can (:func:`_color_tags`); None writes no colour tags (camera RGB, YCbCr).
+    ``metadata``: the photo's EXIF, GPS and XMP (:mod:`rawsim.io.metadata`: PNG ``eXIf``
+    and ``iTXt``, TIFF tags, JPEG APP1, EXR header attributes), with the ``Software`` of
+    ``attributes``; None writes ``attributes`` alone (PNG text, OpenImageIO attributes).
+    No DateTime is written unless given: the same pixels make the same bytes.
     """
     software = (attributes or {}).get("Software", "rawsim")
     srgb = color is not None and color.is_srgb
