@@ -58,7 +58,10 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
     the offset the read noise. Dark frames (--dark) give the read σ, the row σ (full-width row
     means), the per-channel bias and the Tukey-lambda shape λ; without them λ is
     not fitted and the profile has no physics model. Every figure comes with a
-    standard error (±, a bootstrap over image regions).
+    standard error (±, a bootstrap over image regions); K's (and, without dark
+    frames, read σ's) also holds the systematic error, the spread between two
+    variance estimators that the method's bias reaches unequally (texture, for
+    patches).
 
     A fit that cannot be trusted (frames that are not flat fields, too few
     signal levels, no shot noise, a negative read variance, a poor line fit,
@@ -175,9 +178,17 @@ def summary(fits) -> str:
             )
         )
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    return "\n".join(
+    table = [
         "  ".join(
             c.rjust(w) if i < 5 else c for i, (c, w) in enumerate(zip(r, widths, strict=True))
         )
         for r in rows
-    )
+    ]
+    for f in fits:  # where the ± is mostly the bias the method is known to have, say so
+        stat, sys = f.errors.get("K_statistical"), f.errors.get("K_systematic")
+        if stat is not None and sys is not None and sys > stat:
+            table.append(
+                f"ISO {f.iso:g}: K's ± is mostly systematic ({sys:.4f} DN/e⁻: the two variance "
+                f"estimators disagree; statistical {stat:.4f})"
+            )
+    return "\n".join(table)

@@ -67,6 +67,9 @@ TILE_FOOTPRINT = 96
 MIN_TILE = 16
 #: The high-pass of the patch method and the flatness check (unit white-noise gain).
 HIGH_PASS = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / math.sqrt(70.0)
+#: Order of the patch method's second detail filter (its systematic check): scene texture
+#: reaches a 6th-order difference far less than the 4th-order one, noise equally.
+CHECK_ORDER = 6
 #: Quantile of block variances taken as the noise in a level set (patch method).
 PATCH_QUANTILE = 0.05
 #: Signal bins (log-spaced) and the fewest blocks a bin needs.
@@ -122,9 +125,14 @@ class FrameStats:
 
     ``var`` is each block's noise variance estimate, ``row_var`` the variance of
     its rows' offsets (flat method) and ``group`` (N,) its region for the
-    bootstrap. ``tile`` is the flat method's tile side (:func:`tile_side`).
-    ``flatness`` is the median ratio of tile variance to high-pass
-    noise (flat method; ≈ 1 for a flat field).
+    bootstrap. ``var_check`` is a second estimate of each block's noise variance
+    that the method's known bias reaches differently: the high-pass noise of a
+    flat tile (which an illumination's curvature does not reach), the
+    :data:`CHECK_ORDER` detail of a patch block (which scene texture reaches far
+    less); the spread of K between the two is the fit's systematic error.
+    ``tile`` is the flat method's tile side (:func:`tile_side`). ``flatness`` is
+    the median ratio of tile variance to high-pass noise (flat method; ≈ 1 for a
+    flat field).
     """
 
     path: str
@@ -139,6 +147,7 @@ class FrameStats:
     row_var: np.ndarray | None
     valid: np.ndarray
     group: np.ndarray
+    var_check: np.ndarray
     flatness: float | None = None
     tile: int = TILE
 
@@ -170,7 +179,10 @@ class IsoFit:
     3-channel data.
 
     ``errors`` holds the standard error of K, read_sigma, row_sigma and lambda;
-    ``problems`` why the fit is not to be trusted (empty when it is).
+    those of K and (without dark frames) read_sigma are the statistical error (a
+    bootstrap, under ``K_statistical``) and the systematic error (the spread
+    between the method's two variance estimators, under ``K_systematic``) in
+    quadrature. ``problems`` says why the fit is not to be trusted (empty when it is).
     """
 
     iso: float
@@ -233,12 +245,29 @@ def planes_of(raw: RawImage) -> tuple[np.ndarray, tuple[str, ...]]:
     return planes, raw.cfa.phase_channels
 
 
-def high_pass(x: np.ndarray) -> np.ndarray:
-    """``HIGH_PASS`` along both of the last two axes, valid part only: (…, H−4, W−4)."""
-    k = HIGH_PASS
+def difference_kernel(order: int) -> np.ndarray:
+    """The ``order``-th finite difference, unit gain on white noise: (order + 1,).
+
+    Order 4 is :data:`HIGH_PASS`; it removes polynomial trends of degree < order.
+    """
+    k = np.array([(-1.0) ** i * math.comb(order, i) for i in range(order + 1)])
+    return k / math.sqrt(math.comb(2 * order, order))
+
+
+def high_pass(x: np.ndarray, order: int = 4) -> np.ndarray:
+    """The ``order``-th difference (:func:`difference_kernel`) along both of the last
+    two axes, valid part only: (…, H − order, W − order)."""
+    k = difference_kernel(order)
     h, w = x.shape[-2:]
-    y = sum(k[i] * x[..., i : h - 4 + i, :] for i in range(5))
-    return sum(k[j] * y[..., :, j : w - 4 + j] for j in range(5))
+    y = sum(k[i] * x[..., i : h - order + i, :] for i in range(order + 1))
+    return sum(k[j] * y[..., :, j : w - order + j] for j in range(order + 1))
+
+
+def _check_detail(planes: np.ndarray) -> np.ndarray:
+    """The :data:`CHECK_ORDER` detail of (C, H, W) on the 4th-order detail's pixels:
+    (C, H − 4, W − 4); the planes are mirrored at the edges for the extra support."""
+    pad = (CHECK_ORDER - 4) // 2
+    return high_pass(np.pad(planes, ((0, 0), (pad, pad), (pad, pad)), mode="reflect"), CHECK_ORDER)
 
 
 def _blocks(x: np.ndarray, size: int) -> np.ndarray:
@@ -286,10 +315,12 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         hp = (high_pass(x) ** 2).mean(axis=(-2, -1))
         ratio = stats[1] / np.maximum(hp, 1e-12)
         mean, var, row_var = stats
+        check = hp
     else:
         d = _blocks(high_pass(planes), BLOCK)
         support = _blocks(planes[:, 2:-2, 2:-2], BLOCK)
         var = (d**2).mean(axis=(-2, -1))
+        check = (_blocks(_check_detail(planes), BLOCK) ** 2).mean(axis=(-2, -1))
         mean = support.mean(axis=(-2, -1))
         peak, low = _block_extremes(planes, d.shape[1], d.shape[2])
         row_var, ratio = None, None
@@ -313,6 +344,7 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         row_var=None if row_var is None else flat(row_var).astype(np.float32),
         valid=flat(valid),
         group=_regions(ny, nx).astype(np.int32),
+        var_check=flat(check).astype(np.float32),
         flatness=flatness,
         tile=tile,
     )
@@ -408,19 +440,21 @@ def same_camera(frames: list) -> None:
 
 
 @functools.cache
-def pure_noise_quantile(q: float = PATCH_QUANTILE) -> float:
-    """The q-quantile of a patch block's detail variance over σ² under white Gaussian noise."""
+def pure_noise_quantile(q: float = PATCH_QUANTILE, order: int = 4) -> float:
+    """The q-quantile of a patch block's ``order``-th detail variance over σ² under white
+    Gaussian noise."""
     rng = np.random.default_rng(0)
-    z = rng.standard_normal((16, 4 + 32 * BLOCK, 4 + 32 * BLOCK))
-    v = (_blocks(high_pass(z), BLOCK) ** 2).mean(axis=(-2, -1))
+    z = rng.standard_normal((16, order + 32 * BLOCK, order + 32 * BLOCK))
+    v = (_blocks(high_pass(z, order), BLOCK) ** 2).mean(axis=(-2, -1))
     return float(np.quantile(v, q))
 
 
-def _bin_statistic(method: str) -> tuple[float, float]:
-    """(quantile, divisor) of a bin's variances that estimates its noise variance."""
+def _bin_statistic(method: str, check: bool = False) -> tuple[float, float]:
+    """(quantile, divisor) of a bin's variances (of ``var``, or of ``var_check`` with
+    ``check``) that estimates its noise variance."""
     if method == "flat":
         return 0.5, 1.0
-    return PATCH_QUANTILE, pure_noise_quantile()
+    return PATCH_QUANTILE, pure_noise_quantile(PATCH_QUANTILE, CHECK_ORDER if check else 4)
 
 
 @dataclass
@@ -502,16 +536,19 @@ class ChannelData:
     var: np.ndarray
     group: np.ndarray  # bootstrap unit: frame × region
     tile: int = TILE  # the flat tiles' side (plane pixels): their variances' precision
+    check: np.ndarray | None = None  # the second variance estimate (FrameStats.var_check)
 
 
-def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, np.ndarray]:
-    """The line of ``data`` and its bootstrap: (line, (RESAMPLES, 2 + BINS) draws).
+def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, np.ndarray, Line]:
+    """The line of ``data``, its bootstrap and its check: (line, (RESAMPLES, 2 + BINS)
+    draws, the line of ``data.check``).
 
     The first pass bins the raw variances. The second bins each block's
     variance over the first line at its level, scaled back at the bin's level,
     and drops blocks within 5 σ of the white level. The bootstrap resamples the
     groups (weights on the second pass); each draw row holds slope, offset and
-    the bin values.
+    the bin values. The check line is the second pass on ``data.check`` (the
+    same blocks, bins and first line); NaN without it.
     """
     edges = _bin_edges(data.mean)
     q, divisor = _bin_statistic(method)
@@ -519,26 +556,33 @@ def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, 
     level, value, count = _Bins(data.mean, data.var, edges, q)(ones)
     first = _line_from_bins(level, value / divisor, count, method, data.tile)
     draws = np.full((RESAMPLES, 2 + len(edges) - 1), np.nan)
+    unchecked = Line(math.nan, math.nan, first.bins, first.levels)
     if not math.isfinite(first.slope):
-        return first, draws
+        return first, draws, unchecked
     model = np.maximum(first.slope * data.mean + first.offset, 1e-12)
     keep = data.mean + 5 * np.sqrt(model) < span
-    bins = _Bins(data.mean[keep], data.var[keep] / model[keep], edges, q)
-    group = data.group[keep]
 
-    def second(weights: np.ndarray) -> Line:
+    def binned(var: np.ndarray) -> _Bins:
+        return _Bins(data.mean[keep], var[keep] / model[keep], edges, q)
+
+    def second(bins: _Bins, weights: np.ndarray, divisor: float = divisor) -> Line:
         level, ratio, count = bins(weights)
         at = np.maximum(first.slope * level + first.offset, 1e-12)
         return _line_from_bins(level, ratio / divisor * at, count, method, data.tile)
 
-    line = second(np.ones(group.size))
+    bins, group = binned(data.var), data.group[keep]
+    line = second(bins, np.ones(group.size))
+    check = unchecked
+    if data.check is not None:
+        check_divisor = _bin_statistic(method, check=True)[1]
+        check = second(binned(data.check), np.ones(group.size), check_divisor)
     groups, inverse = np.unique(group, return_inverse=True)
     rng = np.random.default_rng(12345)
     for r in range(RESAMPLES):
         picks = np.bincount(rng.integers(0, groups.size, groups.size), minlength=groups.size)
-        b = second(picks[inverse].astype(np.float64))
+        b = second(bins, picks[inverse].astype(np.float64))
         draws[r] = [b.slope, b.offset, *b.bins]
-    return line, draws
+    return line, draws, check
 
 
 def _std(x: np.ndarray) -> float:
@@ -614,34 +658,40 @@ def calibrate_iso(
         m = [f.mean[c][f.valid[c]] for f in flats for c in idx]
         v = [f.var[c][f.valid[c]] for f in flats for c in idx]
         g = [f.group[f.valid[c]] + i * REGIONS**2 for i, f in enumerate(flats) for c in idx]
-        if method == "flat":  # dark frames' tiles anchor the line at zero signal
+        check = [f.var_check[c][f.valid[c]] for f in flats for c in idx]
+        if method == "flat":  # dark frames' tiles anchor both lines at zero signal
             for i, d in enumerate(darks):
                 for c in idx:
                     m.append(np.zeros(d.read_var.shape[1]))
                     v.append(d.read_var[c])
+                    check.append(d.read_var[c])
                     g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
-        per_channel.append(ChannelData(*(np.concatenate(a) for a in (m, v, g)), flats[0].tile))
+        m, v, g, check = (np.concatenate(a) for a in (m, v, g, check))
+        per_channel.append(ChannelData(m, v, g, flats[0].tile, check))
     if min(d.mean.size for d in per_channel) < 8:
         raise CalibrationRefused(
             [f"ISO {iso:g}: too few unsaturated blocks to fit; expose the frames below white"]
         )
-    pooled = ChannelData(
-        *(np.concatenate([getattr(d, k) for d in per_channel]) for k in ("mean", "var", "group")),
-        flats[0].tile,
-    )
-    line, draws = fit_with_errors(pooled, method, span)
-    problems += _line_problems(line, draws, darks, span)
+    pooled = {k: np.concatenate([getattr(d, k) for d in per_channel]) for k in _POOLED}
+    line, draws, check = fit_with_errors(ChannelData(**pooled, tile=flats[0].tile), method, span)
+    k_stat, k_sys = _std(draws[:, 0]), abs(line.slope - check.slope)
+    errors = {"K": math.hypot(k_stat, k_sys), "K_statistical": k_stat, "K_systematic": k_sys}
+    problems += _line_problems(line, draws, darks, span, errors["K"])
+    if math.isfinite(line.slope) and not math.isfinite(check.slope):
+        problems.append(
+            f"the second variance estimator ({_CHECKS[method]}) gives no line, so K's "
+            "systematic error is unknown; " + _LEVELS_HINT
+        )
     channels, points = {}, {}
     for name, data in zip(names, per_channel, strict=True):
-        ch, ch_draws = fit_with_errors(data, method, span)
+        ch, ch_draws, ch_check = fit_with_errors(data, method, span)
         channels[name] = {
             "K": ch.slope,
-            "K_error": _std(ch_draws[:, 0]),
+            "K_error": math.hypot(_std(ch_draws[:, 0]), ch.slope - ch_check.slope),
             "read_sigma": math.sqrt(max(ch.offset - QUANTIZATION_VARIANCE, 0.0)),
         }
         ok = np.isfinite(ch.bins)
         points[name] = (ch.levels[ok], ch.bins[ok], _column_std(ch_draws[:, 2:])[ok])
-    errors = {"K": _std(draws[:, 0])}
     if darks:
         read_var = np.concatenate([d.read_var.mean(axis=0) for d in darks])
         row_var = np.concatenate([d.row_var.mean(axis=0) for d in darks])
@@ -664,9 +714,11 @@ def calibrate_iso(
         spread = _std(np.array([fit_lambda(p) for p in parts])) / 2
         errors["lambda"] = max(spread, 0.01 / math.sqrt(12))  # at least the grid's step
     else:
-        read_sigma = math.sqrt(max(line.offset - QUANTIZATION_VARIANCE, 0.0))
+        read_var = line.offset - QUANTIZATION_VARIANCE
+        read_sigma = math.sqrt(max(read_var, 0.0))
         sig = np.sqrt(np.maximum(draws[:, 1] - QUANTIZATION_VARIANCE, 0.0))
-        errors["read_sigma"] = _std(sig)
+        systematic = _sqrt_error(read_var, abs(line.offset - check.offset))
+        errors["read_sigma"] = math.hypot(_std(sig), systematic)
         row_sigma, lam = None, None
         if method == "flat":
             row_sigma, errors["row_sigma"] = _row_sigma_from_tiles(flats)
@@ -683,6 +735,12 @@ def calibrate_iso(
         problems=[f"ISO {iso:g}: {p}" for p in problems],
         points=points,
     )
+
+
+#: The arrays of :class:`ChannelData` pooled over channels, and each method's second
+#: variance estimator (:attr:`FrameStats.var_check`), as the problems name it.
+_POOLED = ("mean", "var", "group", "check")
+_CHECKS = {"flat": "the tiles' high-pass noise", "patches": f"the {CHECK_ORDER}th-order detail"}
 
 
 def channel_planes(channels: tuple[str, ...]) -> dict[str, list[int]]:
@@ -710,8 +768,11 @@ def _sqrt_error(var: float, var_error: float) -> float:
     return var_error / (2 * math.sqrt(var)) if var > 0 else math.nan
 
 
-def _line_problems(line: Line, draws: np.ndarray, darks: list, span: float) -> list[str]:
-    """Why a fitted line is not to be trusted (empty when it is)."""
+def _line_problems(
+    line: Line, draws: np.ndarray, darks: list, span: float, k_err: float
+) -> list[str]:
+    """Why a fitted line is not to be trusted (empty when it is); ``k_err`` is K's
+    standard error, statistical and systematic."""
     if not math.isfinite(line.slope):
         return ["the frames give fewer than 2 signal levels; " + _LEVELS_HINT]
     ok = np.isfinite(line.bins)
@@ -725,7 +786,6 @@ def _line_problems(line: Line, draws: np.ndarray, darks: list, span: float) -> l
             + _LEVELS_HINT
         )
         return problems
-    k_err = _std(draws[:, 0])
     if not line.slope > span / MAX_FULL_WELL:
         problems.append(
             f"no shot noise measured (K = {line.slope:.3g} DN/e⁻; a sensor's K exceeds its "

@@ -95,6 +95,8 @@ def test_flat_field_calibration_recovers_the_model(frames, tmp_path):
         assert fit["lambda"] == pytest.approx(levels.tukey_lambda, abs=0.05)
         assert fit["reliable"] and set(fit["uncertainty"]) == {
             "K",
+            "K_statistical",
+            "K_systematic",
             "read_sigma",
             "row_sigma",
             "lambda",
