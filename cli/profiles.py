@@ -66,8 +66,9 @@ def _curve(spec: dict, unit: str) -> str:
     spec = dict(spec)
     model = spec.pop("model", "?")
     if model == "table" and "iso" in spec:
+        name = next(k for k, v in spec.items() if k != "iso" and isinstance(v, list))  # sigma, k
         points = ", ".join(
-            f"{i:g} → {v:g}" for i, v in zip(spec.pop("iso"), spec.pop("sigma"), strict=False)
+            f"{i:g} → {v:g}" for i, v in zip(spec.pop("iso"), spec.pop(name), strict=False)
         )
         rest = ", ".join(f"{k} {v:g}" for k, v in spec.items() if v)
         return f"table by ISO ({unit}): {points}" + (f"; {rest}" if rest else "")

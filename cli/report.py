@@ -126,7 +126,7 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
     temporary files removed): the summary counts what was done, exit 130 or 143.
     """
     from rawsim.run.batch import Summary
-    from rawsim.run.jobs import Interrupted, stop_on_signals
+    from rawsim.run.jobs import Interrupted, signal_received, stop_on_signals
 
     obj = ctx.obj or {}
     quiet, verbose, debug = obj.get("quiet"), obj.get("verbose", 0), obj.get("debug")
@@ -178,6 +178,11 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
         except Interrupted as stop:
             interrupted = stop
             results_iter.close()  # a generator: stops its workers, if not yet done
+        except Exception:
+            if signal_received() is None:
+                raise
+            interrupted = Interrupted(signal_received())  # a library's error for it
+            results_iter.close()
     summary.seconds = time.perf_counter() - start
     if interrupted is not None:
         left = total - summary.done - summary.skipped - summary.failed

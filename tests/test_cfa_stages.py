@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from rawsim.cfa import BAYER_PATTERNS, CFA
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.dng import DngInfo, dng_tags, write_dng
+from rawsim.io.tiff import ASCII, BYTE, DOUBLE, LONG, RATIONAL, SHORT, SRATIONAL
 from rawsim.io.raw import UnrenderableRawError, read_raw
 from rawsim.isp.config import IspConfig, override
 from rawsim.isp.dead_pixel import DeadPixelCorrection, correct_dead_pixels
@@ -278,6 +279,16 @@ def test_strips_equal_the_whole_image(tmp_path, pattern, demosaic):
 
 
 # ------------------------------------------------------------------ odd raws
+#: rawsim.io.tiff's field types → tifffile's ``extratags`` codes.
+_TIFFFILE_TYPES = {BYTE: "B", ASCII: "s", SHORT: "H", LONG: "I", RATIONAL: "2I",
+                   SRATIONAL: "2i", DOUBLE: "d"}  # fmt: skip
+
+
+def _count(kind: int, value) -> int:
+    """tifffile's count of a value: 0 for text (its length), pairs for rationals."""
+    return 0 if kind == ASCII else len(value) // (2 if kind in (RATIONAL, SRATIONAL) else 1)
+
+
 def _odd_dng(path, data: np.ndarray, pattern=None, plane_color=(0, 1, 2), dim=(2, 2)):
     """A DNG of what rawsim's writer does not write: a CFA of any TIFF/EP colour codes
     (0–2 R, G, B; 3 cyan, 4 magenta, 5 yellow, 6 white) with its CFAPlaneColor, or,
@@ -293,7 +304,11 @@ def _odd_dng(path, data: np.ndarray, pattern=None, plane_color=(0, 1, 2), dim=(2
         "Odd Cam",
         100,
     )
-    tags = [t for t in dng_tags(info) if t[0] not in (33421, 33422, 50710, 34666)]
+    tags = [
+        (code, _TIFFFILE_TYPES[kind], _count(kind, value), value if kind == ASCII else tuple(value), True)
+        for code, (kind, value) in dng_tags(info).items()
+        if code not in (254, 262, 33421, 33422, 50710)  # tifffile writes 254 and 262
+    ]  # fmt: skip
     if pattern is not None:
         tags += [
             (33421, "H", 2, dim, True),

@@ -176,9 +176,12 @@ def read_metadata(path: str | Path, libraw: bool = True) -> PhotoMetadata:
     file has none or neither exiv2 nor (if ``libraw``: for raws) LibRaw can read any."""
     import exiv2
 
+    from rawsim.io.clibs import openable_name
+
     try:
-        image = exiv2.ImageFactory.open(str(path))
-        image.readMetadata()
+        with openable_name(path) as name:  # exiv2 takes UTF-8 names only
+            image = exiv2.ImageFactory.open(name)
+            image.readMetadata()
     except exiv2.Exiv2Error:
         return _from_libraw(path) if libraw else PhotoMetadata()
     data = image.exifData()

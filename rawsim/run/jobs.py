@@ -46,11 +46,24 @@ class Interrupted(BaseException):
         return 128 + self.signum
 
 
+#: The signal that stopped the job under :class:`stop_on_signals`, or None.
+_received: int | None = None
+
+
 def _stop_on_signal(signum, frame) -> None:
     """The first SIGINT/SIGTERM stops the job; later ones wait for its cleanup (≤ 2 s)."""
+    global _received
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_IGN)
+    _received = signum
     raise Interrupted(signum)
+
+
+def signal_received() -> int | None:
+    """The signal that stopped the job, if any: a library that catches the
+    :class:`Interrupted` raised inside it (Ray, waiting on its workers) raises an
+    error of its own instead, which is then the interruption's."""
+    return _received
 
 
 def _redelivering(previous: Callable) -> Callable:
@@ -87,6 +100,8 @@ class stop_on_signals:
     """
 
     def __enter__(self):
+        global _received
+        _received = None
         self._old = None
         if threading.current_thread() is threading.main_thread():
             self._old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
