@@ -52,6 +52,7 @@ def unprocess(
     display_referred: bool = True,
     code_max: int | None = None,
     lens: LensParams | dict | None = None,
+    out: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, list[dict]]:
     """Simulate the raw captures of a batch: returns ``(noisy, clean, metadata)``.
 
@@ -80,6 +81,10 @@ def unprocess(
         lens: as ``--lens``, ``--focal-length``, ``--aperture``: a
             :class:`~rawsim.io.lensfun.LensParams` (:func:`~rawsim.io.lensfun.lens_params`
             builds one) or its record; each image is the whole frame the lens saw.
+        out: float32 (B, 1, H, W) tensors on the images' device for ``noisy`` and
+            ``clean``, written and returned (not with gradients). A training loop
+            that passes the same ones each step spares the fresh memory's first
+            touch (0.05–0.2 s of page faults for a 24 MP batch of one).
 
     Returns:
         ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
@@ -87,6 +92,9 @@ def unprocess(
         levels, levels and CFA). If ``images`` requires grad (floats only),
         ``clean`` is the unrounded DN with its graph and ``noisy`` is ``clean``
         plus the sampled noise (held constant), so gradients reach the images.
+        Without gradients the kernel reads ``images`` in their own layout
+        (channels-first or -last, crops: any strides) and writes each sample
+        straight into its slice of the returned tensors.
     """
     b = images.shape[0] if images.ndim == 4 else 0
     if len(seeds) != b:
@@ -112,6 +120,10 @@ def unprocess(
     if grad and images.dtype in INTEGER_DTYPES:
         raise ParameterError("gradients need float images")
     noisy, clean, metadata = [], [], []
+    if not grad:  # written in place by each sample's kernel: no copies, no concatenation
+        noisy, clean = _outputs(out, (b, 1, *images.shape[-2:]), images.device)
+    elif out is not None:
+        raise ParameterError("out= is for unprocessing without gradients")
     for i in range(b):
         sim = simulate(
             sensor,
@@ -120,6 +132,7 @@ def unprocess(
             int(seeds[i]),
             display_referred=display_referred,
             code_max=code_max,
+            out=None if grad else (noisy[i : i + 1], clean[i : i + 1]),
         )
         if grad:
             in_type = "rgb" if display_referred else "linear_rgb"
@@ -127,11 +140,22 @@ def unprocess(
             c = sensor.linrgb2raw(camera, sim.params)
             noisy.append(sim.noisy.float() + (c - c.detach()))  # the capture's values, c's graph
             clean.append(c)
-        else:
-            noisy.append(sim.noisy.float())
-            clean.append(sim.clean.float())
         metadata.append(capture_metadata(sensor, options, int(seeds[i]), sim))
-    return torch.cat(noisy), torch.cat(clean), metadata
+    if grad:
+        return torch.cat(noisy), torch.cat(clean), metadata
+    return noisy, clean, metadata
+
+
+def _outputs(out, shape: tuple[int, ...], device: torch.device) -> tuple[torch.Tensor, ...]:
+    """The (noisy, clean) tensors to write: ``out``, checked, or two new ones."""
+    if out is None:
+        return tuple(torch.empty(shape, dtype=torch.float32, device=device) for _ in range(2))
+    if len(out) != 2 or any(
+        t.shape != shape or t.dtype != torch.float32 or t.device != device for t in out
+    ):
+        got = [(tuple(t.shape), t.dtype, str(t.device)) for t in out]
+        raise ParameterError(f"out must be two float32 tensors {shape} on {device}, got {got}")
+    return tuple(out)
 
 
 def capture_metadata(sensor: ProfileSensor, options: UnprocessOptions, seed: int, sim) -> dict:
@@ -213,14 +237,17 @@ def process(
             continue
         isp = build_isp(config, raw).to(mosaics.device)
         outs.append(isp(mosaics[i : i + 1]))
-    return torch.cat(outs)
+    return outs[0] if len(outs) == 1 else torch.cat(outs)  # one sample: its render, uncopied
 
 
 def _codes(mosaic: torch.Tensor) -> np.ndarray | None:
     """A CPU (H, W) mosaic of whole DN in [0, 65535] as uint16 codes (what the compiled
-    engine reads), else None."""
-    if mosaic.device.type != "cpu" or not bool(((mosaic == mosaic.round()) & (mosaic >= 0)).all()):
+    engine reads), else None. One cast and one comparison: a value that is not a
+    whole number in range (or NaN) casts to a code unequal to it."""
+    if mosaic.device.type != "cpu":
         return None
-    if float(mosaic.max()) > 65535:
-        return None
-    return mosaic.detach().to(torch.int32).numpy().astype(np.uint16)
+    values = mosaic.detach()
+    values = values.numpy() if values.dtype != torch.bfloat16 else values.float().numpy()
+    with np.errstate(invalid="ignore"):  # out of range: any code, unequal to the value
+        codes = values.astype(np.uint16)
+    return codes if np.array_equal(codes, values) else None

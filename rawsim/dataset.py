@@ -113,7 +113,8 @@ class UnprocessDataset(Dataset):
         if h < s or w < s:
             raise UnsupportedInputError(f"{path}: {w}×{h} is smaller than the {s}×{s} crop")
         top, left = self.crop_origin(h, w, seed)
-        image = image_tensor(decoded.pixels[top : top + s, left : left + s].copy())
+        # the crop as a view: the kernel reads it in place (int32 only for uint16 codes)
+        image = image_tensor(decoded.pixels[top : top + s, left : left + s])
         noisy, clean, meta = unprocess(
             image,
             self.sensor,

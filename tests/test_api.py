@@ -60,6 +60,50 @@ def test_batch_unprocess_matches_the_files_job_bit_for_bit(sensor, tmp_path, mon
     assert torch.equal(both[1:], one) and [m["iso"] for m in meta] == [400, 3200]
 
 
+@pytest.mark.parametrize("dtype", ["uint8", "uint16", "int32", "float32"])
+def test_unprocess_reads_any_layout_as_the_files_job_does(sensor, dtype):
+    """Channels-first, channels-last (strided) and cropped (non-contiguous) batches
+    give the bits of the files job's call on each image's contiguous (H, W, 3)
+    pixels, for each input type the API takes."""
+    from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
+
+    decoded = read_image(DATA / "srgb" / "chelsea.png")
+    codes = torch.from_numpy(decoded.pixels[:68, :100]).permute(2, 0, 1)[None]
+    codes = torch.cat([codes, codes.flip(-1)])  # two samples: each writes its own slice
+    code_max = {"uint8": None, "uint16": 65535, "int32": 255, "float32": None}[dtype]
+    if dtype == "uint16":
+        batch = (codes.to(torch.int32) * 257).to(torch.uint16)
+    elif dtype == "float32":
+        batch = codes.float() / 255
+    else:
+        batch = codes.to(getattr(torch, dtype))
+    crop = batch[..., 2:66, 4:100]
+    layouts = {
+        "channels-first": crop.contiguous(),
+        "channels-last": crop.permute(0, 2, 3, 1).contiguous().permute(0, 3, 1, 2),
+        "crop": crop,
+    }
+    assert not layouts["crop"].is_contiguous() and not layouts["channels-last"].is_contiguous()
+    seeds, kw = [21, 22], {"iso": 3200, "noise": "physics", "code_max": code_max}
+    options = UnprocessOptions(profile=sensor.profile, iso=3200, noise="physics", clean=True)
+    files = []
+    for i, seed in enumerate(seeds):  # as unprocess_file: a decoded, contiguous (H, W, 3) array
+        pixels = np.ascontiguousarray(crop[i].permute(1, 2, 0).numpy())
+        sim = simulate(sensor, pixels, options, seed, code_max=code_max)
+        files.append((Simulation.codes(sim.noisy), Simulation.codes(sim.clean)))
+    buffers = (torch.full((2, 1, 64, 96), -1.0), torch.full((2, 1, 64, 96), -1.0))
+    for name, images in layouts.items():
+        noisy, clean, _ = rawsim.unprocess(images, sensor, seeds, **kw)
+        assert noisy.shape == clean.shape == (2, 1, 64, 96) and noisy.dtype == torch.float32
+        for i, (noisy_ref, clean_ref) in enumerate(files):
+            assert np.array_equal(noisy[i, 0].numpy().astype(np.uint16), noisy_ref), name
+            assert np.array_equal(clean[i, 0].numpy().astype(np.uint16), clean_ref), name
+        assert noisy.equal(noisy.round()) and not noisy.equal(clean)
+        into = rawsim.unprocess(images, sensor, seeds, **kw, out=buffers)
+        assert into[0] is buffers[0] and into[1] is buffers[1]
+        assert torch.equal(into[0], noisy) and torch.equal(into[1], clean)
+
+
 def test_gradients_flow_through_unprocess_and_process(sensor):
     image, _ = _codes("chelsea.png")
     x = (image[..., :64, :96].float() / 255).requires_grad_()
@@ -109,6 +153,18 @@ def test_process_without_gradients_runs_the_engine_as_the_reference(sensor, monk
     assert torch.allclose(ours, ref, rtol=0, atol=1e-5), float((ours - ref).abs().max())
 
 
+def test_process_takes_codes_only_from_whole_dn_in_range():
+    """The engine's codes come from mosaics of whole DN in [0, 65535] only; any other
+    value (a fraction, below 0, above 65535, NaN) sends the mosaic to the reference."""
+    from rawsim.api import _codes
+
+    m = torch.tensor([[0.0, 1.0], [65535.0, 512.0]])
+    assert np.array_equal(_codes(m), m.numpy().astype(np.uint16))
+    assert _codes(m.double()) is not None and _codes(m[:, :1]) is not None  # any dtype, strides
+    for bad in (0.5, -1.0, 65536.0, 1e9, float("nan"), float("inf")):
+        assert _codes(torch.where(m == 512, bad, m)) is None, bad
+
+
 def _counted(fn, calls):
     def wrapper(*args, **kw):
         calls.append(1)
@@ -125,6 +181,12 @@ def test_api_errors(sensor):
         rawsim.unprocess(x, sensor, [1, 2], iso=[100])
     with pytest.raises(ParameterError, match="code_max"):
         rawsim.unprocess((x * 255).to(torch.int32), sensor, [1, 2], iso=100)
+    with pytest.raises(ParameterError, match="out must be two float32 tensors"):
+        rawsim.unprocess(x, sensor, [1, 2], iso=100, out=(torch.empty(2, 1, 8, 8),) * 1)
+    with pytest.raises(ParameterError, match="out must be two float32 tensors"):
+        rawsim.unprocess(x, sensor, [1, 2], iso=100, out=(torch.empty(2, 1, 8, 6),) * 2)
+    with pytest.raises(ParameterError, match="without gradients"):
+        rawsim.unprocess(x.clone().requires_grad_(), sensor, [1, 2], iso=100, out=(x[:, :1],) * 2)
     codes = (x * 1023).to(torch.int32)
     codes[1, 0, 3, 3] = 1024  # over a 10-bit code_max, whatever the type could hold
     for image in (codes, codes.to(torch.uint16)):
