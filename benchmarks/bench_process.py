@@ -1,6 +1,6 @@
 """Processing speed and memory: rawsim's ISP beside LibRaw (rawpy) and dcraw in the same run.
 
-    python benchmarks/bench_process.py [--quick]
+    python benchmarks/bench_process.py [--quick] [--io]
 
 Makes a 24 MP, 14-bit DNG with ``rawsim unprocess`` (a test photo resized to
 6000×4000, Sony A7S II profile, ISO 800), then times, each in a fresh process so
@@ -21,9 +21,17 @@ that peak memory (max RSS) is its own:
     sRGB TIFF by ``rawsim process`` (per image in a batch) and by LibRaw's 3-pass
     Markesteijn (postprocess + TIFF write, fresh interpreter): seconds, and CPSNR
     of each render against the photo.
-Targets (issues 13, 15, 26): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
+  * (``--io`` runs this alone) the I/O floor and batches (issue 28), in
+    interleaved rounds, medians: marginal seconds per file over 3 copies of the
+    file (a batch of 4 less a batch of 1, fresh processes) of ``rawsim process``
+    (wcd → 16-bit TIFF) and of the floor, rawpy reading the raw plus
+    OpenImageIO writing a 16-bit TIFF of the render's size; and 8 copies with
+    ``--jobs 2`` beside ``dcraw_emu -T -6`` (LibRaw's AHD, 16-bit TIFF) run two at
+    a time on the same files.
+Targets (issues 13, 15, 26, 28): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
 default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write;
-backward ≤ 3× forward; X-Trans ≤ 0.5× LibRaw 3-pass (+ TIFF write).
+backward ≤ 3× forward; X-Trans ≤ 0.5× LibRaw 3-pass (+ TIFF write); process ≤ 2.0×
+the I/O floor; 8 files with --jobs 2 ≤ 0.5× dcraw_emu two at a time.
 """
 
 from __future__ import annotations
@@ -67,6 +75,24 @@ rgb = (rgb >> 8).astype(np.uint8) if sys.argv[3] == "8" else rgb
 t = time.perf_counter()
 write_image(sys.argv[2], rgb, sys.argv[2].rsplit(".", 1)[1].replace("tif", "tiff"))
 print(time.perf_counter() - t)
+"""
+
+
+FLOOR = """
+import sys, numpy as np, rawpy, OpenImageIO as oiio
+pixels = None
+for i, path in enumerate(sys.argv[2:]):
+    with rawpy.imread(path) as raw:
+        mosaic = raw.raw_image_visible.copy()
+    if pixels is None:  # a render's size and type (its contents cost nothing to write)
+        pixels = np.zeros((*mosaic.shape, 3), np.uint16)
+    name = f"{sys.argv[1]}/{i}.tif"
+    out = oiio.ImageOutput.create(name)
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, oiio.UINT16)
+    spec.attribute("compression", "none")  # as rawsim and dcraw write TIFFs
+    out.open(name, spec)
+    assert out.write_image(pixels), out.geterror()
+    out.close()
 """
 
 
@@ -117,8 +143,10 @@ def make_dng(tmp: Path) -> Path:
 def rawsim_batch(batch: Path, out_dir: Path, args: list[str], env=None) -> tuple[float, float]:
     """Steady-state seconds per image and peak RSS (GB) of one batch run.
 
-    Per image: the median of each file's own time (read, render, write: ``-v``
-    reports it), the first file excluded (it also loads the compiled engine).
+    Per image: the median of each file's own time (``-v`` reports it: render,
+    write, and what of its read was not done ahead while the file before
+    rendered), the first file excluded (it also loads the compiled engine).
+    :func:`io_floor` times whole batches instead.
     """
     _, err, peak = child(["rawsim", "-v", "process", str(batch), "-o", str(out_dir), *args], env)
     shutil.rmtree(out_dir)
@@ -129,7 +157,12 @@ def rawsim_batch(batch: Path, out_dir: Path, args: list[str], env=None) -> tuple
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one copy, fewer methods")
+    ap.add_argument("--io", action="store_true", help="only the I/O floor and batches")
     args = ap.parse_args()
+    if args.io:
+        with tempfile.TemporaryDirectory() as d:
+            io_floor(Path(d), make_dng(Path(d)), 5)
+        return
     copies = 1 if args.quick else 3
     methods = ["wcd", "bilinear"] if args.quick else ["wcd", "menon", "malvar", "bilinear"]
     with tempfile.TemporaryDirectory() as d:
@@ -365,6 +398,66 @@ def xtrans(tmp: Path, copies: int) -> None:
         f"   peak {peak:4.2f} GB   rawsim/LibRaw = {seconds / min(libraw):4.2f}×"
     )
     print("  target: ≤ 0.5× LibRaw 3-pass")
+
+
+def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
+    """``rawsim process`` per file in a batch against the I/O floor, and 8 files with
+    ``--jobs 2`` against ``dcraw_emu -T -6`` two at a time: ``rounds`` interleaved
+    rounds of fresh processes, medians."""
+    folders = {}
+    for n in (1, 4, 8):
+        folders[n] = tmp / f"batch{n}"
+        folders[n].mkdir()
+        for i in range(n):
+            shutil.copy(dng, folders[n] / f"copy{i}.dng")
+    out = tmp / "out"
+    tiff16 = ["--format", "tiff", "--bits", "16"]
+
+    def floor(n: int) -> list[str]:
+        out.mkdir()
+        return [sys.executable, "-c", FLOOR, str(out), *map(str, sorted(folders[n].iterdir()))]
+
+    def rawsim(n: int, *jobs: str) -> list[str]:
+        return ["rawsim", "-q", "process", str(folders[n]), "-o", str(out), *tiff16, *jobs]
+
+    dcraw = tmp / "dcraw"  # its own copies: dcraw_emu writes <input>.tiff beside each
+    shutil.copytree(folders[8], dcraw)
+
+    def dcraw_pairs() -> list[str]:
+        for tiff in dcraw.glob("*.tiff"):
+            tiff.unlink()
+        files = sorted(str(p) for p in dcraw.glob("*.dng"))
+        script = 'printf "%s\\n" "$@" | xargs -P 2 -n 1 dcraw_emu -T -6'
+        return ["sh", "-c", script, "sh", *files]
+
+    runs = {
+        "floor 1": lambda: floor(1),
+        "floor 4": lambda: floor(4),
+        "rawsim 1": lambda: rawsim(1),
+        "rawsim 4": lambda: rawsim(4),
+        "rawsim 8 --jobs 2": lambda: rawsim(8, "--jobs", "2"),
+        "dcraw_emu 8, two at a time": dcraw_pairs,
+    }
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for _ in range(rounds):
+        for name, cmd in runs.items():
+            shutil.rmtree(out, ignore_errors=True)
+            if not name.startswith("floor"):
+                out.mkdir()
+            times[name].append(timed(cmd())[0])
+    shutil.rmtree(out, ignore_errors=True)
+    med = {name: statistics.median(t) for name, t in times.items()}
+    ours, theirs = (med["rawsim 4"] - med["rawsim 1"]) / 3, (med["floor 4"] - med["floor 1"]) / 3
+    print(f"I/O floor and batches, 24 MP 14-bit DNG, {os.cpu_count()} cores, {rounds} rounds:")
+    for name, t in times.items():
+        print(f"  {name:<28} median {med[name]:6.2f} s  ({min(t):.2f}–{max(t):.2f})")
+    print(
+        f"  per file in a batch (marginal over 3 copies): rawsim wcd → TIFF 16 {ours:.3f} s, "
+        f"floor (rawpy read + OIIO TIFF 16 write) {theirs:.3f} s = {ours / theirs:.2f}× "
+        "(target ≤ 2.0×)"
+    )
+    ratio = med["rawsim 8 --jobs 2"] / med["dcraw_emu 8, two at a time"]
+    print(f"  8 files, --jobs 2 / dcraw_emu two at a time = {ratio:.2f}× (target ≤ 0.5×)")
 
 
 def srgb_8bit(linear: np.ndarray) -> np.ndarray:

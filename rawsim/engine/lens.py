@@ -91,7 +91,7 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
                 rgb[k][HALO + i - r0, HALO + j - c0] = ((one - ay) * top + ay * bottom) * gain
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, nogil=True, **_JIT)
 def lens_kernel(
     src,
     table,

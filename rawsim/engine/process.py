@@ -786,7 +786,7 @@ def _scratch_buffers(shape):
     return a + b + c + d + e + f + g[:2]
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, nogil=True, **_JIT)
 def process_kernel(
     raw,
     colors,
@@ -889,7 +889,7 @@ def _load_planes(raw, m, rows, cols, r0, c0, cmap, table, ops, opf, h, w):
                     dst[x] = _mosaic_value(v, color, color, sy, sx, cy, cx, ops, opf)
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, nogil=True, **_JIT)
 def periodic_kernel(
     raw,
     rows,
@@ -964,7 +964,7 @@ def _site(raw, y, x, k, color, table, ops, opf, cy, cx):
     return _mosaic_value(np.float32(raw[y, x]), k, color, y, x, cy, cx, ops, opf)
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, nogil=True, **_JIT)
 def half_kernel(
     raw,
     classes,

@@ -252,8 +252,7 @@ def run(
 
             yield from ray_executor.run(tasks, job, address, overwrite, debug, kwargs)
         elif jobs == 1 or len(tasks) <= 1:
-            for t in tasks:
-                yield _run_one(job, t, overwrite, debug, kwargs)
+            yield from _run_local(tasks, job, overwrite, debug, kwargs)
         else:
             yield from _run_pool(tasks, job, jobs, overwrite, debug, kwargs)
     finally:
@@ -261,6 +260,29 @@ def run(
         # those of a killed run whose processes were still exiting at the start.
         for folder in folders:
             remove_stale_temporaries(folder)
+
+
+def _run_local(tasks, job, overwrite, debug, kwargs) -> Iterator[Result]:
+    """:func:`run` in this process. A job with a ``read_ahead(task, **kwargs)`` is told
+    the next task to run before each task starts, so that it can read that input in
+    a thread while this one runs (:mod:`rawsim.io.readahead`)."""
+    read_ahead = getattr(job, "read_ahead", None)
+    ahead = told = 0  # the next task to run after this one (skipped ones passed by)
+    for i, t in enumerate(tasks):
+        if read_ahead is not None:
+            ahead = max(ahead, i + 1)
+            while ahead < len(tasks) and not overwrite and _outputs_exist(tasks[ahead]):
+                ahead += 1
+            if told < ahead < len(tasks):
+                read_ahead(tasks[ahead], **kwargs)
+                told = ahead
+        yield _run_one(job, t, overwrite, debug, kwargs)
+
+
+def _outputs_exist(task: Task) -> bool:
+    """Whether all of a task's outputs exist (it will be skipped): not worth reading
+    ahead. Remote outputs count as absent (no round trip to ask)."""
+    return all(not remote.is_url(p) and Path(p).exists() for p in task.outputs.values())
 
 
 def _run_pool(tasks, job, jobs, overwrite, debug, kwargs) -> Iterator[Result]:

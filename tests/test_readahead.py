@@ -1,0 +1,86 @@
+"""Reading a batch's next input ahead: the reader thread and the batch's hints."""
+
+import threading
+
+import pytest
+
+from rawsim.errors import UnsupportedInputError
+from rawsim.io.readahead import AHEAD, ReadAhead
+from rawsim.io.task import Task
+from rawsim.run.batch import run
+
+
+def _read(key, log):
+    log.append((key, threading.current_thread().name))
+    if key == "bad":
+        raise UnsupportedInputError("bad: not a raw")
+    return key.upper()
+
+
+def test_a_read_ahead_input_is_read_once_in_the_reader_thread():
+    reader, log = ReadAhead(), []
+    reader.start("a", _read, "a", log)
+    reader.start("a", _read, "a", log)  # already under way: not read again
+    assert reader.take("a", _read, "a", log) == "A"
+    assert log == [("a", log[0][1])] and log[0][1].startswith("rawsim-read")
+    # taken: a second take reads now, in the caller's thread
+    assert reader.take("a", _read, "a", log) == "A"
+    assert log[1] == ("a", threading.current_thread().name)
+
+
+def test_its_error_is_raised_where_it_is_taken():
+    reader = ReadAhead()
+    reader.start("bad", _read, "bad", [])
+    with pytest.raises(UnsupportedInputError, match="not a raw"):
+        reader.take("bad", _read, "bad", [])
+
+
+def test_inputs_not_taken_are_dropped_beyond_the_limit():
+    reader, log = ReadAhead(), []
+    for key in "abc":  # "a" was skipped: only the last AHEAD are kept
+        reader.start(key, _read, key, log)
+    assert AHEAD == 2
+    assert reader.take("c", _read, "c", log) == "C"
+    assert reader.take("b", _read, "b", log) == "B"
+    reader.take("a", _read, "a", log)  # dropped: read again, now, in the caller's thread
+    assert log[-1] == ("a", threading.current_thread().name)
+
+
+def test_taking_another_input_keeps_the_one_read_ahead():
+    reader, log = ReadAhead(), []
+    reader.start("b", _read, "b", log)
+    assert reader.take("a", _read, "a", log) == "A"  # not read ahead: read now
+    assert log[-1] == ("a", threading.current_thread().name)
+    assert reader.take("b", _read, "b", log) == "B"
+    assert [k for k, _ in log].count("b") == 1
+
+
+def _job(task, log):
+    log.append(("run", task.key))
+    return {}
+
+
+def _read_ahead(task, log):
+    log.append(("ahead", task.key))
+
+
+_job.read_ahead = _read_ahead
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_the_batch_names_the_next_file_to_run_before_each(tmp_path, overwrite):
+    tasks = [Task(tmp_path / k, k, {"x": tmp_path / f"{k}.out"}, 0) for k in "abcd"]
+    (tmp_path / "b.out").write_text("exists")  # skipped: not read ahead
+    log = []
+    results = list(run(tasks, _job, overwrite=overwrite, log=log))
+    assert [r.status for r in results] == [
+        "done",
+        "done" if overwrite else "skipped",
+        "done",
+        "done",
+    ]
+    if overwrite:
+        expected = ["ahead b", "run a", "ahead c", "run b", "ahead d", "run c", "run d"]
+    else:
+        expected = ["ahead c", "run a", "ahead d", "run c", "run d"]
+    assert [" ".join(e) for e in log] == expected
