@@ -9,7 +9,8 @@ Measures, on this machine:
      decode both by OpenImageIO's ``read_image`` (the issue's floor) and by
      strips, as rawsim reads (``read_image`` copies its whole buffer: slower);
   2. the compute alone (unprocess + mosaic + noise, 24 MP): the compiled engine
-     against the eager torch reference, per noise model;
+     against the eager torch reference, per noise model; and the physics model
+     with a 24 MP dark-shading map and black-level error beside without;
   3. whole-file throughput of ``rawsim unprocess`` on folders of 1 MP JPEGs,
      with --jobs 1 and --jobs 2, beside OpenImageIO's decode rate: the whole
      command, the batch, and the steady state (the extra time N more files take);
@@ -26,12 +27,13 @@ Inputs are made by resizing the real photos in tests/data/srgb.
 Targets (issue 13, 2-core machine): (1) ≤ 2.0× the I/O floor, (2) engine ≥ 6×
 the torch reference and physics ≤ 1.5× gaussian, (3) ≥ 50 images/s with --jobs 2.
 Issue 28: (1) ≤ 1.3× the I/O floor; (5) the API ≤ 1.2× the kernel alone and ≥ 10×
-DeepLens.
+DeepLens. Issue 30: (2) dark shading ≤ 1.2× the physics model without.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -52,6 +54,7 @@ import torch
 import rawsim
 from rawsim.io.images import read_pixels
 from rawsim.io.task import Task
+from rawsim.noise.dark_shading import write_maps
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import UnprocessOptions, engine_unprocess, simulate, unprocess_file
 from rawsim.profiles import load_profile
@@ -142,9 +145,9 @@ def compute_24mp(tmp: Path, repeat: int) -> None:
     profile = load_profile("sony_a7s2")
     print(f"2. compute only, 24 MP: engine vs torch reference ({torch.get_num_threads()} threads)")
     engine = {}
-    warm = UnprocessOptions(profile=profile, iso=1600, noise="physics")
+    physics = UnprocessOptions(profile=profile, iso=1600, noise="physics")
     for _ in range(5):  # a fresh process's first large arrays are slow to come by
-        simulate(warm.make_sensor(), pixels, warm, 1, engine=True)
+        simulate(physics.make_sensor(), pixels, physics, 1, engine=True)
     for noise in ("none", "gaussian", "poisson-gaussian", "physics"):
         options = UnprocessOptions(profile=profile, iso=1600, noise=noise)
         sensor = options.make_sensor()
@@ -158,6 +161,38 @@ def compute_24mp(tmp: Path, repeat: int) -> None:
         f"   physics / gaussian on the engine: {engine['physics'] / engine['gaussian']:.2f}× "
         "(target ≤ 1.5×)"
     )
+    options = UnprocessOptions(profile=dark_profile(tmp, 4000, 6000), iso=1600, noise="physics")
+    sensor = options.make_sensor()
+    simulate(sensor, pixels, options, 1, engine=True)  # the maps decoded once (cached)
+    runs = {
+        "physics": partial(simulate, physics.make_sensor(), pixels, physics, 1, engine=True),
+        "dark": partial(simulate, sensor, pixels, options, 1, engine=True),
+    }
+    times = {name: min(t) for name, t in interleaved(runs, repeat).items()}
+    print(
+        f"   physics + dark shading and black-level error {times['dark']:6.3f} s, without "
+        f"{times['physics']:6.3f} s: {times['dark'] / times['physics']:.2f}× (issue 30: ≤ 1.2×)"
+    )
+
+
+def dark_profile(tmp: Path, h: int, w: int):
+    """sony_a7s2 with random dark-shading maps (h × w, one gain range; k σ 0.01 DN/ISO,
+    b σ 5 DN) and a black-level error of σ 2 DN."""
+    data = json.loads(Path(load_profile("sony_a7s2").path).read_text())
+    rng = np.random.default_rng(0)
+    k = rng.normal(0, 0.01, (1, h, w)).astype(np.float32)
+    b = rng.normal(0, 5.0, (1, h, w)).astype(np.float32)
+    write_maps(tmp / "bench.dark.npz", [(100.0, 102400.0)], k, b, data["cfa_pattern"])
+    data["noise"]["dark_shading"] = {
+        "file": "bench.dark.npz",
+        "iso_ranges": [[100, 102400]],
+        "size": [h, w],
+    }
+    data["noise"]["black_level_error"] = {"iso": [100], "sigma": [2.0]}
+    data["source"]["noise.dark_shading"] = data["source"]["noise.black_level_error"] = "random"
+    path = tmp / "dark.json"
+    path.write_text(json.dumps(data))
+    return load_profile(path)
 
 
 def batch_seconds(folder: Path, out: Path, jobs: int) -> tuple[float, float]:

@@ -46,8 +46,35 @@ from rawsim_cli.options import output_options, usage_errors
     is_flag=True,
     help="Write the profile even when a fit cannot be trusted; it is marked unreliable.",
 )
+@click.option(
+    "--dark-shading",
+    is_flag=True,
+    help="Also measure the dark frames' fixed pattern (k·ISO + b per pixel, written beside "
+    "the profile as <name>.dark.npz) and the black-level error per ISO.",
+)
+@click.option(
+    "--gain-switch",
+    "gain_switch",
+    multiple=True,
+    type=float,
+    help="An ISO where the sensor switches conversion gain: dark shading is fitted per "
+    "range. Repeatable.",
+)
 @usage_errors
-def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, force):
+def command(
+    raws,
+    output,
+    darks,
+    method,
+    iso,
+    name,
+    plot,
+    as_json,
+    overwrite,
+    force,
+    dark_shading,
+    gain_switch,
+):
     """Fit K (DN/e⁻), read σ, row σ and λ per ISO from RAWS and write a profile.
 
     RAWS are flat-field frames of one camera (or ordinary photos with --method
@@ -63,6 +90,12 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
     variance estimators that the method's bias reaches unequally (texture, for
     patches).
 
+    --dark-shading also fits each pixel's dark level as k·ISO + b (per gain
+    range; --gain-switch ISO starts a new one) and the spread of the frames'
+    black levels per ISO, and takes that pattern out of every frame before the
+    noise fits. It needs at least 8 dark frames per ISO, more when the pattern is
+    weak against the noise (the refusal says how many), and two ISOs per range.
+
     A fit that cannot be trusted (frames that are not flat fields, too few
     signal levels, no shot noise, a negative read variance, a poor line fit,
     dark frames that are not dark, mixed cameras or ISOs) is refused: exit 1,
@@ -73,6 +106,7 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
     Example:
       rawsim calibrate flats/ --dark darks/ -o mycam.json --plot fit.png
       rawsim calibrate photos/*.CR2 --method patches -o mycam.json --json
+      rawsim calibrate flats/ --dark darks/ --dark-shading --gain-switch 800 -o mycam.json
     """
     from rawsim.calibrate import (
         CalibrationRefused,
@@ -82,6 +116,7 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
         frame_stats,
         same_camera,
     )
+    from rawsim.dark_calibration import PatternRemoval, accumulate, add_to_profile
     from rawsim.errors import ParameterError
     from rawsim.io.atomic import atomic_output
     from rawsim.io.images import RAW_EXTENSIONS
@@ -112,9 +147,23 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
             raise CalibrationRefused([why + "; calibrate each ISO on its own (leave out --iso)"])
         return stats
 
+    def dark_pass():
+        """The dark frames, one at a time, with the ISO they are fitted at."""
+        for f, _ in discover(darks, RAW_EXTENSIONS).found:
+            raw = read_raw(f)
+            yield raw, float(iso or raw.iso)
+
     try:
-        flats = load(raws, lambda raw, value: frame_stats(raw, method, value))
-        dark_frames = load(darks, dark_stats)
+        flat, dark = (lambda raw, value: raw), (lambda raw, value: raw)
+        if dark_shading:  # a first pass over the dark frames measures the pattern
+            if not darks:
+                raise ParameterError("--dark-shading needs dark frames (--dark)")
+            acc = accumulate(dark_pass())
+            removal = PatternRemoval(acc)
+            flat = lambda raw, value: removal.flat(raw, float(value or raw.iso))  # noqa: E731
+            dark = lambda raw, value: removal.dark(raw, float(value or raw.iso))  # noqa: E731
+        flats = load(raws, lambda raw, value: frame_stats(flat(raw, value), method, value))
+        dark_frames = load(darks, lambda raw, value: dark_stats(dark(raw, value), value))
         same_camera(flats + dark_frames)
         by_iso: dict[float, list] = defaultdict(list)
         dark_by_iso: dict[float, list] = defaultdict(list)
@@ -130,6 +179,8 @@ def command(raws, output, darks, method, iso, name, plot, as_json, overwrite, fo
             for value in sorted(by_iso)
         ]
         profile = build_profile(fits, flats[0], name or out.stem, method, forced=force)
+        if dark_shading:
+            add_to_profile(profile, acc, out, tuple(gain_switch), forced=force)
     except CalibrationRefused as err:
         for problem in err.problems:
             click.echo(f"rawsim: cannot calibrate: {problem}", err=True)

@@ -23,6 +23,7 @@ from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.isp.color_matrix import split_seed_matrix
 from rawsim.isp.levels import white_level_for_bits
+from rawsim.noise.dark_shading import read_black_level_error, read_spec
 from rawsim.noise.models import (
     DEFAULT_SPREAD,
     GainCurve,
@@ -43,8 +44,10 @@ SOURCED_KEYS = (
 )
 #: Physics-model keys: all or none; each cites a source when present.
 PHYSICS_KEYS = ("noise.tukey_sigma", "noise.tukey_lambda", "noise.row_sigma")
+#: The physics model's optional dark terms (:mod:`rawsim.noise.dark_shading`).
+DARK_KEYS = ("noise.dark_shading", "noise.black_level_error")
 #: Optional noise keys that cite a source when present.
-OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread")
+OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread", *DARK_KEYS)
 SEED_KEYS = (
     "sensor_size",
     "sensor_res",
@@ -157,6 +160,11 @@ def _noise_dict(noise: NoiseSpec) -> dict:
         out["row_sigma"] = _curve_dict(noise.row_sigma)
     out["channel_bias"] = list(noise.channel_bias)
     out["spread"] = noise.spread
+    if noise.dark_shading is not None:
+        out["dark_shading"] = noise.dark_shading.to_dict()
+    if noise.black_level_error is not None:
+        ble = noise.black_level_error
+        out["black_level_error"] = {"iso": list(ble.iso), "sigma": list(ble.sigma)}
     return out
 
 
@@ -419,7 +427,11 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         row_sigma=r.curve("noise.row_sigma", "sigma") if physics[PHYSICS_KEYS[2]] else None,
         channel_bias=r.numbers("noise.channel_bias", 4, (0.0, 0.0, 0.0, 0.0)),
         spread=r.number("noise.spread", DEFAULT_SPREAD, minimum=0),
+        dark_shading=_optional(r, DARK_KEYS[0], read_spec),
+        black_level_error=_optional(r, DARK_KEYS[1], read_black_level_error),
     )
+    if not spec.has_physics and (spec.dark_shading or spec.black_level_error):
+        r.fail(DARK_KEYS[0], "dark shading and black-level error need the physics model's keys")
     source = r.raw("source")
     if not isinstance(source, dict):
         r.fail("source", "expected an object mapping keys to their sources")
@@ -446,6 +458,11 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         path=None if r.origin.startswith("<") else r.origin,
         unreliable=_strings(r, "unreliable"),
     )
+
+
+def _optional(r: _Reader, key: str, read):
+    """An optional key read by ``read(value, key, origin)``, None when absent."""
+    return read(r.raw(key), key, r.origin) if r.has(key) else None
 
 
 def _strings(r: _Reader, key: str) -> tuple[str, ...]:

@@ -152,20 +152,21 @@ class ProfileSensor(Sensor):
         model: str | NoiseLevels = "poisson-gaussian",
         key: int | list[int] | None = None,
         top: int = 0,
+        height: int | None = None,
     ) -> torch.Tensor:
         """Add noise at ``iso``, round to integers and saturate to [0, white] DN.
 
         ``model`` is a model name (its nominal levels at ``iso``) or already
         resolved :class:`~rawsim.noise.models.NoiseLevels`, e.g. sampled ones. ``key`` is
         the noise seed (one per sample, or one for all) and ``top`` the first
-        row's index in the image, when ``dn`` is a strip (see
-        :func:`~rawsim.noise.models.add_noise`). Returns ``dn``'s dtype.
+        row's index in the image and ``height`` the image's height, when ``dn``
+        is a strip (see :func:`~rawsim.noise.models.add_noise`). Returns ``dn``'s dtype.
         """
         levels = model if isinstance(model, NoiseLevels) else self.noise_levels(iso, model)
         if key is None and levels.model != "none":
             raise ParameterError("noise needs a key: the seed its draws derive from")
         cfa = getattr(self, "cfa", None)
-        noisy = add_noise(dn, self.black_level, levels, key, cfa, top)
+        noisy = add_noise(dn, self.black_level, levels, key, cfa, top, height)
         return saturate(quantize(noisy), self.white_level).to(dn.dtype)
 
 

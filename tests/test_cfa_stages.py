@@ -16,8 +16,8 @@ from click.testing import CliRunner
 from rawsim.cfa import BAYER_PATTERNS, CFA
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.dng import DngInfo, dng_tags, write_dng
-from rawsim.io.tiff import ASCII, BYTE, DOUBLE, LONG, RATIONAL, SHORT, SRATIONAL
 from rawsim.io.raw import UnrenderableRawError, read_raw
+from rawsim.io.tiff import ASCII, BYTE, DOUBLE, LONG, RATIONAL, SHORT, SRATIONAL
 from rawsim.isp.config import IspConfig, override
 from rawsim.isp.dead_pixel import DeadPixelCorrection, correct_dead_pixels
 from rawsim.isp.filters import AntiAliasing, Denoise, anti_alias, denoise
@@ -289,6 +289,12 @@ def _count(kind: int, value) -> int:
     return 0 if kind == ASCII else len(value) // (2 if kind in (RATIONAL, SRATIONAL) else 1)
 
 
+
+def _tag_value(kind: int, value):
+    """tifffile's value of a tag: text as it is, numbers as a tuple."""
+    return value if kind == ASCII else tuple(value)
+
+
 def _odd_dng(path, data: np.ndarray, pattern=None, plane_color=(0, 1, 2), dim=(2, 2)):
     """A DNG of what rawsim's writer does not write: a CFA of any TIFF/EP colour codes
     (0–2 R, G, B; 3 cyan, 4 magenta, 5 yellow, 6 white) with its CFAPlaneColor, or,
@@ -305,7 +311,7 @@ def _odd_dng(path, data: np.ndarray, pattern=None, plane_color=(0, 1, 2), dim=(2
         100,
     )
     tags = [
-        (code, _TIFFFILE_TYPES[kind], _count(kind, value), value if kind == ASCII else tuple(value), True)
+        (code, _TIFFFILE_TYPES[kind], _count(kind, value), _tag_value(kind, value), True)
         for code, (kind, value) in dng_tags(info).items()
         if code not in (254, 262, 33421, 33422, 50710)  # tifffile writes 254 and 262
     ]  # fmt: skip

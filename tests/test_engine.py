@@ -12,12 +12,18 @@ from numba import njit
 from scipy import stats
 
 from rawsim.cfa import CFA
-from rawsim.engine.unprocess import MODEL_CODES, add_noise_rows, noise_tables, noise_vector
+from rawsim.engine.unprocess import (
+    MODEL_CODES,
+    add_noise_rows,
+    dark_maps,
+    noise_tables,
+    noise_vector,
+)
 from rawsim.io.images import read_image
 from rawsim.io.lensfun import lens_params
 from rawsim.noise import kernels as eng
 from rawsim.noise import reference as ref
-from rawsim.noise.models import NOISE_MODELS, site_bias
+from rawsim.noise.models import NOISE_MODELS, dark_draw, site_bias
 from rawsim.noise.poisson_table import (
     BUCKETS,
     COUNT_BITS,
@@ -31,6 +37,7 @@ from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor
 from tests.conftest import DATA
+from tests.test_dark_shading import dark_profile
 
 KEY = ref.split_key(0x1234_5678_9ABC_DEF0)
 
@@ -243,6 +250,53 @@ def test_noise_is_bit_equal_for_any_strip_split(pattern, model):
             *noise_tables(levels),
             *eng.np_key(99),
             bias,
+            *dark_maps(levels, None),
+            float(profile.white_level),
+            out[top:],
+        )
+        assert np.array_equal(out, whole.astype(np.uint16))
+
+
+@pytest.mark.parametrize("iso", [400, 3200])  # the test map's two gain ranges
+def test_dark_terms_are_bit_equal_for_any_strip_split(pattern, iso, tmp_path):
+    """Dark shading (a crop of the map) and the black-level offset: the reference in
+    strips and the engine's rows give the same bits as the whole image."""
+    base = load_profile(dark_profile(tmp_path, 42, 48))
+    profile = replace(base, noise=replace(base.noise, channel_bias=(3.0, 1.0, -1.0, -2.0)))
+    profile = replace(profile, cfa=CFA(pattern))
+    sensor = RGBSensor(profile)
+    levels = sensor.noise_levels(iso, "physics")
+    rng = np.random.default_rng(2)
+    dn = rng.uniform(profile.black_level - 20, profile.black_level + 900, (24, 30)).astype(
+        np.float32
+    )
+    whole = sensor.simu_noise(torch.from_numpy(dn)[None, None], iso, levels, 99)[0, 0].numpy()
+    plain = replace(levels, dark_shading=None, black_level_sigma=0.0)
+    plain = sensor.simu_noise(torch.from_numpy(dn)[None, None], iso, plain, 99)[0, 0].numpy()
+    assert np.abs(whole - plain).mean() > 1  # the dark terms are there
+    for rows in (6, 12):
+        parts = [
+            sensor.simu_noise(
+                torch.from_numpy(dn[t : t + rows])[None, None], iso, levels, 99, t, 24
+            )
+            for t in range(0, 24, rows)
+        ]
+        assert np.array_equal(torch.cat(parts, 2)[0, 0].numpy(), whole)
+    draw = dark_draw(levels, 99, 24, 30, profile.cfa)
+    assert draw.top % profile.cfa.period[0] == 0 and draw.left % profile.cfa.period[1] == 0
+    bias = site_bias(levels, profile.cfa, 0, *profile.cfa.period, "cpu").numpy()
+    out = np.empty(dn.shape, np.uint16)
+    for top in (0, 12):
+        add_noise_rows(
+            dn[top:],
+            top,
+            30,
+            MODEL_CODES["physics"],
+            noise_vector(levels, profile.black_level, draw),
+            *noise_tables(levels),
+            *eng.np_key(99),
+            bias,
+            *dark_maps(levels, draw),
             float(profile.white_level),
             out[top:],
         )
@@ -309,8 +363,24 @@ def test_engine_matches_reference_on_16_bit_float_mono_and_seed_matrix(model):
     _compare(RGBSensor(seeded), PHOTO, UnprocessOptions(profile=seeded, iso=400, clean=True))
 
 
-def test_engine_output_does_not_depend_on_threads():
-    profile = _physics_profile("RGGB")
+DARK_OPTIONS = [{}, {"randomize": True}, {"iso_range": (100, 12800), "iso": None}]
+
+
+@pytest.mark.parametrize("extra", DARK_OPTIONS, ids=lambda o: ",".join(o) or "default")
+def test_engine_matches_reference_with_dark_shading(pattern, extra, tmp_path):
+    profile = load_profile(dark_profile(tmp_path, 70, 102)).with_cfa(pattern)
+    options = UnprocessOptions(
+        **({"profile": profile, "iso": 3200} | extra), noise="physics", clean=True
+    )
+    a = _compare(RGBSensor(profile), PHOTO, options)
+    assert a.levels.has_dark
+    if not extra:
+        _compare(MonoSensor(profile), PHOTO, replace(options, sensor="mono"))
+
+
+@pytest.mark.parametrize("dark", [False, True], ids=["", "dark-shading"])
+def test_engine_output_does_not_depend_on_threads(dark, tmp_path):
+    profile = load_profile(dark_profile(tmp_path, 70, 100)) if dark else _physics_profile("RGGB")
     options = UnprocessOptions(profile=profile, iso=6400, noise="physics", clean=True)
     sensor = RGBSensor(profile)
     outputs = []

@@ -81,8 +81,9 @@ def test_dng_keeps_the_photos_fields(tagged_photo, tmp_path):
     with rawpy.imread(str(noisy)) as raw:  # LibRaw reads them from the DNG too
         assert raw.other.iso_speed == 1600
         assert raw.other.artist.strip("\0 ") == FIELDS["Exif.Image.Artist"]
-        assert raw.other.timestamp.strftime("%Y:%m:%d %H:%M:%S") == (
-            FIELDS["Exif.Photo.DateTimeOriginal"]
+        assert (
+            raw.other.timestamp.strftime("%Y:%m:%d %H:%M:%S")
+            == (FIELDS["Exif.Photo.DateTimeOriginal"])
         )
         assert raw.raw_image.shape == (426, 640)
 

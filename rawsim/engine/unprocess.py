@@ -44,10 +44,14 @@ _JIT = {"cache": True, "error_model": "numpy"}
 MODEL_CODES = {"none": 0, "gaussian": 1, "poisson-gaussian": 2, "physics": 3}
 #: Layout of the float64 noise-parameter vector (see :func:`noise_vector`).
 N_BLACK, N_GAIN, N_READ, N_ALPHA, N_BETA, N_ISO_GAIN, N_ROW = range(7)
+#: The physics model's dark terms: ISO, the dark-shading crop's first row and column,
+#: the black-level offset (DN).
+N_DARK_ISO, N_DARK_TOP, N_DARK_LEFT, N_DARK_OFFSET = range(7, 11)
 
 
-def noise_vector(levels, black: float) -> np.ndarray:
-    """The kernel's noise parameters from :class:`~rawsim.noise.models.NoiseLevels`."""
+def noise_vector(levels, black: float, dark=None) -> np.ndarray:
+    """The kernel's noise parameters from :class:`~rawsim.noise.models.NoiseLevels` and
+    the file's :class:`~rawsim.noise.models.DarkDraw` (None: no dark terms)."""
     return np.array(
         [
             black,
@@ -57,9 +61,23 @@ def noise_vector(levels, black: float) -> np.ndarray:
             levels.shot_beta,
             levels.iso_gain,
             levels.row_sigma,
+            levels.iso,
+            0 if dark is None else dark.top,
+            0 if dark is None else dark.left,
+            0.0 if dark is None else dark.offset,
         ],
         dtype=np.float64,
     )
+
+
+def dark_maps(levels, dark) -> tuple[np.ndarray, np.ndarray]:
+    """The whole dark-shading maps (k, b) float32 of the levels' gain range, as
+    :func:`noise_row` takes them: empty (0, 0) where ``dark`` (the file's
+    :class:`~rawsim.noise.models.DarkDraw`) is None or has no map."""
+    if dark is None or levels.dark_shading is None:
+        empty = np.zeros((0, 0), np.float32)
+        return empty, empty
+    return levels.dark_shading.maps(levels.iso)
 
 
 def noise_tables(levels) -> tuple[np.ndarray, np.ndarray]:
@@ -87,11 +105,14 @@ def site_rows(tile, width):
 
 
 @njit(**_JIT)
-def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_rows, white, out):
+def noise_row(
+    dn, y, width, model, p, tukey, poisson, k0, k1, bias_rows, dark_k, dark_b, white, out
+):
     """Noise, rounding and saturation of row ``y`` of clean float64 DN ``dn`` (w,)
     into codes ``out`` (w,), with ``tukey``, ``poisson`` the model's
-    :func:`noise_tables` and ``bias_rows`` the channel bias of each site
-    (:func:`site_rows` of the (ph, pw) bias tile): the compiled
+    :func:`noise_tables`, ``bias_rows`` the channel bias of each site
+    (:func:`site_rows` of the (ph, pw) bias tile) and ``dark_k``, ``dark_b`` the
+    whole dark-shading maps (:func:`dark_maps`; ``p`` places the crop): the compiled
     :meth:`~rawsim.sensors.ProfileSensor.simu_noise`, bit for bit (the reference's
     ``noise_field``: same operations, same order).
 
@@ -116,6 +137,7 @@ def noise_row(dn, y, width, model, p, tukey, poisson, k0, k1, bias_rows, white, 
         if model == 3:
             bias = bias_rows[y % bias_rows.shape[0]]
             _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise)
+            _dark_terms(y, p, dark_k, dark_b, noise)
     for x in range(w):
         out[x] = min(max(np.rint(dn[x] + noise[x]), 0.0), white)
 
@@ -161,11 +183,30 @@ def _physics_read_noise(y, first, p, tukey, k0, k1, bias, noise):
 
 
 @njit(**_JIT)
-def add_noise_rows(dn, top, width, model, p, tukey, poisson, k0, k1, bias_tile, white, out):
+def _dark_terms(y, p, dark_k, dark_b, noise):
+    """The physics model's dark terms of row ``y``, added to ``noise``: dark shading
+    ``(k · ISO + b) + offset`` over the crop of the maps, or the black-level offset
+    alone without maps (the reference's ``dark_field``)."""
+    offset = p[N_DARK_OFFSET]
+    if dark_k.shape[0] > 0:
+        iso, row, left = p[N_DARK_ISO], int(p[N_DARK_TOP]) + y, int(p[N_DARK_LEFT])
+        for x in range(noise.size):
+            shade = np.float64(dark_k[row, left + x]) * iso + np.float64(dark_b[row, left + x])
+            noise[x] = noise[x] + (shade + offset)
+    elif offset != 0.0:
+        for x in range(noise.size):
+            noise[x] = noise[x] + offset
+
+
+@njit(**_JIT)
+def add_noise_rows(
+    dn, top, width, model, p, tukey, poisson, k0, k1, bias_tile, dark_k, dark_b, white, out
+):
     """:func:`noise_row` over clean rows ``dn`` (h, w) float32, rows ``top`` on of an
     image ``width`` wide, into ``out`` (h, w), with ``bias_tile`` the (ph, pw) channel
     bias of one CFA period; for the equality tests."""
-    noise = (model, p, tukey, poisson, k0, k1, site_rows(bias_tile, width), white)
+    bias_rows = site_rows(bias_tile, width)
+    noise = (model, p, tukey, poisson, k0, k1, bias_rows, dark_k, dark_b, white)
     for y in range(dn.shape[0]):
         noise_row(dn[y].astype(np.float64), top + y, width, *noise, out[y])
 
@@ -278,13 +319,16 @@ def unprocess_kernel(
     k0,
     k1,
     bias_tile,
+    dark_k,
+    dark_b,
     noisy,
     clean,
 ):
-    """The whole unprocess chain for an (H, W, 3) image, into uint16 ``noisy`` (H, W).
+    """The whole unprocess chain for an (H, W, 3) image, into ``noisy`` (H, W).
 
     Args:
-        pixels: (H, W, 3) integer codes (with ``lut``) or float32 linear values
+        pixels: (H, W, 3), any strides (a channels-first tensor's view, a crop),
+            integer codes (with ``lut``) or float32 linear values
             (``lut`` empty).
         lut: float32 linear value of each code (the reference's table).
         scale: 2^EV / brightness. ``ccm_bias``: (3,) subtracted first.
@@ -297,7 +341,9 @@ def unprocess_kernel(
         levels: (black, white) DN.
         model, p, tukey, poisson, k0, k1: the noise (see :func:`noise_row`).
         bias_tile: (ph, pw) channel bias (DN) of each site of one period (physics model).
-        noisy, clean: (H, W) uint16 outputs; ``clean`` is written if it has rows.
+        dark_k, dark_b: the dark-shading maps (:func:`dark_maps`; physics model).
+        noisy, clean: (H, W) uint16 or float32 outputs (the same whole codes);
+            ``clean`` is written if it has rows.
     """
     h, w = noisy.shape
     black, white = levels[0], levels[1]
@@ -320,6 +366,7 @@ def unprocess_kernel(
             _vignetting_row(y, cy, cx, norm, vignetting, dn)
         for x in range(w):
             dn[x] = black + dn[x] * span
+        noise = (p, tukey, poisson, k0, k1, bias_rows, dark_k, dark_b, white)
         if want_clean:
-            noise_row(dn, y, w, 0, p, tukey, poisson, k0, k1, bias_rows, white, clean[y])
-        noise_row(dn, y, w, model, p, tukey, poisson, k0, k1, bias_rows, white, noisy[y])
+            noise_row(dn, y, w, 0, *noise, clean[y])
+        noise_row(dn, y, w, model, *noise, noisy[y])

@@ -12,7 +12,11 @@ Models (``NOISE_MODELS``):
 * ``physics``: the ELD model (Wei et al. 2020),
   ``D = K · Poisson(s / K) + N_read + N_row + bias_c``: read noise Tukey-lambda
   with shape λ and scale σ_TL, one normal offset per sensor row (σ_row), a
-  per-channel DC bias. Shot noise is drawn as for ``poisson-gaussian``.
+  per-channel DC bias. Shot noise is drawn as for ``poisson-gaussian``. Where the
+  profile has them (PMN, Feng et al. 2022; :mod:`rawsim.noise.dark_shading`), it
+  adds dark shading ``k(x, y) · ISO + b(x, y)`` (a crop of the profile's maps at a
+  CFA-aligned offset drawn per file) and one black-level offset per file, normal
+  with σ_BLE(ISO), both after the channel bias (:func:`dark_draw`).
 * ``gaussian``: the seed's heteroscedastic model, ``σ_shot = α √s + β``,
   ``g = ISO / ISO_base``, ``σ² = g σ_shot² + g² σ_read²``.
 * ``none``: the clean signal.
@@ -29,9 +33,18 @@ from dataclasses import dataclass
 import torch
 
 from rawsim.errors import ParameterError, check_choice
+from rawsim.noise.dark_shading import BlackLevelError, DarkShading, check_fits, crop_offset
 from rawsim.noise.exact_math import LOGISTIC_LAMBDA
 from rawsim.noise.poisson_table import POISSON_MEANS
-from rawsim.noise.reference import ieee_sqrt, normal, poisson, split_key, tukey_lambda, tukey_table
+from rawsim.noise.reference import (
+    ieee_sqrt,
+    normal,
+    poisson,
+    split_key,
+    tukey_lambda,
+    tukey_table,
+    uniforms,
+)
 
 NOISE_MODELS = ("none", "gaussian", "poisson-gaussian", "physics")
 #: Default spread (σ of ln σ) of sampled noise levels when a profile gives none.
@@ -141,7 +154,9 @@ class NoiseSpec:
     ``tukey_lambda``, ``row_sigma`` and ``channel_bias`` (DN, R, Gr, Gb, B; the G
     sites of a non-Bayer layout take the mean of Gr and Gb, see :func:`bias_tile`);
     ``gaussian`` holds the seed model. ``spread`` is the σ of ln σ when noise
-    levels are sampled (:meth:`sample_levels`).
+    levels are sampled (:meth:`sample_levels`). ``dark_shading`` (the maps) and
+    ``black_level_error`` (σ of the per-file offset), optional, serve the physics
+    model only; :meth:`sample_levels` keeps them as they are.
     """
 
     gain: GainCurve
@@ -152,6 +167,8 @@ class NoiseSpec:
     row_sigma: SigmaCurve | None = None
     channel_bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     spread: float = DEFAULT_SPREAD
+    dark_shading: DarkShading | None = None
+    black_level_error: BlackLevelError | None = None
 
     @property
     def has_physics(self) -> bool:
@@ -226,6 +243,10 @@ class NoiseSpec:
             tukey_lambda=lam,
             row_sigma=jitter(self.row_sigma(iso, k)),
             channel_bias=self.channel_bias,
+            dark_shading=self.dark_shading,
+            black_level_sigma=0.0
+            if self.black_level_error is None
+            else self.black_level_error(iso),
         )
 
 
@@ -279,8 +300,12 @@ class NoiseLevels:
 
     For ``gaussian`` the read σ already includes the ISO factor g. For ``physics``
     ``read_sigma`` is the Tukey-lambda scale (its standard deviation is
-    ``read_sigma · √var_TL(λ)``), ``row_sigma`` the σ of each row's offset and
-    ``channel_bias`` the mean offset of the R, Gr, Gb and B sites.
+    ``read_sigma · √var_TL(λ)``), ``row_sigma`` the σ of each row's offset,
+    ``channel_bias`` the mean offset of the R, Gr, Gb and B sites,
+    ``dark_shading`` the maps whose k · ISO + b is added (None: none) and
+    ``black_level_sigma`` the σ of the per-file black-level offset. The last two
+    are fixed pattern and per-file offset, not part of the variance of a pixel
+    (:meth:`variance`, the DNG NoiseProfile).
     """
 
     model: str
@@ -293,6 +318,15 @@ class NoiseLevels:
     tukey_lambda: float = 0.0
     row_sigma: float = 0.0
     channel_bias: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    dark_shading: DarkShading | None = None
+    black_level_sigma: float = 0.0
+
+    @property
+    def has_dark(self) -> bool:
+        """Whether the levels add dark shading or a black-level offset."""
+        return self.model == "physics" and (
+            self.dark_shading is not None or self.black_level_sigma > 0
+        )
 
     @property
     def read_variance(self) -> float:
@@ -359,6 +393,10 @@ class NoiseLevels:
                 "row_sigma_dn": self.row_sigma,
                 "channel_bias_dn": list(self.channel_bias),
             }
+            if self.dark_shading is not None:  # absent without: sidecars as before
+                out["dark_shading"] = self.dark_shading.to_dict()
+            if self.black_level_sigma > 0:
+                out["black_level_error_sigma_dn"] = self.black_level_sigma
         elif self.model == "gaussian":
             out |= {
                 "shot_alpha": self.shot_alpha,
@@ -368,7 +406,9 @@ class NoiseLevels:
         return out
 
 
-def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: int = 0):
+def add_noise(
+    dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: int = 0, height=None
+):
     """Add sensor noise to a clean mosaic (the torch reference of the engine's draws).
 
     Args:
@@ -384,6 +424,8 @@ def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: 
             ``channel_bias`` (physics model; see :func:`bias_tile`); None for a
             monochrome sensor, which gets the mean of the four biases.
         top: the first row's index in the image.
+        height: the image's height, when ``dn`` is a strip of it (default ``top + h``):
+            it places the crop of a dark-shading map (:func:`dark_draw`).
 
     Returns:
         Noisy DN in float64, unrounded and unclipped (float64 so that rounding it
@@ -403,14 +445,79 @@ def add_noise(dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: 
     rows = torch.arange(top, top + h, device=dn.device, dtype=torch.int64)
     sites = rows[:, None] * w + torch.arange(w, device=dn.device, dtype=torch.int64)
     bias = site_bias(levels, cfa, top, h, w, dn.device)
+    height = top + h if height is None else height
     with torch.no_grad():
         noise = torch.stack(
             [
-                noise_field(dn[i, 0].double() - black, levels, split_key(k), sites, rows, bias)
+                noise_field(
+                    dn[i, 0].double() - black,
+                    levels,
+                    split_key(k),
+                    sites,
+                    rows,
+                    bias,
+                    dark_field(levels, dark_draw(levels, k, height, w, cfa), top, h, w, dn.device),
+                )
                 for i, k in enumerate(keys)
             ]
         )[:, None]
     return dn.double() + noise
+
+
+@dataclass(frozen=True)
+class DarkDraw:
+    """A file's draws of the physics model's dark terms: the crop of the dark-shading
+    map (its first row ``top`` and column ``left``) and the black-level ``offset`` (DN)."""
+
+    top: int
+    left: int
+    offset: float
+
+    def to_dict(self) -> dict:
+        return {"map_top": self.top, "map_left": self.left, "black_level_offset_dn": self.offset}
+
+
+def dark_draw(levels: NoiseLevels, key: int, height: int, width: int, cfa=None):
+    """The :class:`DarkDraw` of an image ``height`` × ``width`` with noise seed ``key``, or
+    None when ``levels`` add no dark terms (:attr:`NoiseLevels.has_dark`).
+
+    The offset is σ_BLE · a normal of stream ``black_level``; the crop's row and
+    column come from the two uniforms of stream ``dark_crop`` (both at index 0 of
+    the file's Philox key), multiples of the CFA period (``cfa`` None: 1), so each
+    site keeps the colour it was measured with. An image larger than the map is
+    refused (:func:`~rawsim.noise.dark_shading.check_fits`). Both backends use this.
+    """
+    if not levels.has_dark:
+        return None
+    index = torch.zeros(1, dtype=torch.int64)
+    offset = levels.black_level_sigma * float(normal(index, split_key(key), "black_level")[0])
+    shading = levels.dark_shading
+    if shading is None:
+        return DarkDraw(0, 0, offset)
+    check_fits(shading, height, width)
+    u1, u2 = (float(u[0]) for u in uniforms(index, "dark_crop", split_key(key)))
+    ph, pw = (1, 1) if cfa is None else cfa.period
+    return DarkDraw(
+        crop_offset(u1, height, shading.size[0], ph),
+        crop_offset(u2, width, shading.size[1], pw),
+        offset,
+    )
+
+
+def dark_field(levels: NoiseLevels, draw, top: int, h: int, w: int, device="cpu"):
+    """The dark terms of rows ``top`` … ``top + h`` (``w`` wide): float64 (h, w)
+    ``(k · ISO + b) + offset`` over the map's crop, the offset alone (a number)
+    without a map, or None without either. The engine's ``noise_row`` adds the same."""
+    if draw is None:
+        return None
+    if levels.dark_shading is None:
+        return draw.offset
+    k, b = levels.dark_shading.maps(levels.iso)
+    rows = slice(draw.top + top, draw.top + top + h)
+    cols = slice(draw.left, draw.left + w)
+    k = torch.from_numpy(k[rows, cols]).to(device, torch.float64)
+    b = torch.from_numpy(b[rows, cols]).to(device, torch.float64)
+    return (k * float(levels.iso) + b) + draw.offset
 
 
 def bias_tile(levels: NoiseLevels, cfa, device="cpu"):
@@ -445,8 +552,9 @@ def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
     return tile.roll(-(top % ph), 0).repeat(-(-h // ph) + 1, -(-w // pw))[:h, :w]
 
 
-def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Tensor:
-    """The noise (float64, (h, w)) added to ``signal`` DN above black.
+def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias, dark=None) -> torch.Tensor:
+    """The noise (float64, (h, w)) added to ``signal`` DN above black; ``bias`` the
+    channel bias (:func:`site_bias`), ``dark`` the dark terms (:func:`dark_field`).
 
     The engine's ``noise_row`` computes the same per site; every step here is
     one rounded float64 operation in the same order, so the two agree bit for bit.
@@ -475,4 +583,5 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias) -> torch.Te
     table = tukey_table(levels.tukey_lambda, signal.device)
     noise = noise + levels.read_sigma * tukey_lambda(sites, key, table)
     noise = noise + levels.row_sigma * normal(rows, key, "row")[:, None]
-    return noise if bias is None else noise + bias
+    noise = noise if bias is None else noise + bias
+    return noise if dark is None else noise + dark

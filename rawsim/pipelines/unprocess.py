@@ -34,7 +34,8 @@ from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
 from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
-from rawsim.noise.models import NOISE_MODELS, NoiseLevels, bias_tile
+from rawsim.noise.dark_shading import check_fits
+from rawsim.noise.models import NOISE_MODELS, NoiseLevels, bias_tile, dark_draw
 from rawsim.noise.seeds import derive_seed
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
@@ -57,6 +58,8 @@ def _prepare(sensor, image, params, noise, display_referred, code_max):
     h, w = image.shape[-2:] if isinstance(image, torch.Tensor) else image.shape[:2]
     if h % 2 or w % 2:
         raise ParameterError(f"image height and width must be even, got {h}×{w}")
+    if noise.has_dark and noise.dark_shading is not None:
+        check_fits(noise.dark_shading, h, w)
     array = isinstance(image, np.ndarray)
     dtype = torch.from_numpy(image[:0]).dtype if array else image.dtype
     if dtype in INTEGER_DTYPES:
@@ -89,6 +92,7 @@ def unprocess_tensor(
     code_max: int | None = None,
     clean: bool = False,
     lens: LensParams | None = None,
+    out: tuple[torch.Tensor, torch.Tensor | None] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Simulate the raw capture of ``image`` by ``sensor``.
 
@@ -109,6 +113,9 @@ def unprocess_tensor(
         lens: a lens whose distortion, lateral CA and vignetting the capture gets
             (:meth:`RGBSensor.unprocess <rawsim.sensors.RGBSensor.unprocess>`), or
             None. It moves pixels across the frame: the image then runs as one strip.
+        out: float32 (B, 1, H, W) tensors to write the noisy and (with ``clean``)
+            clean mosaics into (the second one None unless ``clean``), or None (new
+            tensors).
 
     Returns:
         ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a mosaic
@@ -123,8 +130,11 @@ def unprocess_tensor(
     shading = None
     if params.vignetting > 0:
         shading = radial_gain(h, w, strength=params.vignetting, device=image.device)
-    noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
-    clean_out = torch.empty_like(noisy) if clean else None
+    if out is None:
+        noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
+        clean_out = torch.empty_like(noisy) if clean else None
+    else:
+        noisy, clean_out = out[0], out[1] if clean else None
     with values_checked(False):
         _run_strips(
             sensor,
@@ -168,7 +178,7 @@ def _run_strips(
         dn = sensor.linrgb2raw(camera, params, None if shading is None else shading[..., rows, :])
         if clean_out is not None:
             clean_out[:, :, rows] = saturate(quantize(dn), sensor.white_level)
-        noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, key, top_row)
+        noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, key, top_row, h)
 
 
 def engine_unprocess(
@@ -182,13 +192,17 @@ def engine_unprocess(
     code_max: int | None = None,
     clean: bool = False,
     lens: LensParams | None = None,
+    out: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`unprocess_tensor` for one (H, W, 3) image, by the compiled engine.
 
-    Returns uint16 (H, W) noisy and clean codes. The same checks and lookup table
-    as the reference; the stages fused in :func:`rawsim.engine.unprocess.unprocess_kernel`,
-    after a whole-image pass through the ``lens`` if any
-    (:func:`rawsim.engine.unprocess.lens_camera`).
+    ``pixels`` may have any strides (e.g. the (H, W, 3) view of a channels-first
+    tensor, or a crop): the kernel reads them in place. Returns uint16 (H, W) noisy
+    and clean codes, or writes them into ``out``: (H, W) arrays of uint16 or
+    float32 (any strides; the same whole codes, exactly), ``out[1]`` None
+    unless ``clean``. The same checks and lookup table as the reference; the stages
+    fused in :func:`rawsim.engine.unprocess.unprocess_kernel`, after a whole-image
+    pass through the ``lens`` if any (:func:`rawsim.engine.unprocess.lens_camera`).
     """
     from rawsim.engine import unprocess as kernels
     from rawsim.noise.kernels import np_key
@@ -201,9 +215,10 @@ def engine_unprocess(
     period = (2, 2) if mono else sensor.cfa.period
     bias = bias_tile(noise, None if mono else sensor.cfa)
     bias = np.zeros(period) + (0.0 if bias is None else np.asarray(bias, np.float64))
-    noisy = np.empty((h, w), np.uint16)
-    clean_out = np.empty((h, w) if clean else (0, 0), np.uint16)
-    pixels = np.ascontiguousarray(pixels)
+    dark = dark_draw(noise, key, h, w, None if mono else sensor.cfa)
+    noisy, clean_out = out if out is not None else (np.empty((h, w), np.uint16), None)
+    if clean_out is None:
+        clean_out = np.empty((h, w) if clean else (0, 0), noisy.dtype)
     lut = np.zeros(0, np.float32) if lut is None else lut.numpy()
     scale = 2.0**params.exposure_ev / params.brightness
     ccm_bias = np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0,) * 3, float)
@@ -225,10 +240,11 @@ def engine_unprocess(
         np.array([params.vignetting, *DEFAULT_K], np.float64),
         np.array([sensor.black_level, sensor.white_level], np.float64),
         kernels.MODEL_CODES[noise.model],
-        kernels.noise_vector(noise, sensor.black_level),
+        kernels.noise_vector(noise, sensor.black_level, dark),
         *kernels.noise_tables(noise),
         *np_key(key),
         bias,
+        *kernels.dark_maps(noise, dark),
         noisy,
         clean_out,
     )
@@ -334,8 +350,9 @@ def image_tensor(pixels: np.ndarray, device="cpu") -> torch.Tensor:
 class Simulation:
     """One simulated capture: mosaics (1, 1, H, W) of integer DN, and the values drawn.
 
-    The mosaics are uint16 from the engine, float32 from the torch reference
-    (same values); :meth:`codes` gives either as a uint16 (H, W) array.
+    The mosaics are uint16 from the engine (float32 where :func:`simulate` wrote
+    them into ``out``), float32 from the torch reference (same values);
+    :meth:`codes` gives either as a uint16 (H, W) array.
     """
 
     noisy: torch.Tensor
@@ -368,6 +385,7 @@ def simulate(
     display_referred: bool = True,
     code_max: int | None = None,
     engine: bool | None = None,
+    out: tuple[torch.Tensor, torch.Tensor | None] | None = None,
 ) -> Simulation:
     """Simulate one image as the files job does, from its ``seed``.
 
@@ -378,7 +396,11 @@ def simulate(
     The files job passes ``derive_seed(run_seed, key)``: the same seed gives the
     same capture through the files or the Python API, on any device. ``engine``
     picks the compiled engine (True) or the torch reference (False); None
-    chooses by :func:`use_engine`.
+    chooses by :func:`use_engine`. Either reads ``image`` in its own layout
+    (channels-first, channels-last or a crop; no copy). ``out``: float32
+    (1, 1, H, W) tensors on the image's device for the noisy and (with
+    ``options.clean``, else None) clean mosaics, written in place and returned
+    in the :class:`Simulation` (the same values).
     """
     params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
     params = sample_params(
@@ -399,7 +421,7 @@ def simulate(
         levels = sensor.noise_levels(params.iso, options.noise)
     run = dict(
         noise=levels,
-        key=derive_seed(seed, "noise"),
+        key=noise_key(seed),
         display_referred=display_referred,
         code_max=code_max,
         clean=options.clean,
@@ -407,13 +429,21 @@ def simulate(
     )
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
-        noisy, clean = engine_unprocess(sensor, pixels, params, **run)
+        arrays = None if out is None else tuple(None if t is None else t[0, 0].numpy() for t in out)
+        noisy, clean = engine_unprocess(sensor, pixels, params, **run, out=arrays)
+        if out is not None:
+            return Simulation(out[0], out[1] if options.clean else None, params, levels)
         as_tensor = lambda m: None if m is None else torch.from_numpy(m)[None, None]  # noqa: E731
         return Simulation(as_tensor(noisy), as_tensor(clean), params, levels)
     if isinstance(image, np.ndarray):
         image = image_tensor(image)
-    noisy, clean = unprocess_tensor(sensor, image, params, **run)
+    noisy, clean = unprocess_tensor(sensor, image, params, **run, out=out)
     return Simulation(noisy, clean, params, levels)
+
+
+def noise_key(seed: int) -> int:
+    """The noise seed (Philox key) of a file whose seed is ``seed``."""
+    return derive_seed(seed, "noise")
 
 
 def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
@@ -435,6 +465,11 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     )
     params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
+    if levels.has_dark:  # where the dark-shading crop lies and the black-level offset
+        h, w = decoded.pixels.shape[:2]
+        cfa = None if options.sensor == "mono" else options.profile.cfa
+        draw = dark_draw(levels, noise_key(task.seed), h, w, cfa)
+        metadata["noise"]["dark_draw"] = draw.to_dict()
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
     info = _dng_info(options, params, levels, decoded.orientation, _photo(task, options, decoded))
