@@ -265,7 +265,8 @@ def run(
 def _run_local(tasks, job, overwrite, debug, kwargs) -> Iterator[Result]:
     """:func:`run` in this process. A job with a ``read_ahead(task, **kwargs)`` is told
     the next task to run before each task starts, so that it can read that input in
-    a thread while this one runs (:mod:`rawsim.io.readahead`)."""
+    a thread while this one runs (:mod:`rawsim.io.readahead`); not a remote input,
+    which the task's run downloads first."""
     read_ahead = getattr(job, "read_ahead", None)
     ahead = told = 0  # the next task to run after this one (skipped ones passed by)
     for i, t in enumerate(tasks):
@@ -273,7 +274,7 @@ def _run_local(tasks, job, overwrite, debug, kwargs) -> Iterator[Result]:
             ahead = max(ahead, i + 1)
             while ahead < len(tasks) and not overwrite and _outputs_exist(tasks[ahead]):
                 ahead += 1
-            if told < ahead < len(tasks):
+            if told < ahead < len(tasks) and not remote.is_url(tasks[ahead].source):
                 read_ahead(tasks[ahead], **kwargs)
                 told = ahead
         yield _run_one(job, t, overwrite, debug, kwargs)
