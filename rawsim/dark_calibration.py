@@ -134,12 +134,15 @@ class DarkShadingFit:
 
 
 def fit_dark_shading(
-    acc: DarkAccumulator, reference: dict[float, np.ndarray], switch_isos: tuple[float, ...] = ()
+    acc: DarkAccumulator,
+    reference: dict[float, np.ndarray | float],
+    switch_isos: tuple[float, ...] = (),
 ) -> DarkShadingFit:
     """Fit D = k·ISO + b per pixel in each gain range from the accumulated dark frames.
 
-    ``reference[iso]`` (H, W) is what each pixel's dark level is measured from: the
-    black level plus its channel's bias (the rest is the pattern). ``switch_isos``
+    ``reference[iso]`` (H, W), or one number for all pixels, is what each pixel's dark
+    level is measured from: the black level plus its channel's bias (the rest is the
+    pattern). ``switch_isos``
     are the ISOs where a new gain range starts (none: one range). Per pixel, a
     least-squares line over the range's ISOs, each mean weighted by n/v (its
     frames over its pixels' temporal variance). Problems: fewer than
@@ -281,7 +284,7 @@ def add_to_profile(
     """
     from rawsim.calibrate import CalibrationRefused
     from rawsim.cfa import CFA
-    from rawsim.noise.models import NoiseLevels, bias_tile
+    from rawsim.noise.models import NoiseLevels, site_bias
 
     if not acc.n:
         raise ParameterError("--dark-shading needs dark frames (--dark)")
@@ -290,12 +293,9 @@ def add_to_profile(
         raise CalibrationRefused(["dark shading needs the physics model's dark-frame fits"])
     cfa = CFA(profile["cfa_pattern"])
     levels = NoiseLevels("physics", 1.0, channel_bias=tuple(noise["channel_bias"]))
-    tile = bias_tile(levels, cfa)
-    tile = np.zeros(cfa.period) if tile is None else tile.numpy()
     shape = next(iter(acc.sum.values())).shape
-    ph, pw = cfa.period
-    reference = profile["black_level"] + np.tile(tile, (-(-shape[0] // ph), -(-shape[1] // pw)))
-    reference = reference[: shape[0], : shape[1]]
+    bias = site_bias(levels, cfa, 0, *shape, "cpu")
+    reference = profile["black_level"] + (0.0 if bias is None else bias.numpy())
     fit = fit_dark_shading(acc, {iso: reference for iso in acc.isos}, switch_isos)
     if fit.problems and not forced:
         raise CalibrationRefused(fit.problems)

@@ -289,7 +289,6 @@ def _count(kind: int, value) -> int:
     return 0 if kind == ASCII else len(value) // (2 if kind in (RATIONAL, SRATIONAL) else 1)
 
 
-
 def _tag_value(kind: int, value):
     """tifffile's value of a tag: text as it is, numbers as a tuple."""
     return value if kind == ASCII else tuple(value)

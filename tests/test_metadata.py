@@ -74,14 +74,20 @@ def tagged_raw(tmp_path_factory):
         orientation=6,
     )
     write_dng(path, mosaic, info)
+    return tag_file(path)
+
+
+def tag_file(path, xmp: dict = XMP):
+    """Write every field of :data:`FIELDS` and the ``xmp`` properties into the file at
+    ``path`` with exiv2; returns ``path``."""
     image = exiv2.ImageFactory.open(str(path))
     image.readMetadata()
     data = image.exifData()
     for key, value in FIELDS.items():
         data[key] = value
-    xmp = image.xmpData()
-    for key, value in XMP.items():
-        xmp[key] = value
+    properties = image.xmpData()
+    for key, value in xmp.items():
+        properties[key] = value
     image.writeMetadata()
     return path
 

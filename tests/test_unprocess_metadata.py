@@ -15,7 +15,7 @@ from rawsim.io.lensfun import lens_params
 from rawsim.io.metadata import read_metadata
 from rawsim_cli.main import cli
 from tests.conftest import DATA
-from tests.test_metadata import EXIFTOOL, FIELDS, XMP, _exiftool
+from tests.test_metadata import EXIFTOOL, FIELDS, XMP, _exiftool, tag_file
 
 #: What the DNG says instead of the photo's: the sony_a7s2 profile's camera, the ISO run.
 CAMERA = {"Make": "Sony", "Model": "ILCE-7SM2", "ISO": 1600}
@@ -28,16 +28,7 @@ def tagged_photo(tmp_path_factory):
     """A JPEG carrying every field, an XMP packet and a raw developer's settings."""
     path = tmp_path_factory.mktemp("photo") / "harbour.jpg"
     shutil.copyfile(DATA / "srgb" / "rocket.jpg", path)
-    image = exiv2.ImageFactory.open(str(path))
-    image.readMetadata()
-    data = image.exifData()
-    for key, value in FIELDS.items():
-        data[key] = value
-    xmp = image.xmpData()
-    for key, value in {**XMP, "Xmp.crs.Exposure2012": "+0.50", "Xmp.tiff.Make": "x"}.items():
-        xmp[key] = value
-    image.writeMetadata()
-    return path
+    return tag_file(path, {**XMP, "Xmp.crs.Exposure2012": "+0.50", "Xmp.tiff.Make": "x"})
 
 
 def _unprocess(photo, out, *flags):
@@ -111,10 +102,13 @@ def test_strip_metadata(tagged_photo, tmp_path):
 def test_lens_tags():
     """The simulated lens replaces the photo's lens, focal length and aperture."""
     photo = read_metadata(DATA / "srgb" / "rocket.jpg")
-    lens, _ = lens_params("Canon EF-S 18-55mm f/3.5-5.6 IS STM", 18, 5.6, None, "Canon",
-                          "Canon EOS 70D")  # fmt: skip
-    info = DngInfo(CFA("RGGB"), 0, 16383, ((1, 0, 0), (0, 1, 0), (0, 0, 1)), (1, 1, 1),
-                   "Canon", "Canon EOS 70D", "Canon EOS 70D", 400, metadata=photo, lens=lens)  # fmt: skip
+    name, camera = "Canon EF-S 18-55mm f/3.5-5.6 IS STM", "Canon EOS 70D"
+    lens, _ = lens_params(name, 18, 5.6, None, "Canon", camera)
+    identity = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
+    info = DngInfo(
+        CFA("RGGB"), 0, 16383, identity, (1, 1, 1), "Canon", camera, camera, 400,
+        metadata=photo, lens=lens,
+    )  # fmt: skip
     fields = dict(dng_metadata(info).exif)
     assert fields["Exif.Photo.LensModel"] == "Canon EF-S 18-55mm f/3.5-5.6 IS STM"
     assert fields["Exif.Photo.LensMake"] == "Canon"

@@ -88,16 +88,6 @@ class DngInfo:
     lens: LensParams | None = None
 
 
-def _rationals(values, signed: bool) -> tuple[int, ...]:
-    out: list[int] = []
-    for v in values:
-        f = Fraction(float(v)).limit_denominator(_DENOMINATOR)
-        if not signed and f < 0:
-            raise ValueError(f"unsigned rational cannot hold {v}")
-        out += [f.numerator, f.denominator]
-    return tuple(out)
-
-
 def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
     """IFD0's DNG tags for ``info``: code → (TIFF field type, values), as
     :func:`rawsim.io.tiff.write_tiff` takes them."""
@@ -164,6 +154,8 @@ def dng_metadata(info: DngInfo) -> PhotoMetadata:
 
 
 def _rationals(values, signed: bool) -> list[int]:
+    """Numbers as TIFF rationals: numerator, denominator pairs, flattened (denominators
+    up to :data:`_DENOMINATOR`)."""
     out: list[int] = []
     for v in values:
         f = Fraction(float(v)).limit_denominator(_DENOMINATOR)

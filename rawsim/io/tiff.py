@@ -85,8 +85,8 @@ def write_tiff(
         own[34675] = (UNDEFINED, bytes(icc))
     own.update(tags or {})
     start = len(exif) + len(exif) % 2
-    tags = sorted([*entries, *own])
-    values_at = start + 2 + 12 * len(tags) + 4
+    codes = sorted([*entries, *own])
+    values_at = start + 2 + 12 * len(codes) + 4
     layout = _values_layout(own, values_at)
     pixels_at = max(layout.values(), default=values_at) + 16
     pixels_at += -pixels_at % 16
@@ -95,9 +95,9 @@ def write_tiff(
             f"{path}: a {w}×{h} TIFF of {bits}-bit samples is over 4 GiB; write EXR or PNG"
         )
     own[273] = (LONG, [pixels_at + s * rows * row_bytes for s in range(strips)])
-    ifd = bytearray(struct.pack(order + "H", len(tags)))
+    ifd = bytearray(struct.pack(order + "H", len(codes)))
     extra = bytearray()
-    for tag in tags:
+    for tag in codes:
         if tag in entries:
             ifd += entries[tag]
             continue
