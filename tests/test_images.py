@@ -83,3 +83,25 @@ def test_a_file_cut_after_its_first_strips_is_refused(tmp_path):
     path.write_bytes(data[: int(len(data) * 0.8)])
     with pytest.raises(UnsupportedInputError, match="cut.png: "):
         read_image(path)
+
+
+def test_large_buffers_are_written_in_pieces_whole():
+    """write_pieces writes every byte, in order, at most PIECE_BYTES per write()."""
+    import io
+
+    from rawsim.io.pieces import PIECE_BYTES, write_pieces
+
+    sizes = []
+
+    class Recorder(io.BytesIO):
+        def write(self, b):
+            sizes.append(len(b))
+            return super().write(b)
+
+    rng = np.random.default_rng(1)
+    head = b"header"
+    pixels = rng.integers(0, 65535, (3 * PIECE_BYTES // 2 + 7,), dtype=np.uint16)
+    f = Recorder()
+    write_pieces(f, head, pixels, b"")
+    assert f.getvalue() == head + pixels.tobytes()
+    assert max(sizes) == PIECE_BYTES and len(sizes) == 1 + 4

@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rawsim.io.pieces import write_pieces
+
 #: Rows per independently filtered and deflated band.
 BAND_ROWS = 128
 _FILTER_AVERAGE = 3
@@ -155,4 +157,4 @@ def write_png(
     parts += [_chunk(b"IDAT", piece) for piece in pieces]
     parts.append(_chunk(b"IEND", b""))
     with open(path, "wb") as f:
-        f.writelines(parts)
+        write_pieces(f, *parts)

@@ -6,7 +6,8 @@ render). Here the file is laid out once: it starts with the EXIF block that
 exiv2 encodes (:func:`rawsim.io.metadata.exif_block`: a TIFF header, IFD0 and
 the Exif and GPS IFDs, offsets from the file's first byte), followed by a new
 IFD0 (exiv2's entries, the image's own and the XMP and ICC tags, sorted), to
-which the header then points, and the pixels, written straight from the array.
+which the header then points, and the pixels, written straight from the array
+(in 1 MiB pieces: :mod:`rawsim.io.pieces`).
 The old IFD0 stays behind unreferenced (a few hundred bytes).
 
 DNGs are written the same way, their tags added to IFD0 (:mod:`rawsim.io.dng`).
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rawsim.errors import UnsupportedInputError
+from rawsim.io.pieces import write_pieces
 
 #: TIFF field types this writer packs, and their struct codes.
 BYTE, ASCII, SHORT, LONG, RATIONAL, UNDEFINED, SRATIONAL, DOUBLE = 1, 2, 3, 4, 5, 7, 10, 12
@@ -115,8 +117,7 @@ def write_tiff(
     head += b"\0" * (pixels_at - len(head))
     samples = np.ascontiguousarray(data, dtype=data.dtype.newbyteorder(order))
     with open(path, "wb") as f:
-        f.write(head)
-        f.write(memoryview(samples).cast("B"))
+        write_pieces(f, head, samples)
 
 
 def _values_layout(own: dict, values_at: int) -> dict[int, int]:
