@@ -27,7 +27,9 @@ that peak memory (max RSS) is its own:
     (wcd → 16-bit TIFF) and of the floor, rawpy reading the raw plus
     OpenImageIO writing a 16-bit TIFF of the render's size; and 8 copies with
     ``--jobs 2`` beside ``dcraw_emu -T -6`` (LibRaw's AHD, 16-bit TIFF) run two at
-    a time on the same files.
+    a time on the same files; each run after ``sync``, so that none pays for the
+    writeback of the one before. Then 144 MB written in one ``write()`` beside
+    1 MiB pieces (:mod:`rawsim.io.pieces`), files kept as a batch keeps them.
 Targets (issues 13, 15, 26, 28): steady-state wcd ≤ 0.5× LibRaw AHD with peak ≤ 1.0 GB; the
 default output ≤ 0.75× LibRaw AHD + TIFF write; cold ≤ 1.0× rawpy AHD + TIFF write;
 backward ≤ 3× forward; X-Trans ≤ 0.5× LibRaw 3-pass (+ TIFF write); process ≤ 2.0×
@@ -93,6 +95,25 @@ for i, path in enumerate(sys.argv[2:]):
     out.open(name, spec)
     assert out.write_image(pixels), out.geterror()
     out.close()
+"""
+
+PIECES = """
+import os, statistics, sys, time, numpy as np
+from rawsim.io.pieces import PIECE_BYTES, write_pieces
+pixels = np.zeros((4000, 6000, 3), np.uint16)  # a 24 MP 16-bit render: 144 MB
+times = {"one write()": [], f"{PIECE_BYTES >> 20} MiB writes": []}
+os.sync()
+for i in range(6):  # files kept until the end, as a batch's are: dirty pages pile up
+    for k, name in enumerate(times):
+        t = time.perf_counter()
+        with open(f"{sys.argv[1]}/pieces{i}{k}.bin", "wb") as f:
+            f.write(pixels) if k == 0 else write_pieces(f, pixels)
+        times[name].append(time.perf_counter() - t)
+print("  write 144 MB, 6 interleaved rounds:", ", ".join(
+    f"{name} median {statistics.median(t):.3f} s" for name, t in times.items()))
+for i in range(6):
+    for k in range(2):
+        os.remove(f"{sys.argv[1]}/pieces{i}{k}.bin")
 """
 
 
@@ -424,8 +445,6 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     shutil.copytree(folders[8], dcraw)
 
     def dcraw_pairs() -> list[str]:
-        for tiff in dcraw.glob("*.tiff"):
-            tiff.unlink()
         files = sorted(str(p) for p in dcraw.glob("*.dng"))
         script = 'printf "%s\\n" "$@" | xargs -P 2 -n 1 dcraw_emu -T -6'
         return ["sh", "-c", script, "sh", *files]
@@ -442,9 +461,13 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     for _ in range(rounds):
         for name, cmd in runs.items():
             shutil.rmtree(out, ignore_errors=True)
+            for tiff in dcraw.glob("*.tiff"):
+                tiff.unlink()
+            os.sync()  # no run pays for the writeback of the one before
             if not name.startswith("floor"):
                 out.mkdir()
-            times[name].append(timed(cmd())[0])
+            command = cmd()
+            times[name].append(timed(command)[0])
     shutil.rmtree(out, ignore_errors=True)
     med = {name: statistics.median(t) for name, t in times.items()}
     ours, theirs = (med["rawsim 4"] - med["rawsim 1"]) / 3, (med["floor 4"] - med["floor 1"]) / 3
@@ -458,6 +481,7 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     )
     ratio = med["rawsim 8 --jobs 2"] / med["dcraw_emu 8, two at a time"]
     print(f"  8 files, --jobs 2 / dcraw_emu two at a time = {ratio:.2f}× (target ≤ 0.5×)")
+    print(child([sys.executable, "-c", PIECES, str(tmp)])[0], end="")
 
 
 def srgb_8bit(linear: np.ndarray) -> np.ndarray:

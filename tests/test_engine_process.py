@@ -306,3 +306,26 @@ def test_cold_command_reads_while_the_engine_loads_and_skips_the_blas_probe(tmp_
     import tifffile
 
     assert np.array_equal(tifffile.imread(tmp_path / "canon_eos60d_mlv.tif"), ours)
+
+
+@pytest.mark.parametrize("fmt,bits", [("tiff", 16), ("png", 8), ("exr", 32)])
+def test_a_batch_renders_into_the_last_files_output_as_into_a_new_one(fmt, bits):
+    """engine_render(reuse=True) writes every sample of the array release() gave back:
+    a render over another image's output equals a render into a new array."""
+    from rawsim.pipelines.process import _spare, release
+
+    config = ProcessOptions(default_config(), fmt, bits).effective_config()
+    raws = [synthetic_raw(seed=1), synthetic_raw("GBRG", seed=2), synthetic_raw(orientation=6)]
+    raws.append(raws[0])  # after a rotated one: the spare does not fit it
+    plans = [engine_plan(raw, config, fmt) for raw in raws]
+    fresh = [engine_render(raw, plan, fmt, bits) for raw, plan in zip(raws, plans, strict=True)]
+    _spare.clear()
+    for raw, plan, expected in zip(raws, plans, fresh, strict=True):
+        samples = engine_render(raw, plan, fmt, bits, reuse=True)
+        assert np.array_equal(samples, expected)
+        release(samples)
+    assert len(_spare) == 1
+    spare = next(iter(_spare.values()))
+    again = engine_render(raws[0], plans[0], fmt, bits, reuse=True)
+    assert (again is spare) == (bits != 8)  # 8-bit samples are a copy of the kernel's codes
+    _spare.clear()

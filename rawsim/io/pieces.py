@@ -3,7 +3,7 @@
 One ``write()`` of a whole 144 MB render costs 0.31–0.36 s on Linux 6.18 (ext4)
 once a few hundred MB of the page cache are dirty, where the same bytes in
 1 MiB writes cost 0.03–0.04 s; writes of 2 MiB and more are as slow as one
-(benchmarks/bench_process.py, "write pieces"). libtiff, under OpenImageIO,
+(``benchmarks/bench_process.py --io``, "write 144 MB"). libtiff, under OpenImageIO,
 writes strips of about 1 MB.
 """
 

@@ -222,12 +222,13 @@ def _worker_context():
 
     Forked workers share the parent's imported modules, which spares each of them
     the seconds that importing torch takes; the parent has run no parallel torch
-    work before the pool starts. CUDA does not survive a fork, so with a GPU
-    present the workers are spawned.
+    work before the pool starts. CUDA does not survive a fork, so where the parent
+    has imported torch and a GPU is present, the workers are spawned. A parent that
+    has not imported torch (``process`` on the compiled engine needs none) holds no
+    CUDA state, and does not import torch (1.0 s) to ask.
     """
-    import torch
-
-    if "fork" in get_all_start_methods() and not torch.cuda.is_available():
+    torch = sys.modules.get("torch")
+    if "fork" in get_all_start_methods() and (torch is None or not torch.cuda.is_available()):
         return get_context("fork")
     return get_context("spawn")
 
@@ -308,13 +309,18 @@ def _watch(pid: int) -> None:
 
 
 def set_threads(threads: int) -> None:
-    """Use ``threads`` CPU threads in torch, the engine, PNG writing and decoders."""
-    import torch
+    """Use ``threads`` CPU threads in torch, the engine, PNG writing and decoders.
 
+    Torch is told now if imported, else by ``OMP_NUM_THREADS``, which it reads when
+    it is imported (as do OpenMP runtimes when they start, LibRaw's among them).
+    """
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(threads)
     from rawsim import engine
     from rawsim.io import png
 
-    torch.set_num_threads(threads)
     png.set_threads(threads)
     if "OpenImageIO" in sys.modules:  # decoders' own thread pools: the same share
         sys.modules["OpenImageIO"].attribute("threads", threads)
