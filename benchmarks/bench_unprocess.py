@@ -8,6 +8,9 @@ Measures, on this machine:
      writing the same number of 16-bit samples (tifffile, uncompressed); the
      decode both by OpenImageIO's ``read_image`` (the issue's floor) and by
      strips, as rawsim reads (``read_image`` copies its whole buffer: slower);
+     then per file in a batch (``rawsim unprocess`` on folders of 1 and 4 copies,
+     fresh processes: the next image is decoded while one is unprocessed) beside
+     the same floor run as a batch;
   2. the compute alone (unprocess + mosaic + noise, 24 MP): the compiled engine
      against the eager torch reference, per noise model; and the physics model
      with a 24 MP dark-shading map and black-level error beside without;
@@ -137,6 +140,57 @@ def file_24mp(tmp: Path, repeat: int) -> None:
             f"   rawsim / the {name} floor: best {best_ratio:.2f}×, "
             f"median {median_ratio:.2f}× (target ≤ 2.0×; issue 28: ≤ 1.3×)"
         )
+
+
+BATCH_FLOOR = """
+import sys, numpy as np, OpenImageIO as oiio
+from rawsim.io.images import read_pixels
+from rawsim.io.pieces import write_pieces
+for i, path in enumerate(sys.argv[2:]):
+    inp = oiio.ImageInput.open(path)
+    pixels = read_pixels(inp, inp.spec(), oiio.UINT8)
+    inp.close()
+    with open(f"{sys.argv[1]}/{i}.raw", "wb") as f:  # a mosaic's 16-bit samples
+        write_pieces(f, np.zeros(pixels.shape[:2], np.uint16))
+"""
+
+
+def batch_24mp(tmp: Path, rounds: int) -> None:
+    """Per 24 MP JPEG in a batch: the marginal seconds of 3 more copies (a folder of 4
+    less a folder of 1, fresh processes, ``rounds`` interleaved rounds, medians) of
+    ``rawsim unprocess`` (DNG + JSON; the next image decoded while this one is
+    unprocessed) and of the floor, OpenImageIO's strip decode plus the mosaic's
+    16-bit samples written in 1 MiB pieces; each run after ``sync``."""
+    folders = {}
+    for n in (1, 4):
+        folders[n] = tmp / f"jpegs{n}"
+        folders[n].mkdir()
+        for i in range(n):
+            shutil.copy(tmp / "photo24.jpg", folders[n] / f"copy{i}.jpg")
+    out = tmp / "batch_out"
+    runs = {}
+    for n in (1, 4):
+        files = [str(p) for p in sorted(folders[n].iterdir())]
+        runs[f"floor {n}"] = [sys.executable, "-c", BATCH_FLOOR, str(out), *files]
+        runs[f"rawsim {n}"] = ["rawsim", "-q", "unprocess", str(folders[n]), "-o", str(out)]
+        runs[f"rawsim {n}"] += ["-p", "sony_a7s2", "--iso", "1600"]
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    for _ in range(rounds):
+        for name, cmd in runs.items():
+            shutil.rmtree(out, ignore_errors=True)
+            out.mkdir()
+            os.sync()
+            start = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True)
+            times[name].append(time.perf_counter() - start)
+    shutil.rmtree(out, ignore_errors=True)
+    med = {name: statistics.median(t) for name, t in times.items()}
+    ours, floor = ((med[f"{k} 4"] - med[f"{k} 1"]) / 3 for k in ("rawsim", "floor"))
+    print(f"   in a batch, per file (marginal over 3 copies, {rounds} rounds, medians):")
+    print(
+        f"   rawsim {ours:.3f} s, floor (strip decode + 16-bit mosaic written) {floor:.3f} s "
+        f"= {ours / floor:.2f}× (issue 28: ≤ 1.3×)"
+    )
 
 
 def compute_24mp(tmp: Path, repeat: int) -> None:
@@ -338,6 +392,7 @@ def main() -> None:
         photo = resized(DATA / "astronaut.png", tmp / "photo24.jpg", 6000, 4000)
         if 1 in run:
             file_24mp(tmp, 7 if args.quick else 15)
+            batch_24mp(tmp, 3 if args.quick else 5)
         if 2 in run:
             compute_24mp(tmp, 2 if args.quick else 5)
         if 3 in run:

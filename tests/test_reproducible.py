@@ -65,3 +65,28 @@ def test_process_is_byte_identical_run_to_run(tmp_path, fmt):
         assert run("process", raw, "-o", out, "--format", fmt, "--bits", 16).exit_code == 0
         digests.append(digest(out))
     assert all(d == digests[0] for d in digests[1:])
+
+
+def test_a_file_is_the_same_bits_after_another_of_its_size(tmp_path):
+    """A batch writes each image's mosaics over the last one's (same size): the
+    outputs are those of each image run alone."""
+    import numpy as np
+    import OpenImageIO as oiio
+
+    from rawsim.pipelines import unprocess
+
+    pixels = oiio.ImageBuf(str(DATA / "srgb" / "chelsea.png")).get_pixels(oiio.UINT8)
+    both, alone = tmp_path / "both", tmp_path / "alone"
+    both.mkdir(), alone.mkdir()
+    for name, image in (("a.png", pixels), ("b.png", np.ascontiguousarray(pixels[::-1, ::-1]))):
+        buf = oiio.ImageBuf(oiio.ImageSpec(image.shape[1], image.shape[0], 3, oiio.UINT8))
+        buf.set_pixels(oiio.ROI(), image)
+        assert buf.write(str(both / name))
+    shutil.copy(both / "b.png", alone / "b.png")
+    args = ("-p", "sony_a7s2", "--iso", 3200, "--noise", "physics", "--clean")
+    assert run("unprocess", both, "-o", tmp_path / "out_both", *args).exit_code == 0
+    unprocess._spare.clear()
+    assert run("unprocess", alone, "-o", tmp_path / "out_alone", *args).exit_code == 0
+    for name in ("b.dng", "b.clean.dng"):
+        ours = (tmp_path / "out_both" / name).read_bytes()
+        assert ours == (tmp_path / "out_alone" / name).read_bytes()
