@@ -104,8 +104,10 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     Example:
       rawsim unprocess photos/ -o raw/ --profile sony_a7s2 --iso 1600
     """
+    from rawsim.io.clibs import separate_stderr
     from rawsim_cli.options import set_log_level
 
+    separate_stderr()  # before any reader thread collects the libraries' lines
     ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
     logging.basicConfig(level=logging.WARNING, format="rawsim: %(message)s", stream=sys.stderr)
     set_log_level(ctx.obj)

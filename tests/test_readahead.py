@@ -84,3 +84,47 @@ def test_the_batch_names_the_next_file_to_run_before_each(tmp_path, overwrite):
     else:
         expected = ["ahead c", "run a", "ahead d", "run c", "run d"]
     assert [" ".join(e) for e in log] == expected
+
+
+LINES_BESIDE_A_READ = """
+import os, sys, threading, time
+from rawsim.io.clibs import collected_stderr, separate_stderr
+
+separate_stderr()
+collected = {"a": [], "b": []}
+inside = threading.Event()
+
+def read(name, lines):  # a library that writes to descriptor 2 while it decodes
+    with collected_stderr(lines):
+        inside.set()
+        os.write(2, f"lib: {name} says hello\\n".encode())
+        time.sleep(0.3)
+
+readers = [threading.Thread(target=read, args=(k, v)) for k, v in collected.items()]
+for t in readers:
+    t.start()
+inside.wait()
+print("done: the main thread's line", file=sys.stderr)
+for t in readers:
+    t.join()
+os.write(2, b"after: descriptor 2 is the terminal again\\n")
+print(collected)
+"""
+
+
+def test_lines_printed_while_a_reader_thread_collects_reach_the_terminal():
+    """The main thread's messages are not collected as the file's warnings (nor lost)
+    while a reader thread collects a library's lines, and two collections at once
+    each get their own lines and leave descriptor 2 as it was."""
+    import subprocess
+    import sys
+
+    r = subprocess.run(
+        [sys.executable, "-c", LINES_BESIDE_A_READ], capture_output=True, text=True, timeout=60
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "{'a': ['a says hello'], 'b': ['b says hello']}"
+    assert r.stderr.splitlines() == [
+        "done: the main thread's line",
+        "after: descriptor 2 is the terminal again",
+    ]
