@@ -325,7 +325,6 @@ def test_a_batch_renders_into_the_last_files_output_as_into_a_new_one(fmt, bits)
         assert np.array_equal(samples, expected)
         release(samples)
     assert len(_spare) == 1
-    spare = next(iter(_spare.values()))
     again = engine_render(raws[0], plans[0], fmt, bits, reuse=True)
-    assert (again is spare) == (bits != 8)  # 8-bit samples are a copy of the kernel's codes
+    assert (again is samples) == (bits != 8)  # 8-bit samples are a copy of the kernel's codes
     _spare.clear()

@@ -16,6 +16,7 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawFacts, RawImage, read_raw
 from rawsim.io.readahead import ReadAhead
+from rawsim.io.spare import Spare
 from rawsim.io.task import Task
 from rawsim.io.thumbnail import read_thumbnail
 from rawsim.isp.config import (
@@ -332,16 +334,9 @@ def _tail_curve(
     return x, gamma
 
 
-#: Kernel output arrays a batch's next file may render into (:func:`engine_render`
-#: with ``reuse``), at most one: a new 24 MP 16-bit array costs 0.1 s of one core
-#: in page faults and zeroing, as much as a quarter of its render.
-_spare: dict[tuple, np.ndarray] = {}
-
-
-def _output_array(shape: tuple, dtype, reuse: bool) -> np.ndarray:
-    """An array for a kernel's output: the spare one if ``reuse`` and it fits, else new."""
-    spare = _spare.pop((shape, np.dtype(dtype)), None) if reuse else None
-    return np.empty(shape, dtype=dtype) if spare is None else spare
+#: The kernel's output of a batch's last file, once written (:func:`release`), for
+#: the next file of its size and type to render into (``engine_render(reuse=True)``).
+_spare = Spare()
 
 
 def release(samples: np.ndarray) -> None:
@@ -349,8 +344,7 @@ def release(samples: np.ndarray) -> None:
     are written: the next render of that size and type writes over them. Samples
     that are not a kernel's output (8-bit codes, half floats) are not kept."""
     if samples.dtype in (np.uint16, np.float32) and samples.flags.c_contiguous:
-        _spare.clear()
-        _spare[(samples.shape, samples.dtype)] = samples
+        _spare.keep((samples.shape, samples.dtype), samples)
 
 
 def engine_render(
@@ -380,7 +374,8 @@ def engine_render(
     # Codes go to uint16 even for 8 bits: one compiled signature fewer to build and cache.
     dtype = np.float32 if plan.out_mode == ep.OUT_FLOAT else np.uint16
     scale = 1.0 if plan.out_mode == ep.OUT_FLOAT else 2.0**bits - 1
-    out = _output_array(shape, dtype, reuse)
+    new = partial(np.empty, shape, dtype)
+    out = _spare.take((shape, np.dtype(dtype)), new) if reuse else new()
     if plan.lens is not None:
         _render_with_lens(raw, plan, out, scale, tile)
         return _reused(out, fmt, bits, reuse)

@@ -31,6 +31,7 @@ from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.readahead import ReadAhead
+from rawsim.io.spare import Spare
 from rawsim.io.task import Task
 from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
 from rawsim.isp.levels import quantize, saturate
@@ -497,27 +498,26 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
                 np.savez(fh, **npz_arrays(options, noisy_np, clean_np, metadata))
         tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     if out is not None:
-        _spare.clear()
-        _spare[(*decoded.pixels.shape[:2], options.clean)] = out
+        _spare.keep((*decoded.pixels.shape[:2], options.clean), out)
     return metadata
 
 
 unprocess_file.read_ahead = read_ahead  # type: ignore[attr-defined]
 
-#: The engine's output mosaics of the last file, once written, which the next file of
-#: the same size writes over (:func:`_mosaics`), at most one set.
-_spare: dict[tuple, tuple[torch.Tensor, torch.Tensor | None]] = {}
+#: The engine's output mosaics of a batch's last file, once written, for the next
+#: file of the same size to write over (:func:`_mosaics`).
+_spare = Spare()
 
 
 def _mosaics(h: int, w: int, clean: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
     """uint16 (1, 1, h, w) noisy and (with ``clean``) clean mosaics for the engine to
-    write: the last file's, if it was this size, else new ones. A new 24 MP mosaic
-    costs its page faults and zeroing (clear_page: 9 % of a batch's CPU time)."""
-    spare = _spare.pop((h, w, clean), None)
-    if spare is not None:
-        return spare
-    new = lambda: torch.empty((1, 1, h, w), dtype=torch.uint16)  # noqa: E731
-    return new(), new() if clean else None
+    write: the last file's, if it was this size, else new ones."""
+
+    def new():
+        mosaic = lambda: torch.empty((1, 1, h, w), dtype=torch.uint16)  # noqa: E731
+        return mosaic(), mosaic() if clean else None
+
+    return _spare.take((h, w, clean), new)
 
 
 def _iso_warning(options: UnprocessOptions) -> list[str]:
