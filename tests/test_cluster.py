@@ -375,3 +375,24 @@ def test_ray_executor_without_ray_says_how_to_install(photos, tmp_path, monkeypa
     monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed
     r = here("unprocess", photos, "-o", tmp_path, *COMMON, "--executor", "ray")
     assert r.exit_code == 2 and "pip install 'rawsim[ray]'" in r.output
+
+
+def test_a_retried_file_whose_outputs_the_dead_worker_wrote_is_done(tmp_path):
+    """A worker killed between putting a file's outputs in place and reporting them:
+    its retry finds them and is counted done, not skipped; outputs older than the
+    run (there before it) or at URLs stay skipped."""
+    from rawsim.io.task import Task
+    from rawsim.run.jobs import Result
+    from rawsim.run.ray_executor import _done_before_it_died
+
+    began = time.time()
+    outs = {"dng": tmp_path / "a.dng", "json": tmp_path / "a.json"}
+    for p in outs.values():
+        p.write_bytes(b"x")
+    task = Task(tmp_path / "a.png", "a.png", outs, 0)
+    skipped = Result(task, "skipped", "a.png: outputs exist (use --overwrite)")
+    assert _done_before_it_died(skipped, began - 1).status == "done"
+    os.utime(outs["json"], (began - 3600, began - 3600))
+    assert _done_before_it_died(skipped, began - 1) is skipped
+    remote = Task(tmp_path / "a.png", "a.png", {"dng": "s3://bucket/a.dng"}, 0)
+    assert _done_before_it_died(Result(remote, "skipped"), began - 1).status == "skipped"

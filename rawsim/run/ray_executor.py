@@ -9,7 +9,9 @@ messages and ``--json`` records arrive as files finish, as in a local run.
 A bundle whose worker dies (killed, out of memory, node lost) is resubmitted
 without the files it had finished. The file it was working on is retried once
 (its outputs are atomic, so nothing partial is left to trip the retry); if its
-worker dies again it is reported as failed. The outputs do not depend on where a
+worker dies again it is reported as failed. A retry that finds the file's outputs
+in place, written since the run began, reports it done: the worker died between
+putting them in place and reporting them. The outputs do not depend on where a
 file ran: byte-identical to a local ``--jobs 1`` run.
 
 Every node needs rawsim installed and the inputs and outputs at the same paths
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 
 from rawsim.errors import ParameterError, shown
@@ -93,6 +96,19 @@ def _run_bundle(tasks, shared, cwd, driver) -> Iterator[Result]:
         yield _run_one(job, task, overwrite, debug, kwargs)
 
 
+def _done_before_it_died(result: Result, began: float) -> Result:
+    """A retried file "skipped" because its outputs exist: done, if they were written
+    since this run began (the worker that died had put them in place but not yet
+    reported them). Outputs at URLs, or older ones, leave it skipped."""
+    try:
+        paths = list(result.task.outputs.values())
+        if any(remote.is_url(p) or os.stat(p).st_mtime < began for p in paths):
+            return result
+    except OSError:
+        return result
+    return Result(result.task, "done")
+
+
 def run(
     tasks: Sequence[Task],
     job: Callable,
@@ -108,6 +124,7 @@ def run(
     ray = _ray()
     if not tasks:
         return
+    began = time.time()
     started = not ray.is_initialized()
     if started:
         if not debug:  # Ray's own notices (a local cluster started, token set-up)
@@ -179,6 +196,8 @@ def run(
                         submit(left)
                     continue
                 left.pop(0)
+                if result.status == "skipped" and attempts.get(result.task.key):
+                    result = _done_before_it_died(result, began)
                 yield result
     except BaseException:
         for gen in pending:
