@@ -537,6 +537,24 @@ def test_baseline_exposure_is_applied_unless_ignored():
     assert torch.allclose(applied[inside], ignored[inside] * 2**0.25, rtol=1e-5, atol=1e-6)
 
 
+def test_dark_check_counts_codes_as_the_percentile_says():
+    """The dark-render check's count of codes at the level gives np.percentile's answer
+    (99th, linear), levels at, just below and just above the percentile included."""
+    from rawsim.pipelines.process import _percentile_reaches
+
+    rng = np.random.default_rng(1)
+    for trial in range(600):
+        n, full = int(rng.integers(1, 300)), float(rng.choice([255, 65535]))
+        x = rng.integers(0, int(full) + 1, size=n).astype(np.uint8 if full == 255 else np.uint16)
+        if trial % 3 == 0:
+            x[:] = rng.integers(0, 5, size=n)  # ties around the percentile
+        p = float(np.percentile(x, 99)) / full
+        for level in (p, np.nextafter(p, 0), np.nextafter(p, 1), rng.random(), 0.0):
+            assert _percentile_reaches(x, full, level) == (p >= level), (n, full, level)
+    floats = rng.random(1000).astype(np.float32)
+    assert _percentile_reaches(floats, 1.0, 0.98) and not _percentile_reaches(floats, 1.0, 0.999)
+
+
 def test_exposure_auto_brightens_as_libraw_and_dark_renders_warn(tmp_path):
     """A raw shot 4 stops under: the plain render (BaselineExposure ignored) warns and
     names --exposure auto; auto brings the 99th percentile to white, as LibRaw's
