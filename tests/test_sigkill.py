@@ -115,6 +115,7 @@ def test_a_rerun_finishes_what_a_killed_run_left(inputs, reference, tmp_path):
     assert left, "the kill did not land between a set's renames"
     markers = [p for p in out.iterdir() if p.name.startswith(outputs.MARKER_PREFIX)]
     assert markers, "a half-placed set must be marked unfinished"
+    assert all(p.is_symlink() for p in markers), "local markers are links (no data to flush)"
     rerun = run(CLI, inputs, out)
     assert rerun.returncode == 0, rerun.stderr
     assert digest(out) == reference
@@ -132,15 +133,21 @@ def test_a_file_rawsim_did_not_write_is_still_refused(inputs, reference, tmp_pat
     assert (out / "p03.dng").read_bytes() == b"mine"
 
 
-def test_a_marker_of_a_live_run_is_respected(inputs, tmp_path):
-    """A set another running process is placing is left to it."""
+@pytest.mark.parametrize("form", ["link", "file"])
+def test_a_marker_of_a_live_run_is_respected(inputs, tmp_path, form):
+    """A set another running process is placing is left to it, whether its marker is
+    a link (as rawsim writes them locally) or a file of JSON (remote, or where links
+    cannot be made)."""
     out = tmp_path / "out"
     out.mkdir()
     paths = {k: out / f"p00{s}" for k, s in (("dng", ".dng"), ("clean_dng", ".clean.dng"))}
     paths["json"] = out / "p00.json"
     (out / "p00.dng").write_bytes(b"being placed")
     info = {"host": outputs.HOST, "pid": os.getpid(), "outputs": [p.name for p in paths.values()]}
-    Path(outputs.marker(paths)).write_text(json.dumps(info))
+    if form == "link":
+        Path(outputs.marker(paths)).symlink_to(f"{outputs.HOST}-{os.getpid()}")
+    else:
+        Path(outputs.marker(paths)).write_text(json.dumps(info))
     done = run(CLI, inputs, out)
     assert done.returncode == 1
     assert f"being written by process {os.getpid()}" in done.stderr

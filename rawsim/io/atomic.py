@@ -48,10 +48,16 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
 def temporary_path(path: Path) -> Path:
     """A new, empty temporary file in ``path``'s folder (which must exist), named as
     this module's docstring says; ``path``'s suffix is kept (if ≤ 16 characters)."""
-    suffix = path.suffix if len(path.suffix) <= 16 else ""
-    tmp = path.parent / f".rawsim-{HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
+    tmp = temporary_name(path)
     os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
     return tmp
+
+
+def temporary_name(path: Path) -> Path:
+    """A name for a new temporary in ``path``'s folder, as :func:`temporary_path`'s
+    (nothing is created)."""
+    suffix = path.suffix if len(path.suffix) <= 16 else ""
+    return path.parent / f".rawsim-{HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
 
 
 def remove_stale_temporaries(folder: str | Path) -> int:

@@ -13,10 +13,17 @@ upload) and removed after the last. So after a SIGKILL, which cannot be caught:
 * a marker whose process is gone: the outputs it names are an unfinished set of
   rawsim's own, which a rerun replaces (:func:`unfinished`).
 
-The marker holds JSON: ``{"host": …, "pid": …, "outputs": [names]}`` (the host as
-:mod:`rawsim.io.atomic` names it in temporaries). A clean run leaves none.
-Remote outputs (fsspec URLs) follow the same rules: :func:`staged` uploads the
-marker, then each output, the sidecar last, then deletes the marker.
+A local marker is a symbolic link whose target names the process,
+``<host>-<pid>`` (the host as :mod:`rawsim.io.atomic` names it in temporaries): a
+target that short lives in the inode, with no data to write back. A marker file
+with data made its removal wait 10–80 ms for the writeback of the outputs just
+placed (ext4, ordered data, measured with ``strace -T`` in a ``process`` batch),
+a tenth of a 24 MP render. Where links cannot be made, and on remote file systems,
+the marker is a file of JSON: ``{"host": …, "pid": …, "outputs": [names]}``. Its
+name is a hash of the outputs' names, so a marker found for a set names that
+set. A clean run leaves none. Remote outputs (fsspec URLs) follow the same
+rules: :func:`staged` uploads the marker, then each output, the sidecar last,
+then deletes the marker.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from rawsim.io import remote
-from rawsim.io.atomic import HOST, running, temporary_path
+from rawsim.io.atomic import HOST, running, temporary_name, temporary_path
 from rawsim.io.task import Task
 
 MARKER_PREFIX = ".rawsim-unfinished-"
@@ -69,7 +76,7 @@ def unfinished(outputs: Mapping[str, Path | str]) -> dict | None:
             fs, path = remote.filesystem(location)
             text = fs.cat_file(path).decode()
         else:
-            text = Path(location).read_text()
+            text = _read_marker(Path(location))
     except FileNotFoundError:
         return None
     try:
@@ -77,8 +84,33 @@ def unfinished(outputs: Mapping[str, Path | str]) -> dict | None:
         info["pid"] = int(info["pid"])
     except (ValueError, KeyError, TypeError):  # cut short by a kill while it was written
         info = {"host": "", "pid": 0}
+    info.setdefault("outputs", [file_name(p) for p in outputs.values()])
     info["running"] = info.get("host") == HOST and running(info["pid"])
     return info
+
+
+def _read_marker(location: Path) -> str:
+    """The JSON of the local marker ``location``: a link's ``<host>-<pid>`` as JSON, or
+    a marker file's text."""
+    try:
+        host, _, pid = os.readlink(location).partition("-")
+    except OSError as err:
+        if isinstance(err, FileNotFoundError):
+            raise
+        return location.read_text()  # not a link: a marker file
+    return json.dumps({"host": host, "pid": pid})
+
+
+def _mark(location: Path, text: str) -> None:
+    """Write the local marker ``location`` (whole, in one rename): a link to
+    ``<host>-<pid>``, or a file of ``text`` where links cannot be made."""
+    tmp = temporary_name(location)
+    try:
+        os.symlink(f"{HOST}-{os.getpid()}", tmp)
+    except OSError:
+        tmp = temporary_path(location)
+        tmp.write_text(text)
+    os.replace(tmp, location)
 
 
 def clear(outputs: Mapping[str, Path | str]) -> None:
@@ -98,9 +130,7 @@ def placing(outputs: Mapping[str, Path | str]) -> Iterator[None]:
         fs, path = remote.filesystem(location)
         fs.pipe_file(path, text.encode())
     else:
-        tmp = temporary_path(Path(location))
-        tmp.write_text(text)
-        os.replace(tmp, location)
+        _mark(Path(location), text)
     yield
     clear(outputs)
 
