@@ -266,6 +266,15 @@ def _inv_sq(x):
 
 
 @njit(inline="always", **_JIT)
+def _wcd_weights(s_e, s_w, s_s, s_n):
+    """The four directions' weights 1 / (gradient sum)² and their total, as the
+    reference (computed where green is estimated and again where red and blue are,
+    cheaper than storing five tiles of them)."""
+    w_e, w_w, w_s, w_n = _inv_sq(s_e), _inv_sq(s_w), _inv_sq(s_s), _inv_sq(s_n)
+    return w_e, w_w, w_s, w_n, ((w_e + w_w) + w_s) + w_n
+
+
+@njit(inline="always", **_JIT)
 def _diagonal_weight(near, far, g_near, g, m_far, v):
     """1 / (local gradient towards a diagonal neighbour)², as the reference.
 
@@ -345,8 +354,7 @@ def _sum5(lines, out):
 def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`)."""
     dh, dv, gh, gv, bh, bv, sh, sv = b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
-    we, ww, ws, wn, tot, grn, xr, xb = b[8], b[9], b[10], b[11], b[12], b[13], b[14], b[15]
-    red1, blue1, yr, yb = b[16], b[17], b[18], b[19]
+    grn, red1, blue1, yr, yb = b[8], b[9], b[10], b[11], b[12]
     one, zero = np.float32(1.0), np.float32(0.0)
     # Colour differences G − C along rows and columns (reach 9).
     ia, ib, ja, jb = _span(9, r0, r1, c0, c1, h, w)
@@ -394,35 +402,27 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         vn2, vn1, v0, vs1, vs2 = _line_v(dv, i, ja, jb)
         s_w, _, _, _, s_e = _line_h(sh, i, ja, jb)
         s_n, _, _, _, s_s = _line_v(sv, i, ja, jb)
-        o_e, o_w, o_s = _at(we, i, ja, jb, 0), _at(ww, i, ja, jb, 0), _at(ws, i, ja, jb, 0)
-        o_n, o_t = _at(wn, i, ja, jb, 0), _at(tot, i, ja, jb, 0)
-        o_g, o_r, o_b = _at(grn, i, ja, jb, 0), _at(xr, i, ja, jb, 0), _at(xb, i, ja, jb, 0)
+        o_g = _at(grn, i, ja, jb, 0)
         for k in range(jb - ja):
             e_e = (h0[k] * _THIRD + _THIRD * he1[k]) + _THIRD * he2[k]
             e_w = (hw2[k] * _THIRD + _THIRD * hw1[k]) + _THIRD * h0[k]
             e_s = (v0[k] * _THIRD + _THIRD * vs1[k]) + _THIRD * vs2[k]
             e_n = (vn2[k] * _THIRD + _THIRD * vn1[k]) + _THIRD * v0[k]
-            w_e, w_w = _inv_sq(s_e[k]), _inv_sq(s_w[k])
-            w_s, w_n = _inv_sq(s_s[k]), _inv_sq(s_n[k])
-            total = ((w_e + w_w) + w_s) + w_n
-            o_e[k], o_w[k], o_s[k], o_n[k], o_t[k] = w_e, w_w, w_s, w_n, total
+            w_e, w_w, w_s, w_n, total = _wcd_weights(s_e[k], s_w[k], s_s[k], s_n[k])
             delta = (((w_e * e_e + w_w * e_w) + w_s * e_s) + w_n * e_n) / total
             c, v = cm[k], x[k]
             g = v if c == 1 else v + delta
             o_g[k] = g
-            o_r[k] = g - v if c == 0 else zero
-            o_b[k] = g - v if c == 2 else zero
-    for q in (grn, xr, xb):
-        _mirror(q, 2, r0, r1, c0, c1, h, w)
-    # Red at blue sites and blue at red sites: diagonal colour differences.
+    _mirror(grn, 2, r0, r1, c0, c1, h, w)
+    # Red at blue sites and blue at red sites: diagonal colour differences (the
+    # diagonal neighbours of a red site are blue and of a blue one red: their
+    # green − mosaic is the difference of the colour missing here).
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
         mnw, mne, msw, mse = _diagonals(m, i, ja, jb, 1)
         fnw, fne, fsw, fse = _diagonals(m, i, ja, jb, 2)
         gnw, gne, gsw, gse = _diagonals(grn, i, ja, jb, 1)
-        rnw, rne, rsw, rse = _diagonals(xr, i, ja, jb, 1)
-        bnw, bne, bsw, bse = _diagonals(xb, i, ja, jb, 1)
         o_r, o_b = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
         o_yr, o_yb = _at(yr, i, ja, jb, 0), _at(yb, i, ja, jb, 0)
         for k in range(jb - ja):
@@ -432,10 +432,11 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             w2 = _diagonal_weight(msw[k], mne[k], gsw[k], g, fsw[k], v)
             w3 = _diagonal_weight(mse[k], mnw[k], gse[k], g, fse[k], v)
             total = ((w0 + w1) + w2) + w3
-            mr = ((w0 * rnw[k] + w1 * rne[k]) + w2 * rsw[k]) + w3 * rse[k]
-            mb = ((w0 * bnw[k] + w1 * bne[k]) + w2 * bsw[k]) + w3 * bse[k]
-            r = v if c == 0 else (g - mr / total if c == 2 else zero)
-            bl = v if c == 2 else (g - mb / total if c == 0 else zero)
+            d0, d1 = gnw[k] - mnw[k], gne[k] - mne[k]
+            d2, d3 = gsw[k] - msw[k], gse[k] - mse[k]
+            md = ((w0 * d0 + w1 * d1) + w2 * d2) + w3 * d3
+            r = v if c == 0 else (g - md / total if c == 2 else zero)
+            bl = v if c == 2 else (g - md / total if c == 0 else zero)
             o_r[k], o_b[k] = r, bl
             o_yr[k] = g - r if c != 1 else zero
             o_yb[k] = g - bl if c != 1 else zero
@@ -445,8 +446,8 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, g0 = cmap[i & 1, ja:jb], _at(grn, i, ja, jb, 0)
-        w_e, w_w, w_s = _at(we, i, ja, jb, 0), _at(ww, i, ja, jb, 0), _at(ws, i, ja, jb, 0)
-        w_n, t = _at(wn, i, ja, jb, 0), _at(tot, i, ja, jb, 0)
+        s_w, _, _, _, s_e = _line_h(sh, i, ja, jb)
+        s_n, _, _, _, s_s = _line_v(sv, i, ja, jb)
         re, rw, rs, rn = _cross(yr, i, ja, jb)
         be, bw, bs, bn = _cross(yb, i, ja, jb)
         r1_, b1_ = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
@@ -457,12 +458,13 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         )
         for k in range(jb - ja):
             g = g0[k]
-            cr = ((w_e[k] * re[k] + w_w[k] * rw[k]) + w_s[k] * rs[k]) + w_n[k] * rn[k]
-            cb = ((w_e[k] * be[k] + w_w[k] * bw[k]) + w_s[k] * bs[k]) + w_n[k] * bn[k]
+            w_e, w_w, w_s, w_n, t = _wcd_weights(s_e[k], s_w[k], s_s[k], s_n[k])
+            cr = ((w_e * re[k] + w_w * rw[k]) + w_s * rs[k]) + w_n * rn[k]
+            cb = ((w_e * be[k] + w_w * bw[k]) + w_s * bs[k]) + w_n * bn[k]
             green = cm[k] == 1
             o_g[k] = g
-            o_r[k] = g - cr / t[k] if green else r1_[k]
-            o_b[k] = g - cb / t[k] if green else b1_[k]
+            o_r[k] = g - cr / t if green else r1_[k]
+            o_b[k] = g - cb / t if green else b1_[k]
 
 
 @njit(inline="always", **_JIT)
@@ -796,10 +798,10 @@ def _rgb_buffers(shape):
 
 @njit(**_JIT)
 def _scratch_buffers(shape):
-    """The demosaics' 20 intermediate tile buffers (see :func:`_rgb_buffers`)."""
+    """The demosaics' 18 intermediate tile buffers (see :func:`_rgb_buffers`)."""
     a, b, c, d = _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape)
-    e, f, g = _rgb_buffers(shape), _rgb_buffers(shape), _rgb_buffers(shape)
-    return a + b + c + d + e + f + g[:2]
+    e, f = _rgb_buffers(shape), _rgb_buffers(shape)
+    return a + b + c + d + e + f
 
 
 @njit(parallel=True, nogil=True, **_JIT)
