@@ -175,68 +175,76 @@ def _shading_gain(y, x, cy, cx, p):
 
 
 @njit(**_JIT)
-def _bilinear(m, rgb, colors, r0, r1, c0, c1, h, w):
+def _bilinear(m, rgb, cmap, r0, r1, c0, c1, h, w):
+    """Bilinear demosaic (:func:`rawsim.isp.demosaic.demosaic_bilinear`), row by row
+    over unit-stride views (every site's candidates computed, the site's kept)."""
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
+    q = np.float32(0.25)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            v = m[i, j]
-            cross = (
-                (m[i - 1, j] * np.float32(0.25) + np.float32(0.25) * m[i, j - 1])
-                + np.float32(0.25) * m[i, j + 1]
-            ) + np.float32(0.25) * m[i + 1, j]
-            diag = (
-                (m[i - 1, j - 1] * np.float32(0.25) + np.float32(0.25) * m[i - 1, j + 1])
-                + np.float32(0.25) * m[i + 1, j - 1]
-            ) + np.float32(0.25) * m[i + 1, j + 1]
-            along_row = m[i, j - 1] * _HALF + _HALF * m[i, j + 1]
-            along_col = m[i - 1, j] * _HALF + _HALF * m[i + 1, j]
-            if c == 1:
-                red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                rgb[1][i, j] = v
-                rgb[0][i, j] = along_row if red_row else along_col
-                rgb[2][i, j] = along_col if red_row else along_row
-            else:
-                rgb[1][i, j] = cross
-                rgb[c][i, j] = v
-                rgb[2 - c][i, j] = diag
+        cm, x = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0)
+        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        e, wst, s_, n = _cross(m, i, ja, jb)
+        nw, ne, sw, se = _diagonals(m, i, ja, jb, 1)
+        o_r, o_g, o_b = (
+            _at(rgb[0], i, ja, jb, 0),
+            _at(rgb[1], i, ja, jb, 0),
+            _at(rgb[2], i, ja, jb, 0),
+        )
+        for k in range(jb - ja):
+            c, v = cm[k], x[k]
+            cross = ((n[k] * q + q * wst[k]) + q * e[k]) + q * s_[k]
+            diag = ((nw[k] * q + q * ne[k]) + q * sw[k]) + q * se[k]
+            along_row = wst[k] * _HALF + _HALF * e[k]
+            along_col = n[k] * _HALF + _HALF * s_[k]
+            red_at_green = along_row if red_row else along_col
+            blue_at_green = along_col if red_row else along_row
+            o_g[k] = v if c == 1 else cross
+            o_r[k] = v if c == 0 else (diag if c == 2 else red_at_green)
+            o_b[k] = v if c == 2 else (diag if c == 0 else blue_at_green)
 
 
 @njit(**_JIT)
-def _malvar(m, rgb, colors, r0, r1, c0, c1, h, w):
+def _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w):
+    """Malvar–He–Cutler demosaic (:func:`rawsim.isp.demosaic.demosaic_malvar`), row by
+    row over unit-stride views (every site's candidates computed, the site's kept)."""
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     e = np.float32(0.125)
     two, four, five, six = np.float32(2), np.float32(4), np.float32(5), np.float32(6)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            v = m[i, j]
-            diagonals = (m[i - 1, j - 1] + m[i - 1, j + 1]) + (m[i + 1, j - 1] + m[i + 1, j + 1])
-            if c == 1:
-                row = (
-                    _HALF * (m[i - 2, j] + m[i + 2, j])
-                    - diagonals
-                    - (m[i, j - 2] + m[i, j + 2])
-                    + four * (m[i, j - 1] + m[i, j + 1])
-                    + five * v
-                ) * e
-                col = (
-                    _HALF * (m[i, j - 2] + m[i, j + 2])
-                    - diagonals
-                    - (m[i - 2, j] + m[i + 2, j])
-                    + four * (m[i - 1, j] + m[i + 1, j])
-                    + five * v
-                ) * e
-                red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                rgb[1][i, j] = v
-                rgb[0][i, j] = row if red_row else col
-                rgb[2][i, j] = col if red_row else row
-            else:
-                far = (m[i - 2, j] + m[i + 2, j]) + (m[i, j - 2] + m[i, j + 2])
-                near = (m[i - 1, j] + m[i + 1, j]) + (m[i, j - 1] + m[i, j + 1])
-                rgb[1][i, j] = (two * near - far + four * v) * e
-                rgb[c][i, j] = v
-                rgb[2 - c][i, j] = (two * diagonals - np.float32(1.5) * far + six * v) * e
+        cm = cmap[i & 1, ja:jb]
+        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        w2, w1, x, e1, e2 = _line_h(m, i, ja, jb)
+        n2, n1, _, s1, s2 = _line_v(m, i, ja, jb)
+        nw, ne, sw, se = _diagonals(m, i, ja, jb, 1)
+        o_r, o_g, o_b = (
+            _at(rgb[0], i, ja, jb, 0),
+            _at(rgb[1], i, ja, jb, 0),
+            _at(rgb[2], i, ja, jb, 0),
+        )
+        for k in range(jb - ja):
+            c, v = cm[k], x[k]
+            diagonals = (nw[k] + ne[k]) + (sw[k] + se[k])
+            row = (
+                _HALF * (n2[k] + s2[k])
+                - diagonals
+                - (w2[k] + e2[k])
+                + four * (w1[k] + e1[k])
+                + five * v
+            ) * e
+            col = (
+                _HALF * (w2[k] + e2[k])
+                - diagonals
+                - (n2[k] + s2[k])
+                + four * (n1[k] + s1[k])
+                + five * v
+            ) * e
+            far = (n2[k] + s2[k]) + (w2[k] + e2[k])
+            near = (n1[k] + s1[k]) + (w1[k] + e1[k])
+            green = (two * near - far + four * v) * e
+            other = (two * diagonals - np.float32(1.5) * far + six * v) * e
+            o_g[k] = v if c == 1 else green
+            o_r[k] = v if c == 0 else (other if c == 2 else (row if red_row else col))
+            o_b[k] = v if c == 2 else (other if c == 0 else (col if red_row else row))
 
 
 @njit(inline="always", **_JIT)
@@ -849,9 +857,9 @@ def process_kernel(
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _load_mosaic(raw, m, table, colors, pre_ops, pre_f, r0, r1, c0, c1, h, w)
             if method == 0:
-                _bilinear(m, rgb, colors, r0, r1, c0, c1, h, w)
+                _bilinear(m, rgb, cmap, r0, r1, c0, c1, h, w)
             elif method == 1:
-                _malvar(m, rgb, colors, r0, r1, c0, c1, h, w)
+                _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w)
             elif method == 2:
                 _menon(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
             else:
