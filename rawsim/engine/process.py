@@ -495,158 +495,213 @@ def _mean3(x, i, j, horizontal):
 
 
 @njit(**_JIT)
-def _menon(m, b, rgb, colors, r0, r1, c0, c1, h, w):
-    """Menon et al. 2007 with refining (:func:`rawsim.isp.demosaic.demosaic_menon`)."""
+def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
+    """Menon et al. 2007 with refining (:func:`rawsim.isp.demosaic.demosaic_menon`), row
+    by row over unit-stride views: every site's candidates computed and the site's
+    (or the decided direction's) kept, so that LLVM vectorises the loops."""
     g_h, g_v, c_h, c_v, d_h, d_v, hz, grn = b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
     red0, blue0, red1, blue1, grn2, red2, blue2 = b[8], b[9], b[10], b[11], b[12], b[13], b[14]
     dif_r, dif_b, rb = b[15], b[16], b[17]
+    zero, three = np.float32(0.0), 3.0
     # 1. Directional green estimates and colour differences at R/B sites (reach 9).
     ia, ib, ja, jb = _span(9, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            v = m[i, j]
-            if colors[(i & 1) * 2 + (j & 1)] == 1:
-                g_h[i, j], g_v[i, j] = v, v
-                c_h[i, j], c_v[i, j] = np.float32(0.0), np.float32(0.0)
-            else:
-                a, c = _ha_h(m, i, j)
-                g_h[i, j] = a + c
-                c_h[i, j] = v - (a + c)
-                a, c = _ha_v(m, i, j)
-                g_v[i, j] = a + c
-                c_v[i, j] = v - (a + c)
-    for x in (g_h, g_v, c_h, c_v):
-        _mirror(x, 9, r0, r1, c0, c1, h, w)
+        cm = cmap[i & 1, ja:jb]
+        w2, w1, x, e1, e2 = _line_h(m, i, ja, jb)
+        n2, n1, _, s1, s2 = _line_v(m, i, ja, jb)
+        o_gh, o_gv = _at(g_h, i, ja, jb, 0), _at(g_v, i, ja, jb, 0)
+        o_ch, o_cv = _at(c_h, i, ja, jb, 0), _at(c_v, i, ja, jb, 0)
+        for k in range(jb - ja):
+            v, green = x[k], cm[k] == 1
+            a, c = _ha(w1[k], e1[k], w2[k], v, e2[k])
+            o_gh[k] = v if green else a + c
+            o_ch[k] = zero if green else v - (a + c)
+            a, c = _ha(n1[k], s1[k], n2[k], v, s2[k])
+            o_gv[k] = v if green else a + c
+            o_cv[k] = zero if green else v - (a + c)
+    for q in (g_h, g_v, c_h, c_v):
+        _mirror(q, 9, r0, r1, c0, c1, h, w)
     # 2. The decision: colour differences vary less along the edge.
     ia, ib, ja, jb = _span(7, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            d_h[i, j] = abs(c_h[i, j] - c_h[i, j + 2])
-            d_v[i, j] = abs(c_v[i, j] - c_v[i + 2, j])
-    for x in (d_h, d_v):
-        _mirror(x, 7, r0, r1, c0, c1, h, w)
+        ch0, ch2 = _at(c_h, i, ja, jb, 0), _at(c_h, i, ja, jb, 2)
+        cv0, cv2 = _at(c_v, i, ja, jb, 0), _at(c_v, i + 2, ja, jb, 0)
+        o_dh, o_dv = _at(d_h, i, ja, jb, 0), _at(d_v, i, ja, jb, 0)
+        for k in range(jb - ja):
+            o_dh[k] = abs(ch0[k] - ch2[k])
+            o_dv[k] = abs(cv0[k] - cv2[k])
+    for q in (d_h, d_v):
+        _mirror(q, 7, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
+        h00, h02, h11 = (
+            _at(d_h, i - 2, ja, jb, 0),
+            _at(d_h, i - 2, ja, jb, 2),
+            _at(d_h, i - 1, ja, jb, 1),
+        )
+        h20, h22, h31 = _at(d_h, i, ja, jb, 0), _at(d_h, i, ja, jb, 2), _at(d_h, i + 1, ja, jb, 1)
+        h40, h42 = _at(d_h, i + 2, ja, jb, 0), _at(d_h, i + 2, ja, jb, 2)
+        v0m, v00, v0p = _at(d_v, i, ja, jb, -2), _at(d_v, i, ja, jb, 0), _at(d_v, i, ja, jb, 2)
+        v1m, v1p = _at(d_v, i + 1, ja, jb, -1), _at(d_v, i + 1, ja, jb, 1)
+        v2m, v20, v2p = (
+            _at(d_v, i + 2, ja, jb, -2),
+            _at(d_v, i + 2, ja, jb, 0),
+            _at(d_v, i + 2, ja, jb, 2),
+        )
+        gh, gv = _at(g_h, i, ja, jb, 0), _at(g_v, i, ja, jb, 0)
+        o_hz, o_g = _at(hz, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
+        for k in range(jb - ja):
             # Taps in the reference's order; its weight-3 taps are fused multiply-adds
             # (one rounding), done here in float64, which is exact before the rounding.
-            sh = d_h[i - 2, j] + d_h[i - 2, j + 2]
-            sh = sh + d_h[i - 1, j + 1]
-            sh = np.float32(np.float64(sh) + 3.0 * np.float64(d_h[i, j]))
-            sh = np.float32(np.float64(sh) + 3.0 * np.float64(d_h[i, j + 2]))
-            sh = sh + d_h[i + 1, j + 1]
-            sh = sh + d_h[i + 2, j]
-            sh = sh + d_h[i + 2, j + 2]
-            sv = np.float32(np.float64(d_v[i, j - 2]) + 3.0 * np.float64(d_v[i, j]))
-            sv = sv + d_v[i, j + 2]
-            sv = sv + d_v[i + 1, j - 1]
-            sv = sv + d_v[i + 1, j + 1]
-            sv = sv + d_v[i + 2, j - 2]
-            sv = np.float32(np.float64(sv) + 3.0 * np.float64(d_v[i + 2, j]))
-            sv = sv + d_v[i + 2, j + 2]
+            sh = (h00[k] + h02[k]) + h11[k]
+            sh = np.float32(np.float64(sh) + three * np.float64(h20[k]))
+            sh = np.float32(np.float64(sh) + three * np.float64(h22[k]))
+            sh = ((sh + h31[k]) + h40[k]) + h42[k]
+            sv = np.float32(np.float64(v0m[k]) + three * np.float64(v00[k]))
+            sv = (((sv + v0p[k]) + v1m[k]) + v1p[k]) + v2m[k]
+            sv = np.float32(np.float64(sv) + three * np.float64(v20[k]))
+            sv = sv + v2p[k]
             horizontal = sv >= sh
-            hz[i, j] = np.float32(1.0) if horizontal else np.float32(0.0)
-            grn[i, j] = g_h[i, j] if horizontal else g_v[i, j]
-    for x in (hz, grn):
-        _mirror(x, 5, r0, r1, c0, c1, h, w)
+            o_hz[k] = np.float32(1.0) if horizontal else zero
+            o_g[k] = gh[k] if horizontal else gv[k]
+    for q in (hz, grn):
+        _mirror(q, 5, r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            dif_r[i, j] = m[i, j] if c == 0 else np.float32(0.0)  # red, sparse
-            dif_b[i, j] = m[i, j] if c == 2 else np.float32(0.0)  # blue, sparse
-            rb[i, j] = grn[i, j] if c == 0 else np.float32(0.0)  # green * r
-            red0[i, j] = grn[i, j] if c == 2 else np.float32(0.0)  # green * b (scratch)
-    for x in (dif_r, dif_b, rb, red0):
-        _mirror(x, 5, r0, r1, c0, c1, h, w)
+        cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
+        o_dr, o_db = _at(dif_r, i, ja, jb, 0), _at(dif_b, i, ja, jb, 0)
+        o_rb, o_r0 = _at(rb, i, ja, jb, 0), _at(red0, i, ja, jb, 0)
+        for k in range(jb - ja):
+            c = cm[k]
+            o_dr[k] = x[k] if c == 0 else zero  # red, sparse
+            o_db[k] = x[k] if c == 2 else zero  # blue, sparse
+            o_rb[k] = g0[k] if c == 0 else zero  # green * r
+            o_r0[k] = g0[k] if c == 2 else zero  # green * b (scratch)
+    for q in (dif_r, dif_b, rb, red0):
+        _mirror(q, 5, r0, r1, c0, c1, h, w)
     # 3. Red and blue at green sites from the colour difference along the row/column.
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            g = grn[i, j]
-            if c == 1:
-                on_red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                red_h = (g + _pair_h(dif_r, i, j)) - _pair_h(rb, i, j)
-                red_v = (g + _pair_v(dif_r, i, j)) - _pair_v(rb, i, j)
-                blue_h = (g + _pair_h(dif_b, i, j)) - _pair_h(red0, i, j)
-                blue_v = (g + _pair_v(dif_b, i, j)) - _pair_v(red0, i, j)
-                red1[i, j] = red_h if on_red_row else red_v
-                blue1[i, j] = blue_v if on_red_row else blue_h
-            else:
-                red1[i, j] = m[i, j] if c == 0 else np.float32(0.0)
-                blue1[i, j] = m[i, j] if c == 2 else np.float32(0.0)
-    for x in (red1, blue1):
-        _mirror(x, 4, r0, r1, c0, c1, h, w)
+        cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
+        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        dr_e, dr_w, dr_s, dr_n = _cross(dif_r, i, ja, jb)
+        rb_e, rb_w, rb_s, rb_n = _cross(rb, i, ja, jb)
+        db_e, db_w, db_s, db_n = _cross(dif_b, i, ja, jb)
+        r0_e, r0_w, r0_s, r0_n = _cross(red0, i, ja, jb)
+        o_r, o_b = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
+        for k in range(jb - ja):
+            c, g = cm[k], g0[k]
+            red_h = (g + (dr_w[k] * _HALF + _HALF * dr_e[k])) - (rb_w[k] * _HALF + _HALF * rb_e[k])
+            red_v = (g + (dr_n[k] * _HALF + _HALF * dr_s[k])) - (rb_n[k] * _HALF + _HALF * rb_s[k])
+            blue_h = (g + (db_w[k] * _HALF + _HALF * db_e[k])) - (r0_w[k] * _HALF + _HALF * r0_e[k])
+            blue_v = (g + (db_n[k] * _HALF + _HALF * db_s[k])) - (r0_n[k] * _HALF + _HALF * r0_s[k])
+            red_g = red_h if red_row else red_v
+            blue_g = blue_v if red_row else blue_h
+            o_r[k] = red_g if c == 1 else (x[k] if c == 0 else zero)
+            o_b[k] = blue_g if c == 1 else (x[k] if c == 2 else zero)
+    for q in (red1, blue1):
+        _mirror(q, 4, r0, r1, c0, c1, h, w)
     # 4. Red at blue sites and blue at red sites, along the decided direction.
     ia, ib, ja, jb = _span(3, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            r, bl = red1[i, j], blue1[i, j]
-            horizontal = hz[i, j] != 0
-            if c == 2:
-                if horizontal:
-                    r = (bl + _pair_h(red1, i, j)) - _pair_h(blue1, i, j)
-                else:
-                    r = (bl + _pair_v(red1, i, j)) - _pair_v(blue1, i, j)
-            elif c == 0:
-                if horizontal:
-                    bl = (r + _pair_h(blue1, i, j)) - _pair_h(red1, i, j)
-                else:
-                    bl = (r + _pair_v(blue1, i, j)) - _pair_v(red1, i, j)
-            red0[i, j], blue0[i, j] = r, bl
-            dif_r[i, j] = r - grn[i, j]
-            dif_b[i, j] = bl - grn[i, j]
-    for x in (red0, blue0, dif_r, dif_b):
-        _mirror(x, 3, r0, r1, c0, c1, h, w)
+        cm, g0, hz0 = cmap[i & 1, ja:jb], _at(grn, i, ja, jb, 0), _at(hz, i, ja, jb, 0)
+        r1_e, r1_w, r1_s, r1_n = _cross(red1, i, ja, jb)
+        b1_e, b1_w, b1_s, b1_n = _cross(blue1, i, ja, jb)
+        r1_0, b1_0 = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
+        o_r, o_b = _at(red0, i, ja, jb, 0), _at(blue0, i, ja, jb, 0)
+        o_dr, o_db = _at(dif_r, i, ja, jb, 0), _at(dif_b, i, ja, jb, 0)
+        for k in range(jb - ja):
+            c, horizontal = cm[k], hz0[k] != 0
+            r, bl = r1_0[k], b1_0[k]
+            red_pair = (
+                (r1_w[k] * _HALF + _HALF * r1_e[k])
+                if horizontal
+                else (r1_n[k] * _HALF + _HALF * r1_s[k])
+            )
+            blue_pair = (
+                (b1_w[k] * _HALF + _HALF * b1_e[k])
+                if horizontal
+                else (b1_n[k] * _HALF + _HALF * b1_s[k])
+            )
+            r_at_blue = (bl + red_pair) - blue_pair
+            b_at_red = (r + blue_pair) - red_pair
+            r = r_at_blue if c == 2 else r
+            bl = b_at_red if c == 0 else bl
+            o_r[k], o_b[k] = r, bl
+            o_dr[k] = r - g0[k]
+            o_db[k] = bl - g0[k]
+    for q in (red0, blue0, dif_r, dif_b):
+        _mirror(q, 3, r0, r1, c0, c1, h, w)
     # 5. Refining: green at R/B sites from the smoothed differences (reach 2) ...
     ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            horizontal = hz[i, j] != 0
-            if c == 0:
-                grn2[i, j] = red0[i, j] - _mean3(dif_r, i, j, horizontal)
-            elif c == 2:
-                grn2[i, j] = blue0[i, j] - _mean3(dif_b, i, j, horizontal)
-            else:
-                grn2[i, j] = grn[i, j]
-            g_h[i, j] = red0[i, j] - grn2[i, j]  # red − green (scratch)
-            g_v[i, j] = blue0[i, j] - grn2[i, j]  # blue − green (scratch)
-    for x in (grn2, g_h, g_v):
-        _mirror(x, 2, r0, r1, c0, c1, h, w)
+        cm, g0, hz0 = cmap[i & 1, ja:jb], _at(grn, i, ja, jb, 0), _at(hz, i, ja, jb, 0)
+        r0_0, b0_0 = _at(red0, i, ja, jb, 0), _at(blue0, i, ja, jb, 0)
+        dr_e, dr_w, dr_s, dr_n = _cross(dif_r, i, ja, jb)
+        db_e, db_w, db_s, db_n = _cross(dif_b, i, ja, jb)
+        dr_0, db_0 = _at(dif_r, i, ja, jb, 0), _at(dif_b, i, ja, jb, 0)
+        o_g2, o_gh, o_gv = _at(grn2, i, ja, jb, 0), _at(g_h, i, ja, jb, 0), _at(g_v, i, ja, jb, 0)
+        for k in range(jb - ja):
+            c, horizontal = cm[k], hz0[k] != 0
+            mean_r = _three(dr_w[k], dr_0[k], dr_e[k], dr_n[k], dr_s[k], horizontal)
+            mean_b = _three(db_w[k], db_0[k], db_e[k], db_n[k], db_s[k], horizontal)
+            g2 = r0_0[k] - mean_r if c == 0 else (b0_0[k] - mean_b if c == 2 else g0[k])
+            o_g2[k] = g2
+            o_gh[k] = r0_0[k] - g2  # red − green (scratch)
+            o_gv[k] = b0_0[k] - g2  # blue − green (scratch)
+    for q in (grn2, g_h, g_v):
+        _mirror(q, 2, r0, r1, c0, c1, h, w)
     # ... red and blue at green sites from their neighbours' differences (reach 1) ...
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            g = grn2[i, j]
-            r, bl = red0[i, j], blue0[i, j]
-            if c == 1:
-                on_red_row = colors[(i & 1) * 2 + ((j + 1) & 1)] == 0
-                if on_red_row:
-                    r = g + _pair_h(g_h, i, j)
-                    bl = g + _pair_v(g_v, i, j)
-                else:
-                    r = g + _pair_v(g_h, i, j)
-                    bl = g + _pair_h(g_v, i, j)
-            red2[i, j], blue2[i, j] = r, bl
-            c_h[i, j] = r - bl  # red − blue (scratch)
-    for x in (red2, blue2, c_h):
-        _mirror(x, 1, r0, r1, c0, c1, h, w)
+        cm, g0 = cmap[i & 1, ja:jb], _at(grn2, i, ja, jb, 0)
+        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        r0_0, b0_0 = _at(red0, i, ja, jb, 0), _at(blue0, i, ja, jb, 0)
+        gh_e, gh_w, gh_s, gh_n = _cross(g_h, i, ja, jb)
+        gv_e, gv_w, gv_s, gv_n = _cross(g_v, i, ja, jb)
+        o_r, o_b, o_c = _at(red2, i, ja, jb, 0), _at(blue2, i, ja, jb, 0), _at(c_h, i, ja, jb, 0)
+        for k in range(jb - ja):
+            g = g0[k]
+            along_h = gh_w[k] * _HALF + _HALF * gh_e[k]
+            along_v = gh_n[k] * _HALF + _HALF * gh_s[k]
+            blue_h = gv_w[k] * _HALF + _HALF * gv_e[k]
+            blue_v = gv_n[k] * _HALF + _HALF * gv_s[k]
+            r_g = g + (along_h if red_row else along_v)
+            b_g = g + (blue_v if red_row else blue_h)
+            green = cm[k] == 1
+            r = r_g if green else r0_0[k]
+            bl = b_g if green else b0_0[k]
+            o_r[k], o_b[k] = r, bl
+            o_c[k] = r - bl  # red − blue (scratch)
+    for q in (red2, blue2, c_h):
+        _mirror(q, 1, r0, r1, c0, c1, h, w)
     # ... and red at blue sites, blue at red sites from the smoothed R − B difference.
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
-        for j in range(ja, jb):
-            c = colors[(i & 1) * 2 + (j & 1)]
-            red_blue = _mean3(c_h, i, j, hz[i, j] != 0)
-            r, bl = red2[i, j], blue2[i, j]
-            if c == 2:
-                r = bl + red_blue
-            elif c == 0:
-                bl = r - red_blue
-            rgb[0][i, j], rgb[1][i, j], rgb[2][i, j] = r, grn2[i, j], bl
+        cm, hz0 = cmap[i & 1, ja:jb], _at(hz, i, ja, jb, 0)
+        ch_e, ch_w, ch_s, ch_n = _cross(c_h, i, ja, jb)
+        ch_0, g2 = _at(c_h, i, ja, jb, 0), _at(grn2, i, ja, jb, 0)
+        r2_0, b2_0 = _at(red2, i, ja, jb, 0), _at(blue2, i, ja, jb, 0)
+        o_r, o_g, o_b = (
+            _at(rgb[0], i, ja, jb, 0),
+            _at(rgb[1], i, ja, jb, 0),
+            _at(rgb[2], i, ja, jb, 0),
+        )
+        for k in range(jb - ja):
+            c = cm[k]
+            red_blue = _three(ch_w[k], ch_0[k], ch_e[k], ch_n[k], ch_s[k], hz0[k] != 0)
+            r, bl = r2_0[k], b2_0[k]
+            o_r[k] = bl + red_blue if c == 2 else r
+            o_g[k] = g2[k]
+            o_b[k] = r - red_blue if c == 0 else bl
+
+
+@njit(inline="always", **_JIT)
+def _three(west, centre, east, north, south, horizontal):
+    """:func:`_mean3` of neighbours already read: along the row or the column."""
+    if horizontal:
+        return (west * _THIRD + _THIRD * centre) + _THIRD * east
+    return (north * _THIRD + _THIRD * centre) + _THIRD * south
 
 
 # --------------------------------------------------------------- RGB stages
@@ -861,7 +916,7 @@ def process_kernel(
             elif method == 1:
                 _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w)
             elif method == 2:
-                _menon(m, bufs, rgb, colors, r0, r1, c0, c1, h, w)
+                _menon(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
             else:
                 _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
             _finish(
