@@ -1045,6 +1045,25 @@ def _site(raw, y, x, k, color, table, ops, opf, cy, cx):
     return _mosaic_value(np.float32(raw[y, x]), k, color, y, x, cy, cx, ops, opf)
 
 
+@njit(**_JIT)
+def _half_row(raw, y0, j0, j1, classes, cmap, table, rgb, row, shift):
+    """Blocks j0 … j1 − 1 of block row y0 / 2 of a 2 × 2 layout with every colour,
+    into ``rgb`` row ``row`` at columns j + ``shift``: :func:`half_kernel`'s whole
+    blocks, the same expression, over unit-stride output views."""
+    a, b, c, d = cmap[0, 0], cmap[0, 1], cmap[1, 0], cmap[1, 1]
+    ta, tb = table[classes[0, 0]], table[classes[0, 1]]
+    tc, td = table[classes[1, 0]], table[classes[1, 1]]
+    top, bottom = raw[y0, 2 * j0 : 2 * j1], raw[y0 + 1, 2 * j0 : 2 * j1]
+    for k in range(3):
+        n = (a == k) + (b == k) + (c == k) + (d == k)
+        dst = rgb[k][row, j0 + shift : j1 + shift]
+        for q in range(j1 - j0):
+            va, vb = ta[top[2 * q]], tb[top[2 * q + 1]]
+            vc, vd = tc[bottom[2 * q]], td[bottom[2 * q + 1]]
+            s = ((va * (a == k) + vb * (b == k)) + vc * (c == k)) + vd * (d == k)
+            dst[q] = s / np.float32(n)
+
+
 @njit(parallel=True, nogil=True, **_JIT)
 def half_kernel(
     raw,
@@ -1082,6 +1101,10 @@ def half_kernel(
     n_r, n_c = (h2 + tile_rows - 1) // tile_rows, (w2 + tile_cols - 1) // tile_cols
     tiles = n_r * n_c
     threads = max(1, min(tiles, threads))
+    # A 2 × 2 period with every colour, through the table: each whole block is alike.
+    bayer = ph == 2 and pw == 2 and table.shape[0] > 0
+    for k in range(3):
+        bayer = bayer and ((cmap == k).sum() > 0)
     for t in prange(threads):
         rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
         total = np.zeros(3, np.float32)
@@ -1091,7 +1114,11 @@ def half_kernel(
             r1, c1 = min(h2, r0 + tile_rows), min(w2, c0 + tile_cols)
             for i in range(r0, r1):
                 y0, y1 = 2 * i, 2 * i + 1
-                for j in range(c0, c1):
+                j0 = c0  # the first block left to the loop below
+                if bayer and y1 < h:  # whole 2×2 blocks of one layout: a vectorised row
+                    j0 = max(c0, min(c1, w // 2))
+                    _half_row(raw, y0, c0, j0, classes, cmap, table, rgb, HALO + i - r0, HALO - c0)
+                for j in range(j0, c1):
                     x0, x1 = 2 * j, 2 * j + 1
                     if y1 < h and x1 < w:  # a whole block, in scalars
                         p0, p1, q0, q1 = row_phase[y0], row_phase[y1], col_phase[x0], col_phase[x1]
