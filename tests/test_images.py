@@ -105,3 +105,20 @@ def test_large_buffers_are_written_in_pieces_whole():
     write_pieces(f, head, pixels, b"")
     assert f.getvalue() == head + pixels.tobytes()
     assert max(sizes) == PIECE_BYTES and len(sizes) == 1 + 4
+
+
+def test_open_empty_replaces_what_was_there(tmp_path):
+    """open_empty creates an absent file, leaves no tail of a longer one, writes into
+    an empty one (a temporary), and gives new files the umask's mode as open() does."""
+    from rawsim.io.pieces import open_empty
+
+    absent, longer, empty = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    longer.write_bytes(b"x" * 100)
+    empty.touch()
+    for path in (absent, longer, empty):
+        with open_empty(path) as f:
+            f.write(b"new")
+        assert path.read_bytes() == b"new"
+    with open(tmp_path / "d", "wb"):
+        pass
+    assert absent.stat().st_mode == (tmp_path / "d").stat().st_mode

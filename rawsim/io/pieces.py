@@ -1,4 +1,5 @@
-"""Writing large buffers to a file in pieces of :data:`PIECE_BYTES`.
+"""Writing large buffers to a file in pieces of :data:`PIECE_BYTES`, into a file
+opened without needless truncation (:func:`open_empty`).
 
 One ``write()`` of a whole 144 MB render costs 0.31–0.36 s on Linux 6.18 (ext4)
 once a few hundred MB of the page cache are dirty, where the same bytes in
@@ -9,10 +10,28 @@ writes strips of about 1 MB.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import BinaryIO
 
 #: Bytes per ``write()``.
 PIECE_BYTES = 1 << 20
+
+
+def open_empty(path: str | Path) -> BinaryIO:
+    """``path`` opened for writing from its start, created if absent, emptied if not
+    empty, but not truncated when it is already empty (the temporaries of
+    :func:`rawsim.io.outputs.atomic_outputs`): on ext4 a file truncated to zero
+    flushes its data when closed (``auto_da_alloc``), which made ``close()`` of a
+    144 MB TIFF take 0.04 s where it takes nothing otherwise."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o666)
+    try:
+        if os.fstat(fd).st_size:
+            os.ftruncate(fd, 0)
+        return os.fdopen(fd, "wb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 def write_pieces(f: BinaryIO, *buffers) -> None:

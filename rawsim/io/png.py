@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rawsim.io.pieces import write_pieces
+from rawsim.io.pieces import open_empty, write_pieces
 
 #: Rows per independently filtered and deflated band.
 BAND_ROWS = 128
@@ -156,5 +156,5 @@ def write_png(
     pieces[-1] += struct.pack(">I", adler)
     parts += [_chunk(b"IDAT", piece) for piece in pieces]
     parts.append(_chunk(b"IEND", b""))
-    with open(path, "wb") as f:
+    with open_empty(path) as f:
         write_pieces(f, *parts)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from rawsim.errors import UnsupportedInputError
-from rawsim.io.pieces import write_pieces
+from rawsim.io.pieces import open_empty, write_pieces
 
 #: TIFF field types this writer packs, and their struct codes.
 BYTE, ASCII, SHORT, LONG, RATIONAL, UNDEFINED, SRATIONAL, DOUBLE = 1, 2, 3, 4, 5, 7, 10, 12
@@ -116,7 +116,7 @@ def write_tiff(
     head = header + exif[8:] + b"\0" * (start - len(exif)) + bytes(ifd) + bytes(extra)
     head += b"\0" * (pixels_at - len(head))
     samples = np.ascontiguousarray(data, dtype=data.dtype.newbyteorder(order))
-    with open(path, "wb") as f:
+    with open_empty(path) as f:
         write_pieces(f, head, samples)
 
 
