@@ -25,6 +25,7 @@ import numpy as np
 
 from rawsim.errors import ParameterError
 from rawsim.io.atomic import atomic_output
+from rawsim.io.pieces import open_empty
 
 FORMATS = ("npz", "h5", "txt")
 SUFFIX = {"npz": ".npz", "h5": ".h5", "txt": ".txt"}
@@ -61,7 +62,7 @@ class EventFile:
             )
             self.h5.attrs["params"] = json.dumps(self.meta)
         elif self.fmt == "txt":
-            self.text = self.stack.enter_context(open(tmp, "wb"))
+            self.text = self.stack.enter_context(open_empty(tmp))
         self.tmp = tmp
         return self
 
@@ -98,7 +99,7 @@ class EventFile:
             self.h5.create_dataset("frame_idx", data=np.array(self.frame_idx, dtype=np.uint64))
         elif self.fmt == "npz":
             cat = lambda name: np.concatenate([getattr(b, name) for b in self.parts])  # noqa: E731
-            with open(self.tmp, "wb") as fh:
+            with open_empty(self.tmp) as fh:
                 np.savez(
                     fh,
                     t=cat("t"),

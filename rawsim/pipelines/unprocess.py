@@ -30,6 +30,7 @@ from rawsim.io.images import read_image
 from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
+from rawsim.io.pieces import open_empty
 from rawsim.io.readahead import ReadAhead
 from rawsim.io.spare import Spare
 from rawsim.io.task import Task
@@ -494,7 +495,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         if "clean_dng" in tmp:
             write_dng(tmp["clean_dng"], clean_np, replace(info, noise_profile=None))
         if "npz" in tmp:
-            with open(tmp["npz"], "wb") as fh:
+            with open_empty(tmp["npz"]) as fh:
                 np.savez(fh, **npz_arrays(options, noisy_np, clean_np, metadata))
         tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     if out is not None:
