@@ -182,14 +182,10 @@ def _bilinear(m, rgb, cmap, r0, r1, c0, c1, h, w):
     q = np.float32(0.25)
     for i in range(ia, ib):
         cm, x = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0)
-        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        red_row = _holds_red(cmap, i)
         e, wst, s_, n = _cross(m, i, ja, jb)
         nw, ne, sw, se = _diagonals(m, i, ja, jb, 1)
-        o_r, o_g, o_b = (
-            _at(rgb[0], i, ja, jb, 0),
-            _at(rgb[1], i, ja, jb, 0),
-            _at(rgb[2], i, ja, jb, 0),
-        )
+        o_r, o_g, o_b = _rows(rgb, i, ja, jb)
         for k in range(jb - ja):
             c, v = cm[k], x[k]
             cross = ((n[k] * q + q * wst[k]) + q * e[k]) + q * s_[k]
@@ -212,15 +208,11 @@ def _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w):
     two, four, five, six = np.float32(2), np.float32(4), np.float32(5), np.float32(6)
     for i in range(ia, ib):
         cm = cmap[i & 1, ja:jb]
-        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        red_row = _holds_red(cmap, i)
         w2, w1, x, e1, e2 = _line_h(m, i, ja, jb)
         n2, n1, _, s1, s2 = _line_v(m, i, ja, jb)
         nw, ne, sw, se = _diagonals(m, i, ja, jb, 1)
-        o_r, o_g, o_b = (
-            _at(rgb[0], i, ja, jb, 0),
-            _at(rgb[1], i, ja, jb, 0),
-            _at(rgb[2], i, ja, jb, 0),
-        )
+        o_r, o_g, o_b = _rows(rgb, i, ja, jb)
         for k in range(jb - ja):
             c, v = cm[k], x[k]
             diagonals = (nw[k] + ne[k]) + (sw[k] + se[k])
@@ -302,6 +294,19 @@ def _at(b, i, ja, jb, dj):
     vectorises them (indexing ``b[i, j - 1]`` with a signed ``j`` does not).
     """
     return b[i, ja + dj : jb + dj]
+
+
+@njit(inline="always", **_JIT)
+def _rows(rgb, i, ja, jb):
+    """Row ``i`` of each of the three buffers ``rgb`` (:func:`_at`)."""
+    return _at(rgb[0], i, ja, jb, 0), _at(rgb[1], i, ja, jb, 0), _at(rgb[2], i, ja, jb, 0)
+
+
+@njit(inline="always", **_JIT)
+def _holds_red(cmap, i):
+    """Whether row ``i`` of a Bayer tile holds red: its green sites' row neighbours
+    are red (else blue)."""
+    return cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0
 
 
 @njit(inline="always", **_JIT)
@@ -459,11 +464,7 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         re, rw, rs, rn = _cross(yr, i, ja, jb)
         be, bw, bs, bn = _cross(yb, i, ja, jb)
         r1_, b1_ = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
-        o_r, o_g, o_b = (
-            _at(rgb[0], i, ja, jb, 0),
-            _at(rgb[1], i, ja, jb, 0),
-            _at(rgb[2], i, ja, jb, 0),
-        )
+        o_r, o_g, o_b = _rows(rgb, i, ja, jb)
         for k in range(jb - ja):
             g = g0[k]
             w_e, w_w, w_s, w_n, t = _wcd_weights(s_e[k], s_w[k], s_s[k], s_n[k])
@@ -583,7 +584,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
-        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        red_row = _holds_red(cmap, i)
         dr_e, dr_w, dr_s, dr_n = _cross(dif_r, i, ja, jb)
         rb_e, rb_w, rb_s, rb_n = _cross(rb, i, ja, jb)
         db_e, db_w, db_s, db_n = _cross(dif_b, i, ja, jb)
@@ -655,7 +656,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, g0 = cmap[i & 1, ja:jb], _at(grn2, i, ja, jb, 0)
-        red_row = cmap[i & 1, 0] == 0 or cmap[i & 1, 1] == 0  # green's row neighbours
+        red_row = _holds_red(cmap, i)
         r0_0, b0_0 = _at(red0, i, ja, jb, 0), _at(blue0, i, ja, jb, 0)
         gh_e, gh_w, gh_s, gh_n = _cross(g_h, i, ja, jb)
         gv_e, gv_w, gv_s, gv_n = _cross(g_v, i, ja, jb)
@@ -682,11 +683,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         ch_e, ch_w, ch_s, ch_n = _cross(c_h, i, ja, jb)
         ch_0, g2 = _at(c_h, i, ja, jb, 0), _at(grn2, i, ja, jb, 0)
         r2_0, b2_0 = _at(red2, i, ja, jb, 0), _at(blue2, i, ja, jb, 0)
-        o_r, o_g, o_b = (
-            _at(rgb[0], i, ja, jb, 0),
-            _at(rgb[1], i, ja, jb, 0),
-            _at(rgb[2], i, ja, jb, 0),
-        )
+        o_r, o_g, o_b = _rows(rgb, i, ja, jb)
         for k in range(jb - ja):
             c = cm[k]
             red_blue = _three(ch_w[k], ch_0[k], ch_e[k], ch_n[k], ch_s[k], hz0[k] != 0)
@@ -718,7 +715,7 @@ def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0,
     at = np.empty(jb - ja, np.int32)  # _encode's table positions
     for i in range(ia, ib):
         y, x0 = r0 - HALO + i, c0 - HALO + ja
-        r, g, b = _at(rgb[0], i, ja, jb, 0), _at(rgb[1], i, ja, jb, 0), _at(rgb[2], i, ja, jb, 0)
+        r, g, b = _rows(rgb, i, ja, jb)
         for k in range(ops.size):
             _rgb_stage(ops[k], opf[k], r, g, b, y, x0, h, w)
         if out_mode != OUT_FLOAT:
