@@ -76,7 +76,7 @@ def unfinished(outputs: Mapping[str, Path | str]) -> dict | None:
             fs, path = remote.filesystem(location)
             text = fs.cat_file(path).decode()
         else:
-            text = _read_marker(Path(location))
+            text = _read_marker(Path(location), outputs)
     except FileNotFoundError:
         return None
     try:
@@ -84,21 +84,22 @@ def unfinished(outputs: Mapping[str, Path | str]) -> dict | None:
         info["pid"] = int(info["pid"])
     except (ValueError, KeyError, TypeError):  # cut short by a kill while it was written
         info = {"host": "", "pid": 0}
-    info.setdefault("outputs", [file_name(p) for p in outputs.values()])
     info["running"] = info.get("host") == HOST and running(info["pid"])
     return info
 
 
-def _read_marker(location: Path) -> str:
-    """The JSON of the local marker ``location``: a link's ``<host>-<pid>`` as JSON, or
-    a marker file's text."""
+def _read_marker(location: Path, outputs: Mapping[str, Path | str]) -> str:
+    """The JSON of the local marker ``location`` of ``outputs``: a link's
+    ``<host>-<pid>`` with the names of ``outputs`` (which its name hashes), or a
+    marker file's text."""
     try:
         host, _, pid = os.readlink(location).partition("-")
     except OSError as err:
         if isinstance(err, FileNotFoundError):
             raise
         return location.read_text()  # not a link: a marker file
-    return json.dumps({"host": host, "pid": pid})
+    names = [file_name(p) for p in outputs.values()]
+    return json.dumps({"host": host, "pid": pid, "outputs": names})
 
 
 def _mark(location: Path, text: str) -> None:
