@@ -174,6 +174,13 @@ def _shading_gain(y, x, cy, cx, p):
 # (:func:`rawsim.isp.planes.correlate`: row-major over the kernel's non-zeros).
 
 
+@njit(inline="always", **_JIT)
+def _pair(a, b):
+    """_h/_v(x, _PAIR) of the two neighbours ``a`` and ``b`` (west/east or
+    north/south): their mean, in the reference's order."""
+    return a * _HALF + _HALF * b
+
+
 @njit(**_JIT)
 def _bilinear(m, rgb, cmap, r0, r1, c0, c1, h, w):
     """Bilinear demosaic (:func:`rawsim.isp.demosaic.demosaic_bilinear`), row by row
@@ -190,8 +197,8 @@ def _bilinear(m, rgb, cmap, r0, r1, c0, c1, h, w):
             c, v = cm[k], x[k]
             cross = ((n[k] * q + q * wst[k]) + q * e[k]) + q * s_[k]
             diag = ((nw[k] * q + q * ne[k]) + q * sw[k]) + q * se[k]
-            along_row = wst[k] * _HALF + _HALF * e[k]
-            along_col = n[k] * _HALF + _HALF * s_[k]
+            along_row = _pair(wst[k], e[k])
+            along_col = _pair(n[k], s_[k])
             red_at_green = along_row if red_row else along_col
             blue_at_green = along_col if red_row else along_row
             o_g[k] = v if c == 1 else cross
@@ -242,20 +249,9 @@ def _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w):
 @njit(inline="always", **_JIT)
 def _ha(w1, e1, w2, c, e2):
     """Hamilton–Adams green estimate from a line of five (−2 … +2): _h(m, _H0), _h(m, _H1)."""
-    a = w1 * _HALF + _HALF * e1
+    a = _pair(w1, e1)
     b = (w2 * _QUARTER + _HALF * c) + _QUARTER * e2
     return a, b
-
-
-@njit(inline="always", **_JIT)
-def _ha_h(m, i, j):
-    """:func:`_ha` along the row through (i, j)."""
-    return _ha(m[i, j - 1], m[i, j + 1], m[i, j - 2], m[i, j], m[i, j + 2])
-
-
-@njit(inline="always", **_JIT)
-def _ha_v(m, i, j):
-    return _ha(m[i - 1, j], m[i + 1, j], m[i - 2, j], m[i, j], m[i + 2, j])
 
 
 @njit(inline="always", **_JIT)
@@ -476,25 +472,6 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_b[k] = g - cb / t if green else b1_[k]
 
 
-@njit(inline="always", **_JIT)
-def _pair_h(x, i, j):
-    """_h(x, _PAIR): the mean of the left and right neighbours."""
-    return x[i, j - 1] * _HALF + _HALF * x[i, j + 1]
-
-
-@njit(inline="always", **_JIT)
-def _pair_v(x, i, j):
-    return x[i - 1, j] * _HALF + _HALF * x[i + 1, j]
-
-
-@njit(inline="always", **_JIT)
-def _mean3(x, i, j, horizontal):
-    """smoothed(x, _MEAN3): the mean of three along the decided direction."""
-    if horizontal:
-        return (x[i, j - 1] * _THIRD + _THIRD * x[i, j]) + _THIRD * x[i, j + 1]
-    return (x[i - 1, j] * _THIRD + _THIRD * x[i, j]) + _THIRD * x[i + 1, j]
-
-
 @njit(**_JIT)
 def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
     """Menon et al. 2007 with refining (:func:`rawsim.isp.demosaic.demosaic_menon`), row
@@ -592,10 +569,10 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         o_r, o_b = _at(red1, i, ja, jb, 0), _at(blue1, i, ja, jb, 0)
         for k in range(jb - ja):
             c, g = cm[k], g0[k]
-            red_h = (g + (dr_w[k] * _HALF + _HALF * dr_e[k])) - (rb_w[k] * _HALF + _HALF * rb_e[k])
-            red_v = (g + (dr_n[k] * _HALF + _HALF * dr_s[k])) - (rb_n[k] * _HALF + _HALF * rb_s[k])
-            blue_h = (g + (db_w[k] * _HALF + _HALF * db_e[k])) - (r0_w[k] * _HALF + _HALF * r0_e[k])
-            blue_v = (g + (db_n[k] * _HALF + _HALF * db_s[k])) - (r0_n[k] * _HALF + _HALF * r0_s[k])
+            red_h = (g + _pair(dr_w[k], dr_e[k])) - _pair(rb_w[k], rb_e[k])
+            red_v = (g + _pair(dr_n[k], dr_s[k])) - _pair(rb_n[k], rb_s[k])
+            blue_h = (g + _pair(db_w[k], db_e[k])) - _pair(r0_w[k], r0_e[k])
+            blue_v = (g + _pair(db_n[k], db_s[k])) - _pair(r0_n[k], r0_s[k])
             red_g = red_h if red_row else red_v
             blue_g = blue_v if red_row else blue_h
             o_r[k] = red_g if c == 1 else (x[k] if c == 0 else zero)
@@ -614,16 +591,8 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         for k in range(jb - ja):
             c, horizontal = cm[k], hz0[k] != 0
             r, bl = r1_0[k], b1_0[k]
-            red_pair = (
-                (r1_w[k] * _HALF + _HALF * r1_e[k])
-                if horizontal
-                else (r1_n[k] * _HALF + _HALF * r1_s[k])
-            )
-            blue_pair = (
-                (b1_w[k] * _HALF + _HALF * b1_e[k])
-                if horizontal
-                else (b1_n[k] * _HALF + _HALF * b1_s[k])
-            )
+            red_pair = _pair(r1_w[k], r1_e[k]) if horizontal else _pair(r1_n[k], r1_s[k])
+            blue_pair = _pair(b1_w[k], b1_e[k]) if horizontal else _pair(b1_n[k], b1_s[k])
             r_at_blue = (bl + red_pair) - blue_pair
             b_at_red = (r + blue_pair) - red_pair
             r = r_at_blue if c == 2 else r
@@ -663,10 +632,10 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         o_r, o_b, o_c = _at(red2, i, ja, jb, 0), _at(blue2, i, ja, jb, 0), _at(c_h, i, ja, jb, 0)
         for k in range(jb - ja):
             g = g0[k]
-            along_h = gh_w[k] * _HALF + _HALF * gh_e[k]
-            along_v = gh_n[k] * _HALF + _HALF * gh_s[k]
-            blue_h = gv_w[k] * _HALF + _HALF * gv_e[k]
-            blue_v = gv_n[k] * _HALF + _HALF * gv_s[k]
+            along_h = _pair(gh_w[k], gh_e[k])
+            along_v = _pair(gh_n[k], gh_s[k])
+            blue_h = _pair(gv_w[k], gv_e[k])
+            blue_v = _pair(gv_n[k], gv_s[k])
             r_g = g + (along_h if red_row else along_v)
             b_g = g + (blue_v if red_row else blue_h)
             green = cm[k] == 1
@@ -695,7 +664,8 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
 
 @njit(inline="always", **_JIT)
 def _three(west, centre, east, north, south, horizontal):
-    """:func:`_mean3` of neighbours already read: along the row or the column."""
+    """smoothed(x, _MEAN3): the mean of three along the decided direction (the row
+    or the column through ``centre``)."""
     if horizontal:
         return (west * _THIRD + _THIRD * centre) + _THIRD * east
     return (north * _THIRD + _THIRD * centre) + _THIRD * south
