@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from rawsim import memory
 from rawsim.errors import ParameterError
 from rawsim.io.lensfun import LensParams
 from rawsim.io.raw import RawImage
@@ -149,7 +150,7 @@ def unprocess(
 def _outputs(out, shape: tuple[int, ...], device: torch.device) -> tuple[torch.Tensor, ...]:
     """The (noisy, clean) tensors to write: ``out``, checked, or two new ones."""
     if out is None:
-        return tuple(torch.empty(shape, dtype=torch.float32, device=device) for _ in range(2))
+        return tuple(memory.empty(shape, torch.float32, device) for _ in range(2))
     if len(out) != 2 or any(
         t.shape != shape or t.dtype != torch.float32 or t.device != device for t in out
     ):

@@ -311,6 +311,8 @@ def to_samples(image, fmt: str, bits: int) -> np.ndarray:
     """
     import torch
 
+    from rawsim import memory
+
     if fmt == "jpg" and bits != 8:
         raise UnsupportedInputError("JPEG output is 8-bit only (use --bits 8)")
     valid = (16, 32) if fmt == "exr" else (8, 16)
@@ -322,7 +324,7 @@ def to_samples(image, fmt: str, bits: int) -> np.ndarray:
         return data.astype(np.float16) if bits == 16 else data
     # A block of rows at a time straight into the integer array: no full-size float copy.
     dtype = torch.uint8 if bits == 8 else torch.uint16
-    out = torch.empty(h, w, c, dtype=dtype)
+    out = memory.empty((h, w, c), dtype)
     for top in range(0, h, 256):
         block = image[:, top : top + 256].clamp(0.0, 1.0).mul_(2**bits - 1).round_()
         out[top : top + 256] = block.to(dtype).permute(1, 2, 0).cpu()

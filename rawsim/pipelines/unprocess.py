@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
+from rawsim import memory
 from rawsim._version import __version__
 from rawsim.cfa import PACKED_PLANES
 from rawsim.color import camera_from_srgb
@@ -134,8 +135,8 @@ def unprocess_tensor(
     if params.vignetting > 0:
         shading = radial_gain(h, w, strength=params.vignetting, device=image.device)
     if out is None:
-        noisy = torch.empty(b, 1, h, w, dtype=torch.float32, device=image.device)
-        clean_out = torch.empty_like(noisy) if clean else None
+        noisy = memory.empty((b, 1, h, w), torch.float32, image.device)
+        clean_out = memory.empty((b, 1, h, w), torch.float32, image.device) if clean else None
     else:
         noisy, clean_out = out[0], out[1] if clean else None
     with values_checked(False):
@@ -515,7 +516,7 @@ def _mosaics(h: int, w: int, clean: bool) -> tuple[torch.Tensor, torch.Tensor | 
     write: the last file's, if it was this size, else new ones."""
 
     def new():
-        mosaic = lambda: torch.empty((1, 1, h, w), dtype=torch.uint16)  # noqa: E731
+        mosaic = lambda: memory.empty((1, 1, h, w), torch.uint16)  # noqa: E731
         return mosaic(), mosaic() if clean else None
 
     return _spare.take((h, w, clean), new)
