@@ -9,7 +9,8 @@ import pytest
 import tifffile
 
 from rawsim.errors import UnsupportedInputError
-from rawsim.io.images import STRIP_BYTES, even_rgb, read_image
+from rawsim.io.images import STRIP_BYTES, even_rgb, keep_pixels, read_image
+from rawsim.io.spare import Spare
 from tests.conftest import DATA
 
 
@@ -75,6 +76,26 @@ def test_tiled_files_read_whole(tmp_path):
     samples = np.random.default_rng(1).integers(0, 65535, (600, 200, 3), dtype=np.uint16)
     tifffile.imwrite(path, samples, tile=(64, 64), photometric="rgb")
     assert np.array_equal(read_image(path).pixels, samples)
+
+
+def test_a_batchs_next_image_is_decoded_into_the_last_ones_samples(tmp_path):
+    rng = np.random.default_rng(2)
+    paths = []
+    for i, shape in enumerate([(300, 200, 3), (300, 200, 3), (300, 202, 3)]):
+        paths.append(tmp_path / f"{i}.png")
+        tifffile.imwrite(tmp_path / f"{i}.tif", rng.integers(0, 255, shape, dtype=np.uint8))
+        oiio.ImageBuf(str(tmp_path / f"{i}.tif")).write(str(paths[-1]))
+    spare = Spare()
+    first = read_image(paths[0], spare)
+    kept = first.pixels
+    keep_pixels(spare, first)
+    second = read_image(paths[1], spare)  # the same size: into the kept array
+    assert np.shares_memory(second.pixels, kept)
+    assert np.array_equal(second.pixels, _openimageio_samples(paths[1]))
+    keep_pixels(spare, second)
+    third = read_image(paths[2], spare)  # another size: a new array, the kept one stays
+    assert not np.shares_memory(third.pixels, kept) and len(spare) == 1
+    assert np.array_equal(third.pixels, _openimageio_samples(paths[2]))
 
 
 def test_a_file_cut_after_its_first_strips_is_refused(tmp_path):

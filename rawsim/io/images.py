@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from rawsim.io.clibs import collected_stderr, openable_name
 from rawsim.io.icc import icc_profile
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, exif_block, exr_attributes
 from rawsim.io.png import write_png
+from rawsim.io.spare import Spare
 from rawsim.io.tiff import write_tiff
 
 #: Extensions picked up when scanning folders (files named explicitly are always tried).
@@ -151,7 +153,7 @@ class DecodedImage:
         }
 
 
-def _decode(path: Path):
+def _decode(path: Path, spare: Spare | None):
     """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed)."""
     import OpenImageIO as oiio
 
@@ -196,7 +198,7 @@ def _decode(path: Path):
                     f"to decode, over the {limit // 1024} GB limit (a corrupt header?)"
                 ],
             )
-        pixels = read_pixels(inp, spec, fmt)
+        pixels = read_pixels(inp, spec, fmt, spare)
         error = inp.geterror().strip()
         if pixels is None or error:
             return None, spec, None, [f"cannot decode pixels ({error or 'truncated?'})"]
@@ -212,10 +214,11 @@ def _decode(path: Path):
 STRIP_BYTES = 96 * 1024
 
 
-def read_pixels(inp, spec, fmt) -> np.ndarray | None:
+def read_pixels(inp, spec, fmt, spare: Spare | None = None) -> np.ndarray | None:
     """All samples of the open image ``inp`` (``spec``), (H, W, C) of OpenImageIO
     type ``fmt``, or None if a read failed: a scanline file a strip of
-    :data:`STRIP_BYTES` at a time into one array, a tiled file in one read."""
+    :data:`STRIP_BYTES` at a time into one array (the one ``spare`` keeps under
+    its shape and dtype, if any: a batch's last decode), a tiled file in one read."""
     if spec.tile_width:
         return inp.read_image(0, 0, 0, spec.nchannels, fmt)
     import OpenImageIO as oiio
@@ -223,7 +226,9 @@ def read_pixels(inp, spec, fmt) -> np.ndarray | None:
     dtype = np.dtype({oiio.UINT8: np.uint8, oiio.UINT16: np.uint16}.get(fmt, np.float32))
     rows = max(1, STRIP_BYTES // (spec.width * spec.nchannels * dtype.itemsize))
     top, bottom = spec.y, spec.y + spec.height
-    pixels = np.empty((spec.height, spec.width, spec.nchannels), dtype)
+    shape = (spec.height, spec.width, spec.nchannels)
+    new = partial(np.empty, shape, dtype)
+    pixels = new() if spare is None else spare.take((shape, dtype), new)
     for y in range(top, bottom, rows):
         end = min(y + rows, bottom)
         strip = inp.read_scanlines(0, 0, y, end, 0, 0, spec.nchannels, fmt)
@@ -253,8 +258,12 @@ def even_rgb(pixels: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
 
 
-def read_image(path: str | Path) -> DecodedImage:
-    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason."""
+def read_image(path: str | Path, spare: Spare | None = None) -> DecodedImage:
+    """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason.
+
+    A scanline image is decoded into the array ``spare`` keeps for its shape and
+    dtype, if it keeps one (:func:`keep_pixels` of a batch's last image).
+    """
 
     path = Path(path)
     if path.suffix.lower() in RAW_EXTENSIONS:
@@ -268,7 +277,7 @@ def read_image(path: str | Path) -> DecodedImage:
     _, mismatch = sniff(path)
     said: list[str] = []
     with collected_stderr(said):
-        pixels, spec, format_name, error = _decode(path)
+        pixels, spec, format_name, error = _decode(path, spare)
     if pixels is None:
         reason = "; ".join([*error, *said]) or "truncated?"
         raise UnsupportedInputError(f"{path}: {reason}")
@@ -296,6 +305,12 @@ def read_image(path: str | Path) -> DecodedImage:
         warnings=tuple(w for w in (mismatch, *(f"decoder: {line}" for line in said)) if w),
         datetime=_capture_time(spec),
     )
+
+
+def keep_pixels(spare: Spare, decoded: DecodedImage) -> None:
+    """Hand the samples of ``decoded``, once used, to ``spare`` for the next
+    :func:`read_image` of an image of the same shape and type to decode into."""
+    spare.keep((decoded.pixels.shape, decoded.pixels.dtype), decoded.pixels)
 
 
 #: Output formats of ``rawsim process`` → file extension.

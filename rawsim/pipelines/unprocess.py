@@ -27,7 +27,7 @@ from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.dng import DngInfo, write_dng
-from rawsim.io.images import read_image
+from rawsim.io.images import keep_pixels, read_image
 from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
@@ -452,13 +452,16 @@ def noise_key(seed: int) -> int:
 
 #: Decodes the next image of a batch while this one is unprocessed (:func:`read_ahead`).
 _reader = ReadAhead()
+#: The samples of a batch's last image, once unprocessed, for a later one of the same
+#: size to be decoded into (:func:`~rawsim.io.images.read_image`).
+_inputs = Spare()
 
 
 def read_ahead(task: Task, options: UnprocessOptions) -> None:
     """Begin decoding ``task``'s image in a thread, for the :func:`unprocess_file` call
     that follows this one's (a batch's next file): OpenImageIO decodes while the
     engine unprocesses this image and the DNG writer writes it."""
-    _reader.start(task.source, read_image, task.source)
+    _reader.start(task.source, read_image, task.source, _inputs)
 
 
 def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
@@ -467,7 +470,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     The outputs are put in place as one set (:func:`~rawsim.io.outputs.atomic_outputs`).
     Returns the sidecar's metadata.
     """
-    decoded = _reader.take(task.source, read_image, task.source)
+    decoded = _reader.take(task.source, read_image, task.source, _inputs)
     device = resolve_device(options.device)
     image = decoded.pixels if str(device) == "cpu" else image_tensor(decoded.pixels, device)
     out = _mosaics(*decoded.pixels.shape[:2], options.clean) if use_engine(image) else None
@@ -501,6 +504,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     if out is not None:
         _spare.keep((*decoded.pixels.shape[:2], options.clean), out)
+    keep_pixels(_inputs, decoded)
     return metadata
 
 
