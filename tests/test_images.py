@@ -9,7 +9,7 @@ import pytest
 import tifffile
 
 from rawsim.errors import UnsupportedInputError
-from rawsim.io.images import STRIP_BYTES, even_rgb, keep_pixels, read_image
+from rawsim.io.images import STRIP_BYTES, even_rgb, read_image
 from rawsim.io.spare import Spare
 from tests.conftest import DATA
 
@@ -88,11 +88,11 @@ def test_a_batchs_next_image_is_decoded_into_the_last_ones_samples(tmp_path):
     spare = Spare()
     first = read_image(paths[0], spare)
     kept = first.pixels
-    keep_pixels(spare, first)
+    spare.keep_array(first.pixels)
     second = read_image(paths[1], spare)  # the same size: into the kept array
     assert np.shares_memory(second.pixels, kept)
     assert np.array_equal(second.pixels, _openimageio_samples(paths[1]))
-    keep_pixels(spare, second)
+    spare.keep_array(second.pixels)
     third = read_image(paths[2], spare)  # another size: a new array, the kept one stays
     assert not np.shares_memory(third.pixels, kept) and len(spare) == 1
     assert np.array_equal(third.pixels, _openimageio_samples(paths[2]))

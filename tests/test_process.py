@@ -12,6 +12,7 @@ from click.testing import CliRunner
 
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.raw import read_raw
+from rawsim.io.spare import Spare
 from rawsim.io.task import Task
 from rawsim.isp.config import (
     STAGES,
@@ -69,6 +70,21 @@ def test_read_raw_shared_files():
     assert bggr.cfa.pattern == "BGGR" and bggr.as_shot_wb == pytest.approx((2.0, 1.0, 1.50015))
     linear = read_raw(RAW / "canon_eos6d_linear_raw_no_cfa.dng")
     assert linear.cfa is None and linear.data.shape == (816, 1224, 3)
+
+
+def test_a_batchs_next_raw_is_copied_into_the_last_ones_samples():
+    spare = Spare()
+    first = read_raw(RAW / "canon_eos60d_mlv.dng", spare)
+    kept = first.data
+    spare.keep_array(kept)
+    again = read_raw(RAW / "canon_eos60d_mlv.dng", spare)  # the same size: the kept array
+    assert np.shares_memory(again.data, kept) and len(spare) == 0
+    with rawpy.imread(str(RAW / "canon_eos60d_mlv.dng")) as raw:
+        assert np.array_equal(again.data, raw.raw_image_visible)
+    spare.keep_array(again.data)
+    kodak = read_raw(RAW / "kodak_dc50_grbg.kdc", spare)  # another size: a new array
+    assert not np.shares_memory(kodak.data, kept) and len(spare) == 1
+    assert np.array_equal(kodak.data, read_raw(RAW / "kodak_dc50_grbg.kdc").data)
 
 
 def test_read_raw_errors(tmp_path):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -218,7 +217,8 @@ def read_pixels(inp, spec, fmt, spare: Spare | None = None) -> np.ndarray | None
     """All samples of the open image ``inp`` (``spec``), (H, W, C) of OpenImageIO
     type ``fmt``, or None if a read failed: a scanline file a strip of
     :data:`STRIP_BYTES` at a time into one array (the one ``spare`` keeps under
-    its shape and dtype, if any: a batch's last decode), a tiled file in one read."""
+    its shape and dtype, if any: a batch's last decode, given back by
+    :meth:`~rawsim.io.spare.Spare.keep_array`), a tiled file in one read."""
     if spec.tile_width:
         return inp.read_image(0, 0, 0, spec.nchannels, fmt)
     import OpenImageIO as oiio
@@ -227,8 +227,7 @@ def read_pixels(inp, spec, fmt, spare: Spare | None = None) -> np.ndarray | None
     rows = max(1, STRIP_BYTES // (spec.width * spec.nchannels * dtype.itemsize))
     top, bottom = spec.y, spec.y + spec.height
     shape = (spec.height, spec.width, spec.nchannels)
-    new = partial(np.empty, shape, dtype)
-    pixels = new() if spare is None else spare.take((shape, dtype), new)
+    pixels = np.empty(shape, dtype) if spare is None else spare.array(shape, dtype)
     for y in range(top, bottom, rows):
         end = min(y + rows, bottom)
         strip = inp.read_scanlines(0, 0, y, end, 0, 0, spec.nchannels, fmt)
@@ -262,7 +261,7 @@ def read_image(path: str | Path, spare: Spare | None = None) -> DecodedImage:
     """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason.
 
     A scanline image is decoded into the array ``spare`` keeps for its shape and
-    dtype, if it keeps one (:func:`keep_pixels` of a batch's last image).
+    dtype, if it keeps one (a batch's last image, given back once used).
     """
 
     path = Path(path)
@@ -305,12 +304,6 @@ def read_image(path: str | Path, spare: Spare | None = None) -> DecodedImage:
         warnings=tuple(w for w in (mismatch, *(f"decoder: {line}" for line in said)) if w),
         datetime=_capture_time(spec),
     )
-
-
-def keep_pixels(spare: Spare, decoded: DecodedImage) -> None:
-    """Hand the samples of ``decoded``, once used, to ``spare`` for the next
-    :func:`read_image` of an image of the same shape and type to decode into."""
-    spare.keep((decoded.pixels.shape, decoded.pixels.dtype), decoded.pixels)
 
 
 #: Output formats of ``rawsim process`` → file extension.

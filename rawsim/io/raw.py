@@ -39,6 +39,7 @@ import numpy as np
 from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.clibs import collected_stderr, openable_name
+from rawsim.io.spare import Spare
 
 # LibRaw's flip code → EXIF/TIFF orientation.
 _FLIP_TO_ORIENTATION = {0: 1, 3: 3, 5: 8, 6: 6}
@@ -447,8 +448,12 @@ def _colours_reason(rows: tuple[str, ...], source: str) -> str:
     )
 
 
-def read_raw(path: str | Path) -> RawImage:
+def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
     """Decode a camera raw with rawpy.
+
+    The visible samples are copied out of LibRaw into the array ``spare`` keeps
+    for their shape, if it keeps one (a batch's last raw, given back once
+    rendered), else into a new one.
 
     Raises :class:`UnsupportedInputError` with the reason when LibRaw cannot read
     the file, and its subclass :class:`UnrenderableRawError` (with the
@@ -524,7 +529,8 @@ def read_raw(path: str | Path) -> RawImage:
                     f"in {colors} colours ({desc[:colors]}), not a mosaic, and rawsim renders "
                     "such images in three colours only"
                 )
-            data = np.array(visible, dtype=np.uint16, copy=True)
+            data = (Spare() if spare is None else spare).array(visible.shape, np.uint16)
+            np.copyto(data, visible, casting="unsafe")
             camera_wb = np.array(raw.camera_whitebalance, dtype=np.float64)
             daylight_wb = np.array(raw.daylight_whitebalance, dtype=np.float64)
             xyz = np.array(raw.rgb_xyz_matrix[:3], dtype=np.float64)

@@ -14,6 +14,8 @@ import threading
 from collections.abc import Callable, Hashable
 from typing import Any
 
+import numpy as np
+
 
 class Spare:
     """At most one value (an array, or a set of them) kept under its key: its size and
@@ -34,6 +36,16 @@ class Spare:
         with self._lock:
             self._kept.clear()
             self._kept[key] = value
+
+    def array(self, shape: tuple[int, ...], dtype) -> np.ndarray:
+        """An array of ``shape`` and ``dtype``, its values undefined: the one
+        :meth:`keep_array` kept, if it has that shape and dtype, else a new one."""
+        shape, dtype = tuple(shape), np.dtype(dtype)
+        return self.take((shape, dtype), lambda: np.empty(shape, dtype))
+
+    def keep_array(self, array: np.ndarray) -> None:
+        """Keep ``array``, no longer used, for :meth:`array` of its shape and dtype."""
+        self.keep((array.shape, array.dtype), array)
 
     def clear(self) -> None:
         with self._lock:

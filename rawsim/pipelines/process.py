@@ -16,7 +16,6 @@ import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -344,7 +343,7 @@ def release(samples: np.ndarray) -> None:
     are written: the next render of that size and type writes over them. Samples
     that are not a kernel's output (8-bit codes, half floats) are not kept."""
     if samples.dtype in (np.uint16, np.float32) and samples.flags.c_contiguous:
-        _spare.keep((samples.shape, samples.dtype), samples)
+        _spare.keep_array(samples)
 
 
 def engine_render(
@@ -374,8 +373,7 @@ def engine_render(
     # Codes go to uint16 even for 8 bits: one compiled signature fewer to build and cache.
     dtype = np.float32 if plan.out_mode == ep.OUT_FLOAT else np.uint16
     scale = 1.0 if plan.out_mode == ep.OUT_FLOAT else 2.0**bits - 1
-    new = partial(np.empty, shape, dtype)
-    out = _spare.take((shape, np.dtype(dtype)), new) if reuse else new()
+    out = _spare.array(shape, dtype) if reuse else np.empty(shape, dtype)
     if plan.lens is not None:
         _render_with_lens(raw, plan, out, scale, tile)
         return _reused(out, fmt, bits, reuse)
@@ -526,6 +524,9 @@ def render_samples(
 
 #: Reads the next file of a batch while this one renders (:func:`read_ahead`).
 _reader = ReadAhead()
+#: The raw samples of a batch's last file, once rendered, for a later raw of the same
+#: size to be copied out of LibRaw into (:func:`~rawsim.io.raw.read_raw`).
+_raws = Spare()
 
 
 def read_ahead(task: Task, options: ProcessOptions) -> None:
@@ -533,7 +534,7 @@ def read_ahead(task: Task, options: ProcessOptions) -> None:
     follows this one's (a batch's next file): LibRaw decodes while the engine renders
     and the writer writes the file before."""
     if not options.thumbnail:
-        _reader.start(task.source, read_raw, task.source)
+        _reader.start(task.source, read_raw, task.source, _raws)
 
 
 def _read_while_loading_engine(path: Path, device) -> RawImage:
@@ -549,9 +550,9 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
     if "rawsim.engine.process" not in sys.modules and use_engine(str(device)):
         from rawsim.engine import process as ep
 
-        _reader.start(path, read_raw, path)
+        _reader.start(path, read_raw, path, _raws)
         ep.load()
-    return _reader.take(path, read_raw, path)
+    return _reader.take(path, read_raw, path, _raws)
 
 
 def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
@@ -703,6 +704,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         write_image(tmp["image"], samples, options.fmt, color, software, photo)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     release(rendered)
+    _raws.keep_array(raw.data)
     return meta
 
 

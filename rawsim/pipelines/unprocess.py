@@ -27,7 +27,7 @@ from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.dng import DngInfo, write_dng
-from rawsim.io.images import keep_pixels, read_image
+from rawsim.io.images import read_image
 from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
@@ -504,7 +504,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
         tmp["json"].write_text(json.dumps(metadata, indent=2) + "\n")
     if out is not None:
         _spare.keep((*decoded.pixels.shape[:2], options.clean), out)
-    keep_pixels(_inputs, decoded)
+    _inputs.keep_array(decoded.pixels)
     return metadata
 
 
