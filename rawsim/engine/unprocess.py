@@ -145,8 +145,9 @@ def noise_row(
 @njit(**_JIT)
 def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
     """Shot noise (joined with Gaussian read noise unless ``physics``) into ``noise``:
-    a normal of variance K·s + σ² everywhere, then exact Poisson where s is below
-    :data:`EXACT_POISSON_BELOW` electrons."""
+    a normal of variance K·s + σ² everywhere, then exact Poisson where s is above 0
+    and below :data:`EXACT_POISSON_BELOW` electrons (at s = 0 both are 0: the
+    normal's term is σ·z, as the Poisson's would be)."""
     black, k, read = p[N_BLACK], p[N_GAIN], p[N_READ]
     read_var = 0.0 if physics else read * read
     for x in range(dn.shape[0]):
@@ -156,7 +157,7 @@ def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
     n = 0
     for x in range(dn.shape[0]):
         at[n] = x
-        n += dn[x] - black < limit  # max(s, 0) < limit as limit > 0
+        n += (dn[x] - black < limit) & (dn[x] - black > 0.0)
     lam, sites, counts = np.empty(n), np.empty(n, np.uint64), np.empty(n)
     for i in range(n):
         lam[i] = max(dn[at[i]] - black, 0.0) / k

@@ -560,7 +560,8 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias, dark=None) 
     one rounded float64 operation in the same order, so the two agree bit for bit.
     Shot noise is K·Poisson(s/K) − s below :data:`EXACT_POISSON_BELOW` electrons
     and a normal of the same variance above (joined with the Gaussian read noise
-    for ``poisson-gaussian``).
+    for ``poisson-gaussian``). At s = 0 (black or below) both are 0 exactly: such
+    sites draw no Poisson count (Poisson(0) is 0), which changes no code.
     """
     positive = signal.clamp_min(0.0)
     z = normal(sites, key)
@@ -572,7 +573,7 @@ def noise_field(signal, levels: NoiseLevels, key, sites, rows, bias, dark=None) 
     k = float(levels.gain)
     physics = levels.model == "physics"
     read_var = 0.0 if physics else levels.read_sigma * levels.read_sigma
-    small = positive < EXACT_POISSON_BELOW * k
+    small = (positive < EXACT_POISSON_BELOW * k) & (positive > 0.0)
     noise = ieee_sqrt(k * positive + read_var) * z
     if bool(small.any()):
         pos = positive[small]
