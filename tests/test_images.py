@@ -3,6 +3,8 @@ whole-image read, on real files and on files of several strips."""
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -10,6 +12,7 @@ import tifffile
 
 from rawsim.errors import UnsupportedInputError
 from rawsim.io.images import STRIP_BYTES, even_rgb, read_image
+from rawsim.io.progress import DecodeProgress
 from rawsim.io.spare import Spare
 from tests.conftest import DATA
 
@@ -96,6 +99,47 @@ def test_a_batchs_next_image_is_decoded_into_the_last_ones_samples(tmp_path):
     third = read_image(paths[2], spare)  # another size: a new array, the kept one stays
     assert not np.shares_memory(third.pixels, kept) and len(spare) == 1
     assert np.array_equal(third.pixels, _openimageio_samples(paths[2]))
+
+
+def _even(tmp_path, name, channels=3):
+    """coffee.png at 600 × 548 (several strips), with ``channels`` channels."""
+    buf = oiio.ImageBufAlgo.resize(
+        oiio.ImageBuf(str(DATA / "srgb" / "coffee.png")), roi=oiio.ROI(0, 600, 0, 548)
+    )
+    buf = oiio.ImageBufAlgo.channels(buf, tuple(range(channels)))
+    assert buf.write(str(tmp_path / name)), oiio.geterror()
+    return tmp_path / name
+
+
+def _decode_beside(path, rows=64):
+    """read_image of ``path`` in a thread while this one follows its progress:
+    (the array given, the bands of rows, the decoded image or the exception)."""
+    progress = DecodeProgress()
+    with ThreadPoolExecutor(1) as pool:
+        decoding = pool.submit(read_image, path, None, progress)
+        pixels = progress.pixels()
+        bands = list(progress.bands(rows))
+        return pixels, bands, decoding.exception() or decoding.result()
+
+
+def test_a_decode_gives_its_rows_as_it_writes_them(tmp_path):
+    path = _even(tmp_path, "even.png")
+    pixels, bands, decoded = _decode_beside(path)
+    assert np.shares_memory(pixels, decoded.pixels) and pixels.shape == decoded.pixels.shape
+    assert bands[0][0] == 0 and bands[-1][1] == 548
+    assert all(a[1] == b[0] for a, b in zip(bands[:-1], bands[1:], strict=True))  # in order
+    assert all(stop - start >= 64 for start, stop in bands[:-1])
+    assert np.array_equal(decoded.pixels, _openimageio_samples(path))
+    # unprocessing takes these after a copy: no rows are given, the decode is whole
+    for other in (_tall(tmp_path, "odd.png"), _even(tmp_path, "grey.png", 1)):
+        pixels, bands, decoded = _decode_beside(other)
+        assert pixels is None and bands == [] and decoded.pixels.shape[2] == 3
+    # a decode that fails: its bands end before the last row; read_image says why
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size * 3 // 4])
+    pixels, bands, error = _decode_beside(cut, rows=1)
+    assert pixels is not None and (bands == [] or bands[-1][1] < 548)
+    assert isinstance(error, UnsupportedInputError) and "cut.png" in str(error)
 
 
 def test_a_file_cut_after_its_first_strips_is_refused(tmp_path):

@@ -1,5 +1,6 @@
 """Reading a batch's next input ahead: the reader thread and the batch's hints."""
 
+import json
 import threading
 
 import pytest
@@ -128,3 +129,43 @@ def test_lines_printed_while_a_reader_thread_collects_reach_the_terminal():
         "done: the main thread's line",
         "after: descriptor 2 is the terminal again",
     ]
+
+
+def test_an_image_unprocessed_while_it_is_decoded_gives_the_same_files(tmp_path):
+    """A file not read ahead is unprocessed band by band while its decode runs; one
+    read ahead is decoded first: the same bytes. A decode that fails midway writes
+    nothing and says why."""
+    import OpenImageIO as oiio
+
+    from rawsim.pipelines.unprocess import UnprocessOptions, read_ahead, unprocess_file
+    from rawsim.profiles import load_profile
+    from tests.conftest import DATA
+
+    image = tmp_path / "even.jpg"
+    buf = oiio.ImageBufAlgo.resize(
+        oiio.ImageBuf(str(DATA / "srgb" / "coffee.png")), roi=oiio.ROI(0, 600, 0, 1100)
+    )
+    assert buf.write(str(image)), oiio.geterror()
+    options = UnprocessOptions(profile=load_profile("sony_a7s2"), iso=3200, clean=True)
+
+    def task(name, source=image):
+        outputs = {k: tmp_path / f"{name}.{k}" for k in ("dng", "json")}
+        return Task(source, source.name, outputs | {"clean_dng": tmp_path / f"{name}.c.dng"}, 9)
+
+    unprocess_file(task("streamed"), options)
+    ahead = task("ahead")
+    read_ahead(ahead, options)
+    unprocess_file(ahead, options)
+    for suffix in ("dng", "c.dng"):
+        streamed, read_first = (tmp_path / f"{name}.{suffix}" for name in ("streamed", "ahead"))
+        assert streamed.read_bytes() == read_first.read_bytes()
+    sidecars = [
+        json.loads((tmp_path / f"{name}.json").read_text()) for name in ("streamed", "ahead")
+    ]
+    streamed, read_first = ({k: v for k, v in s.items() if k != "outputs"} for s in sidecars)
+    assert streamed == read_first
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(image.read_bytes()[: image.stat().st_size // 2])
+    with pytest.raises(UnsupportedInputError, match="cut.jpg"):
+        unprocess_file(task("cut", cut), options)
+    assert not list(tmp_path.glob("cut.*.*")) and not (tmp_path / "cut.dng").exists()

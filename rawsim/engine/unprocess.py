@@ -322,14 +322,18 @@ def unprocess_kernel(
     bias_tile,
     dark_k,
     dark_b,
+    top,
+    height,
     noisy,
     clean,
 ):
-    """The whole unprocess chain for an (H, W, 3) image, into ``noisy`` (H, W).
+    """The whole unprocess chain for rows ``top`` to ``top + n`` of an (``height``, W, 3)
+    image, into ``noisy`` (n, W): the whole image, or a band of it (the rows
+    decoded so far), the same bits either way.
 
     Args:
-        pixels: (H, W, 3), any strides (a channels-first tensor's view, a crop),
-            integer codes (with ``lut``) or float32 linear values
+        pixels: (n, W, 3), the band's rows, any strides (a channels-first tensor's
+            view, a crop), integer codes (with ``lut``) or float32 linear values
             (``lut`` empty).
         lut: float32 linear value of each code (the reference's table).
         scale: 2^EV / brightness. ``ccm_bias``: (3,) subtracted first.
@@ -343,21 +347,23 @@ def unprocess_kernel(
         model, p, tukey, poisson, k0, k1: the noise (see :func:`noise_row`).
         bias_tile: (ph, pw) channel bias (DN) of each site of one period (physics model).
         dark_k, dark_b: the dark-shading maps (:func:`dark_maps`; physics model).
-        noisy, clean: (H, W) uint16 or float32 outputs (the same whole codes);
+        top, height: the band's first row in the image, and the image's rows.
+        noisy, clean: (n, W) uint16 or float32 outputs (the same whole codes);
             ``clean`` is written if it has rows.
     """
-    h, w = noisy.shape
+    n, w = noisy.shape
     black, white = levels[0], levels[1]
     span = white - black
     want_clean = clean.shape[0] > 0
     strength = vignetting[0]
-    cy, cx = (h - 1) / 2.0, (w - 1) / 2.0
+    cy, cx = (height - 1) / 2.0, (w - 1) / 2.0
     norm = cy * cy + cx * cx
     site_colors, bias_rows = site_rows(colors, w), site_rows(bias_tile, w)
     period = site_colors.shape[0]
-    for y in prange(h):
+    for i in prange(n):
+        y = top + i  # the row in the image: its CFA row, shading, noise counters
         r, g, b, dn = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
-        _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
+        _linear_row(pixels[i], lut, scale, ccm_bias, r, g, b)
         if mono:
             for x in range(w):
                 dn[x] = (r[x] + g[x] + b[x]) / 3.0
@@ -369,5 +375,5 @@ def unprocess_kernel(
             dn[x] = black + dn[x] * span
         noise = (p, tukey, poisson, k0, k1, bias_rows, dark_k, dark_b, white)
         if want_clean:
-            noise_row(dn, y, w, 0, *noise, clean[y])
-        noise_row(dn, y, w, model, *noise, noisy[y])
+            noise_row(dn, y, w, 0, *noise, clean[i])
+        noise_row(dn, y, w, model, *noise, noisy[i])

@@ -20,6 +20,7 @@ from rawsim.io.clibs import collected_stderr, openable_name
 from rawsim.io.icc import icc_profile
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, exif_block, exr_attributes
 from rawsim.io.png import write_png
+from rawsim.io.progress import DecodeProgress
 from rawsim.io.spare import Spare
 from rawsim.io.tiff import write_tiff
 
@@ -152,8 +153,10 @@ class DecodedImage:
         }
 
 
-def _decode(path: Path, spare: Spare | None):
-    """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed)."""
+def _decode(path: Path, spare: Spare | None, progress: DecodeProgress | None):
+    """OpenImageIO's decode: (pixels or None, spec, format name, reasons it failed).
+    ``progress`` follows the rows of an image whose decoded samples are what
+    unprocessing takes as they are (8/16-bit RGB, even width and height, by scanlines)."""
     import OpenImageIO as oiio
 
     with openable_name(path) as name:
@@ -197,7 +200,9 @@ def _decode(path: Path, spare: Spare | None):
                     f"to decode, over the {limit // 1024} GB limit (a corrupt header?)"
                 ],
             )
-        pixels = read_pixels(inp, spec, fmt, spare)
+        whole = spec.nchannels == 3 and spec.width % 2 == 0 and spec.height % 2 == 0
+        rows = progress if whole and fmt in (oiio.UINT8, oiio.UINT16) else None
+        pixels = read_pixels(inp, spec, fmt, spare, rows)
         error = inp.geterror().strip()
         if pixels is None or error:
             return None, spec, None, [f"cannot decode pixels ({error or 'truncated?'})"]
@@ -213,12 +218,15 @@ def _decode(path: Path, spare: Spare | None):
 STRIP_BYTES = 96 * 1024
 
 
-def read_pixels(inp, spec, fmt, spare: Spare | None = None) -> np.ndarray | None:
+def read_pixels(
+    inp, spec, fmt, spare: Spare | None = None, progress: DecodeProgress | None = None
+) -> np.ndarray | None:
     """All samples of the open image ``inp`` (``spec``), (H, W, C) of OpenImageIO
     type ``fmt``, or None if a read failed: a scanline file a strip of
     :data:`STRIP_BYTES` at a time into one array (the one ``spare`` keeps under
     its shape and dtype, if any: a batch's last decode, given back by
-    :meth:`~rawsim.io.spare.Spare.keep_array`), a tiled file in one read."""
+    :meth:`~rawsim.io.spare.Spare.keep_array`), each strip's rows reported to
+    ``progress``; a tiled file in one read."""
     if spec.tile_width:
         return inp.read_image(0, 0, 0, spec.nchannels, fmt)
     import OpenImageIO as oiio
@@ -228,12 +236,16 @@ def read_pixels(inp, spec, fmt, spare: Spare | None = None) -> np.ndarray | None
     top, bottom = spec.y, spec.y + spec.height
     shape = (spec.height, spec.width, spec.nchannels)
     pixels = np.empty(shape, dtype) if spare is None else spare.array(shape, dtype)
+    if progress is not None:
+        progress.begin(pixels)
     for y in range(top, bottom, rows):
         end = min(y + rows, bottom)
         strip = inp.read_scanlines(0, 0, y, end, 0, 0, spec.nchannels, fmt)
         if strip is None:
             return None
         pixels[y - top : end - top] = strip.reshape(end - y, spec.width, spec.nchannels)
+        if progress is not None:
+            progress.advance(end - top)
     return pixels
 
 
@@ -257,14 +269,26 @@ def even_rgb(pixels: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(rgb[: height - height % 2, : width - width % 2])
 
 
-def read_image(path: str | Path, spare: Spare | None = None) -> DecodedImage:
+def read_image(
+    path: str | Path, spare: Spare | None = None, progress: DecodeProgress | None = None
+) -> DecodedImage:
     """Decode ``path`` with OpenImageIO. Raises :class:`UnsupportedInputError` with the reason.
 
     A scanline image is decoded into the array ``spare`` keeps for its shape and
-    dtype, if it keeps one (a batch's last image, given back once used).
+    dtype, if it keeps one (a batch's last image, given back once used). Where
+    the decoded samples are the returned ``pixels`` themselves (8/16-bit RGB of
+    even size, by scanlines), ``progress`` is given that array and its rows as
+    they are written, for a consumer in another thread; it is ended however the
+    decode ends.
     """
+    try:
+        return _read_image(Path(path), spare, progress)
+    finally:
+        if progress is not None:
+            progress.end()
 
-    path = Path(path)
+
+def _read_image(path: Path, spare: Spare | None, progress: DecodeProgress | None) -> DecodedImage:
     if path.suffix.lower() in RAW_EXTENSIONS:
         raise UnsupportedInputError(
             f"{path}: camera raw files are not unprocessing inputs (use 'rawsim process')"
@@ -276,7 +300,7 @@ def read_image(path: str | Path, spare: Spare | None = None) -> DecodedImage:
     _, mismatch = sniff(path)
     said: list[str] = []
     with collected_stderr(said):
-        pixels, spec, format_name, error = _decode(path, spare)
+        pixels, spec, format_name, error = _decode(path, spare, progress)
     if pixels is None:
         reason = "; ".join([*error, *said]) or "truncated?"
         raise UnsupportedInputError(f"{path}: {reason}")

@@ -37,14 +37,28 @@ class ReadAhead:
         self._pending: dict[Hashable, Future] = {}
 
     def start(self, key: Hashable, read: Callable[..., Any], *args: Any) -> None:
-        if self._pool is None or self._pid != os.getpid():
-            self._pool = ThreadPoolExecutor(AHEAD, thread_name_prefix=self._name)
-            self._pid, self._pending = os.getpid(), {}
+        pool = self._pool_here()
         if key in self._pending:
             return
         while len(self._pending) >= AHEAD:
             self._pending.pop(next(iter(self._pending))).cancel()
-        self._pending[key] = self._pool.submit(read, *args)
+        self._pending[key] = pool.submit(read, *args)
+
+    def run(self, read: Callable[..., Any], *args: Any) -> Future:
+        """``read(*args)`` in a reader thread now, for the caller to work beside it
+        (not kept as a read ahead): its future."""
+        return self._pool_here().submit(read, *args)
+
+    def _pool_here(self) -> ThreadPoolExecutor:
+        """The reader threads of this process (new ones after a fork, which has none)."""
+        if self._pool is None or self._pid != os.getpid():
+            self._pool = ThreadPoolExecutor(AHEAD, thread_name_prefix=self._name)
+            self._pid, self._pending = os.getpid(), {}
+        return self._pool
+
+    def pending(self, key: Hashable) -> bool:
+        """Whether the input ``key`` is read ahead (read, or being read)."""
+        return self._pid == os.getpid() and key in self._pending
 
     def take(self, key: Hashable, read: Callable[..., Any], *args: Any) -> Any:
         future = self._pending.pop(key, None) if self._pid == os.getpid() else None
