@@ -83,9 +83,10 @@ def unprocess(
             :class:`~rawsim.io.lensfun.LensParams` (:func:`~rawsim.io.lensfun.lens_params`
             builds one) or its record; each image is the whole frame the lens saw.
         out: float32 (B, 1, H, W) tensors on the images' device for ``noisy`` and
-            ``clean``, written and returned (not with gradients). A training loop
-            that passes the same ones each step spares the fresh memory's first
-            touch (0.05–0.2 s of page faults for a 24 MP batch of one).
+            ``clean``, written and returned (not with gradients). Without
+            ``out``, new CPU tensors take the memory of earlier outputs that
+            nothing refers to any more (:mod:`rawsim.memory`), which spares the
+            fresh memory's first touch (0.05–0.2 s for a 24 MP batch of one).
 
     Returns:
         ``noisy`` and ``clean``: float32 (B, 1, H, W) integer DN in [0, white];
@@ -95,7 +96,8 @@ def unprocess(
         plus the sampled noise (held constant), so gradients reach the images.
         Without gradients the kernel reads ``images`` in their own layout
         (channels-first or -last, crops: any strides) and writes each sample
-        straight into its slice of the returned tensors.
+        straight into its slice of the returned tensors (on the CPU, tensors
+        whose storage cannot grow: ``resize_`` beyond their size fails).
     """
     b = images.shape[0] if images.ndim == 4 else 0
     if len(seeds) != b:

@@ -1,42 +1,90 @@
-"""New CPU tensors whose memory faults in by huge pages.
+"""New CPU tensors for rawsim's outputs, in memory that earlier outputs freed.
 
-torch serves a large CPU tensor with its own ``mmap`` and leaves the kernel's
-transparent huge pages to the system default, which is often ``madvise``: the
-tensor's first write then faults in 4 KiB pages, one at a time. Two 96 MB
-outputs cost 76 ms to fault in that way on the 2-core machine against 14 ms by
-2 MiB pages, more than half the unprocess kernel itself. NumPy asks for huge
-pages on its large arrays; :func:`empty` asks the same for torch's.
+Each call of the Python API returns new output tensors, and a new large tensor
+costs its first touch: the kernel faults in and zeroes every page. Two 96 MB
+outputs (a 24 MP noisy and clean mosaic) cost 76 ms that way on the 2-core
+machine, against 75 ms for the unprocess kernel itself. Huge pages (as NumPy
+asks for) cut that to 14 ms on a quiet machine, but once another library has
+freed gigabytes the kernel compacts memory to find them: 0.2 s a call.
+
+A caller's loop drops the last call's outputs before or while it asks for the
+next ones, so :func:`empty` keeps the memory of the outputs it made once
+nothing refers to them (every tensor, view and array of them gone) and hands it
+to the next tensor of the same size: a caching allocator, as torch keeps for
+CUDA, for rawsim's large outputs only. At most :data:`KEEP` freed blocks are
+kept (two calls' noisy and clean mosaics); :func:`release` frees them, and
+``RAWSIM_KEEP_OUTPUTS=0`` turns the reuse off.
 """
 
 from __future__ import annotations
 
-import ctypes
-import mmap
-import sys
+import os
+import threading
+import weakref
+from collections import deque
 
+import numpy as np
 import torch
 
-#: Huge pages are asked for on tensors of at least this many bytes.
+#: Tensors of at least this many bytes come from kept blocks; smaller ones are new.
 MIN_BYTES = 4 << 20
-_HUGE_PAGE = 2 << 20
+#: Freed blocks kept at most (the oldest freed is dropped first).
+KEEP = 4
 
-_madvise = None
-if sys.platform == "linux" and hasattr(mmap, "MADV_HUGEPAGE"):
-    _madvise = ctypes.CDLL(None, use_errno=True).madvise
-    _madvise.argtypes = (ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int)
-    _madvise.restype = ctypes.c_int
+
+class _Blocks:
+    """Freed blocks (uint8 arrays) by size; safe from any thread (the garbage
+    collector gives blocks back wherever it runs)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._free: deque[np.ndarray] = deque()
+
+    def take(self, nbytes: int) -> np.ndarray:
+        with self._lock:
+            for block in self._free:
+                if block.nbytes == nbytes:
+                    self._free.remove(block)
+                    return block
+        return np.empty(nbytes, np.uint8)
+
+    def give(self, block: np.ndarray) -> None:
+        with self._lock:
+            self._free.append(block)
+            while len(self._free) > KEEP:
+                self._free.popleft()
+
+    def clear(self) -> None:
+        with self._lock:
+            self._free.clear()
+
+    def __len__(self) -> int:
+        return len(self._free)
+
+
+_blocks = _Blocks()
 
 
 def empty(shape: tuple[int, ...], dtype: torch.dtype, device="cpu") -> torch.Tensor:
-    """``torch.empty(shape, dtype=dtype, device=device)``; on a Linux CPU, one of at
-    least :data:`MIN_BYTES` has the whole 2 MiB pages inside its memory advised as
-    huge pages (``MADV_HUGEPAGE``) before anything touches them. The advice is
-    only advice: where the kernel refuses it, the tensor is the same, its pages
-    small."""
-    t = torch.empty(shape, dtype=dtype, device=device)
-    if _madvise is not None and t.device.type == "cpu" and t.nbytes >= MIN_BYTES:
-        start = -(-t.data_ptr() // _HUGE_PAGE) * _HUGE_PAGE
-        end = (t.data_ptr() + t.nbytes) // _HUGE_PAGE * _HUGE_PAGE
-        if end > start:
-            _madvise(start, end - start, mmap.MADV_HUGEPAGE)
-    return t
+    """``torch.empty(shape, dtype=dtype, device=device)``: on the CPU, one of at least
+    :data:`MIN_BYTES` in a kept block of its size if there is one (its values
+    undefined, as ``torch.empty``'s are), its memory kept for the next such
+    tensor once nothing refers to it. Such a tensor's storage cannot grow
+    (``resize_`` beyond its size)."""
+    dtype_np = torch.empty(0, dtype=dtype).numpy().dtype
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype_np.itemsize
+    if (
+        torch.device(device).type != "cpu"
+        or nbytes < MIN_BYTES
+        or os.environ.get("RAWSIM_KEEP_OUTPUTS", "1") == "0"
+    ):
+        return torch.empty(shape, dtype=dtype, device=device)
+    block = _blocks.take(nbytes)
+    array = block.view(dtype_np).reshape(shape)
+    weakref.finalize(array, _blocks.give, block).atexit = False
+    return torch.from_numpy(array)
+
+
+def release() -> None:
+    """Free the kept blocks (memory of outputs no longer referred to)."""
+    _blocks.clear()
