@@ -42,9 +42,9 @@ class _Blocks:
 
     def take(self, nbytes: int) -> np.ndarray:
         with self._lock:
-            for block in self._free:
+            for i, block in enumerate(self._free):
                 if block.nbytes == nbytes:
-                    self._free.remove(block)
+                    del self._free[i]  # by place: arrays do not compare as objects
                     return block
         return np.empty(nbytes, np.uint8)
 

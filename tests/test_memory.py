@@ -31,10 +31,18 @@ def test_a_freed_outputs_memory_is_the_next_ones():
     gc.collect()
     assert len(memory._blocks) == 1
     other = memory.empty((1, 1, 1024, 1024), torch.float32)  # another size: new memory
-    assert other.data_ptr() != address and len(memory._blocks) == 1
+    other_address = other.data_ptr()
+    assert other_address != address and len(memory._blocks) == 1
+    del other
+    gc.collect()
+    assert len(memory._blocks) == 2  # the other size kept too, after the first
+    other = memory.empty((1, 1, 1024, 1024), torch.float32)  # the second kept block
+    assert other.data_ptr() == other_address and len(memory._blocks) == 1
+    del other
+    gc.collect()
     same = memory.empty((2, 1, 1024, 768), torch.float32)  # the same bytes, any shape
-    assert same.data_ptr() == address and len(memory._blocks) == 0
-    del same, other
+    assert same.data_ptr() == address and len(memory._blocks) == 1
+    del same
     gc.collect()
     assert len(memory._blocks) == 2
     memory.release()
