@@ -213,7 +213,7 @@ def engine_unprocess(
 
     ``bands``: (start, stop) ranges of rows, in order and covering the image, as
     they become readable (an image still being decoded,
-    :meth:`~rawsim.io.images.DecodeProgress.bands`): the kernel unprocesses each
+    :meth:`~rawsim.io.progress.DecodeProgress.bands`): the kernel unprocesses each
     as it comes, the same bits as the whole at once. An image that is read whole
     first (floats, whose values are checked; codes below their type's maximum; a
     lens) waits for the last band.
