@@ -5,7 +5,7 @@ costs its first touch: the kernel faults in and zeroes every page. Two 96 MB
 outputs (a 24 MP noisy and clean mosaic) cost 76 ms that way on the 2-core
 machine, against 75 ms for the unprocess kernel itself. Huge pages (as NumPy
 asks for) cut that to 14 ms on a quiet machine, but once another library has
-freed gigabytes the kernel compacts memory to find them: 0.2 s a call.
+freed gigabytes the kernel compacts memory to find them: 0.2–0.3 s a call.
 
 A caller's loop drops the last call's outputs before or while it asks for the
 next ones, so :func:`empty` keeps the memory of the outputs it made once
@@ -30,6 +30,20 @@ import torch
 MIN_BYTES = 4 << 20
 #: Freed blocks kept at most (the oldest freed is dropped first).
 KEEP = 4
+#: The NumPy type of each torch type a block can hold; others are always new.
+_NUMPY = {
+    t: np.dtype(n)
+    for t, n in [
+        (torch.uint8, np.uint8),
+        (torch.uint16, np.uint16),
+        (torch.int16, np.int16),
+        (torch.int32, np.int32),
+        (torch.int64, np.int64),
+        (torch.float16, np.float16),
+        (torch.float32, np.float32),
+        (torch.float64, np.float64),
+    ]
+}
 
 
 class _Blocks:
@@ -71,8 +85,8 @@ def empty(shape: tuple[int, ...], dtype: torch.dtype, device="cpu") -> torch.Ten
     undefined, as ``torch.empty``'s are), its memory kept for the next such
     tensor once nothing refers to it. Such a tensor's storage cannot grow
     (``resize_`` beyond its size)."""
-    dtype_np = torch.empty(0, dtype=dtype).numpy().dtype
-    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype_np.itemsize
+    dtype_np = _NUMPY.get(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * (0 if dtype_np is None else dtype_np.itemsize)
     if (
         torch.device(device).type != "cpu"
         or nbytes < MIN_BYTES

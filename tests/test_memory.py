@@ -58,6 +58,8 @@ def test_at_most_keep_blocks_are_kept(monkeypatch):
     memory.release()
     small = memory.empty((16,), torch.float32)  # below MIN_BYTES: torch's own
     small.resize_(1 << 20)  # a storage of torch's grows
+    brain = memory.empty(SHAPE, torch.bfloat16)  # a type NumPy has not: torch's own
+    brain.resize_(2 * brain.numel())
     monkeypatch.setenv("RAWSIM_KEEP_OUTPUTS", "0")
     plain = memory.empty(SHAPE, torch.float32)
     plain.resize_(2 * plain.numel())
