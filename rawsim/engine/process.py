@@ -212,7 +212,7 @@ def _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w):
     row over unit-stride views (every site's candidates computed, the site's kept)."""
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     e = np.float32(0.125)
-    two, four, five, six = np.float32(2), np.float32(4), np.float32(5), np.float32(6)
+    two, four, six = np.float32(2), np.float32(4), np.float32(6)
     for i in range(ia, ib):
         cm = cmap[i & 1, ja:jb]
         red_row = _holds_red(cmap, i)
@@ -223,27 +223,25 @@ def _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w):
         for k in range(jb - ja):
             c, v = cm[k], x[k]
             diagonals = (nw[k] + ne[k]) + (sw[k] + se[k])
-            row = (
-                _HALF * (n2[k] + s2[k])
-                - diagonals
-                - (w2[k] + e2[k])
-                + four * (w1[k] + e1[k])
-                + five * v
-            ) * e
-            col = (
-                _HALF * (w2[k] + e2[k])
-                - diagonals
-                - (n2[k] + s2[k])
-                + four * (n1[k] + s1[k])
-                + five * v
-            ) * e
-            far = (n2[k] + s2[k]) + (w2[k] + e2[k])
-            near = (n1[k] + s1[k]) + (w1[k] + e1[k])
+            ns2, we2 = n2[k] + s2[k], w2[k] + e2[k]
+            ns1, we1 = n1[k] + s1[k], w1[k] + e1[k]
+            row = _malvar_line(ns2, we2, we1, diagonals, v) * e
+            col = _malvar_line(we2, ns2, ns1, diagonals, v) * e
+            far = ns2 + we2
+            near = ns1 + we1
             green = (two * near - far + four * v) * e
             other = (two * diagonals - np.float32(1.5) * far + six * v) * e
             o_g[k] = v if c == 1 else green
             o_r[k] = v if c == 0 else (other if c == 2 else (row if red_row else col))
             o_b[k] = v if c == 2 else (other if c == 0 else (col if red_row else row))
+
+
+@njit(inline="always", **_JIT)
+def _malvar_line(across2, along2, along1, diagonals, v):
+    """Malvar's red or blue at a green site, from the line its colour lies along
+    (``along1``, ``along2``: the sums of the neighbours 1 and 2 away on that line;
+    ``across2``: 2 away across it), before the 1/8 scale."""
+    return _HALF * across2 - diagonals - along2 + np.float32(4) * along1 + np.float32(5) * v
 
 
 @njit(inline="always", **_JIT)
