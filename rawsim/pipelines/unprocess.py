@@ -540,37 +540,34 @@ def _decode_and_simulate(task: Task, options: UnprocessOptions):
     image is decoded (or its read ahead taken) first.
     """
     device = resolve_device(options.device)
-    sensor = options.make_sensor()
+    decoding = progress = None
     if _reader.pending(task.source) or str(device) != "cpu" or options.lens is not None:
         decoded = _reader.take(task.source, read_image, task.source, _inputs)
     else:
         progress = DecodeProgress()
         decoding = _reader.run(read_image, task.source, _inputs, progress)
         pixels = progress.pixels()
-        if pixels is not None and use_engine(pixels):
-            out = _mosaics(*pixels.shape[:2], options.clean)
-            sim = simulate(
-                sensor,
-                pixels,
-                options,
-                task.seed,
-                code_max=CODE_MAX[pixels.dtype],
-                out=out,
-                bands=progress.bands(BAND_ROWS),
-            )
-            return decoding.result(), sim, out  # raises why, if the decode failed
-        decoded = decoding.result()
-    image = decoded.pixels if str(device) == "cpu" else image_tensor(decoded.pixels, device)
-    out = _mosaics(*decoded.pixels.shape[:2], options.clean) if use_engine(image) else None
+        if pixels is None or not use_engine(pixels):  # decoded whole first
+            decoded, progress = decoding.result(), None
+    if progress is not None:  # the rows as they are decoded
+        image, display_referred, code_max = pixels, True, CODE_MAX[pixels.dtype]
+    else:
+        pixels = decoded.pixels
+        image = pixels if str(device) == "cpu" else image_tensor(pixels, device)
+        display_referred, code_max = not decoded.is_float, decoded.code_max
+    out = _mosaics(*pixels.shape[:2], options.clean) if use_engine(image) else None
     sim = simulate(
-        sensor,
+        options.make_sensor(),
         image,
         options,
         task.seed,
-        display_referred=not decoded.is_float,
-        code_max=decoded.code_max,
+        display_referred=display_referred,
+        code_max=code_max,
         out=out,
+        bands=None if progress is None else progress.bands(BAND_ROWS),
     )
+    if progress is not None:
+        decoded = decoding.result()  # raises why, if the decode failed
     return decoded, sim, out
 
 
