@@ -54,6 +54,16 @@ INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
 SENSOR_KINDS = ("rgb", "mono")
 
 
+def _reads_every_value(dtype: torch.dtype, code_max: int | None) -> bool:
+    """Whether :func:`_prepare` reads every value of an image of ``dtype``: floats
+    (checked finite), integer types that can hold codes outside [0, ``code_max``],
+    and types it refuses; not the codes a type itself keeps in range (uint8 at 255)."""
+    if dtype not in INTEGER_DTYPES:
+        return True
+    info = torch.iinfo(dtype)
+    return info.min < 0 or (code_max or info.max) < info.max
+
+
 def _prepare(sensor, image, params, noise, display_referred, code_max):
     """Checks shared by the reference and the engine: ``image`` is (B, 3, H, W) as a
     tensor or (H, W, 3) as an array. Returns the noise levels and the lookup table
@@ -71,10 +81,8 @@ def _prepare(sensor, image, params, noise, display_referred, code_max):
     if dtype in INTEGER_DTYPES:
         if dtype == torch.int32 and code_max is None:
             raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
-        info = torch.iinfo(dtype)
-        top = code_max or int(info.max)
-        # a full scan, skipped where the type itself keeps codes in range (uint8 at 255)
-        if (info.min < 0 or top < info.max) and (int(image.min()) < 0 or int(image.max()) > top):
+        top = code_max or int(torch.iinfo(dtype).max)
+        if _reads_every_value(dtype, code_max) and (int(image.min()) < 0 or int(image.max()) > top):
             raise ParameterError(f"integer codes must lie in [0, {top}]")
         device = "cpu" if array else image.device
         codes = torch.arange(top + 1, dtype=torch.float32, device=device) / top
@@ -222,9 +230,7 @@ def engine_unprocess(
     from rawsim.noise.kernels import np_key
 
     if bands is not None and (
-        lens is not None
-        or pixels.dtype.kind == "f"
-        or code_max not in (None, np.iinfo(pixels.dtype).max)
+        lens is not None or _reads_every_value(torch.from_numpy(pixels[:0]).dtype, code_max)
     ):
         for _ in bands:  # every row decoded before any is read
             pass
