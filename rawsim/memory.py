@@ -86,12 +86,14 @@ def empty(shape: tuple[int, ...], dtype: torch.dtype, device="cpu") -> torch.Ten
     tensor once nothing refers to it. Such a tensor's storage cannot grow
     (``resize_`` beyond its size)."""
     dtype_np = _NUMPY.get(dtype)
-    nbytes = int(np.prod(shape, dtype=np.int64)) * (0 if dtype_np is None else dtype_np.itemsize)
     if (
-        torch.device(device).type != "cpu"
-        or nbytes < MIN_BYTES
+        dtype_np is None
+        or torch.device(device).type != "cpu"
         or os.environ.get("RAWSIM_KEEP_OUTPUTS", "1") == "0"
     ):
+        return torch.empty(shape, dtype=dtype, device=device)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype_np.itemsize
+    if nbytes < MIN_BYTES:
         return torch.empty(shape, dtype=dtype, device=device)
     block = _blocks.take(nbytes)
     array = block.view(dtype_np).reshape(shape)
