@@ -1,17 +1,19 @@
 import os
 import re
+import signal
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 from rawsim.errors import ParameterError, UnsupportedInputError
-from rawsim.io import atomic
+from rawsim.io import atomic, outputs
 from rawsim.io.atomic import atomic_output
 from rawsim.io.task import Task
 from rawsim.run.batch import discover, parse_shard, plan, run
-from rawsim.run.jobs import _run_one
+from rawsim.run.jobs import Interrupted, _run_one
 from tests.conftest import ROOT
 
 
@@ -26,6 +28,64 @@ def test_atomic_output_replaces_only_on_success(tmp_path):
         raise RuntimeError("interrupted")
     assert target.read_bytes() == b"first"  # the old file survives a failed write
     assert sorted(p.name for p in target.parent.iterdir()) == ["a.dng"]  # no temporaries
+
+
+INTERRUPTIBLE = {str(Path(m.__file__)) for m in (atomic, outputs)}
+
+
+def _interrupt_at(step: int):
+    """A trace function that raises :class:`Interrupted` once, at the ``step``-th line
+    run in :mod:`rawsim.io.atomic` or :mod:`rawsim.io.outputs` (a signal's handler
+    raises at such points); a list holding whether it fired."""
+    seen, fired = [0], []
+
+    def local(frame, event, arg):
+        if event == "line" and not fired:
+            seen[0] += 1
+            if seen[0] == step:
+                fired.append(True)
+                raise Interrupted(signal.SIGINT)
+        return local
+
+    def tracer(frame, event, arg):
+        return local if frame.f_code.co_filename in INTERRUPTIBLE else None
+
+    return tracer, fired
+
+
+def test_a_signal_at_any_step_of_a_write_leaves_nothing(tmp_path):
+    """SIGINT may raise between any two lines of the atomic writes: a job stopped at
+    each line in turn leaves neither outputs, nor temporaries, nor a marker."""
+
+    def job(task):
+        with outputs.atomic_outputs(task.outputs) as tmp:
+            tmp["dng"].write_bytes(b"dng")
+            tmp["json"].write_text("{}")
+        with atomic_output(task.outputs["dng"].with_suffix(".log")) as tmp:
+            tmp.write_text("log")
+        return {}
+
+    out = tmp_path / "out"
+    out.mkdir()
+    task = Task(tmp_path / "a.png", "a.png", {"dng": out / "a.dng", "json": out / "a.json"}, 0)
+    step = 0
+    while True:
+        step += 1
+        tracer, fired = _interrupt_at(step)
+        sys.settrace(tracer)
+        try:
+            _run_one(job, task, overwrite=False, debug=False, kwargs={})
+        except Interrupted:
+            pass
+        finally:
+            sys.settrace(None)
+        if not fired:
+            break
+        left = sorted(p.name for p in out.iterdir())
+        assert left in ([], ["a.log"]), f"interrupted at step {step}: {left} left"
+        (out / "a.log").unlink(missing_ok=True)
+    assert step > 20  # the whole job ran once without an interruption
+    assert sorted(p.name for p in out.iterdir()) == ["a.dng", "a.json", "a.log"]
 
 
 def test_discover_keys_are_relative_to_each_input(tmp_path):

@@ -36,8 +36,9 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_path(path)
-    try:
+    tmp = temporary_name(path)
+    try:  # the name is held before the file exists: a signal at any point leaves none
+        create(tmp)
         yield tmp
         os.replace(tmp, path)
     except BaseException:
@@ -45,17 +46,22 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
         raise
 
 
-def temporary_path(path: Path) -> Path:
-    """A new, empty temporary file in ``path``'s folder (which must exist), named as
-    this module's docstring says; ``path``'s suffix is kept (if ≤ 16 characters)."""
-    tmp = temporary_name(path)
+def create(tmp: Path) -> None:
+    """Make ``tmp``, a name from :func:`temporary_name`, as a new empty file.
+
+    The name is chosen (and held by the caller for its cleanup) before the file is
+    made, so that no moment exists when the file is there and its name is not:
+    SIGINT and SIGTERM raise between any two steps. A clash of names (one chance in
+    2^32 against each other temporary of this process) fails this write, and the
+    other one, whose file its cleanup removes: no partial output either way.
+    """
     os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
-    return tmp
 
 
 def temporary_name(path: Path) -> Path:
-    """A name for a new temporary in ``path``'s folder, as :func:`temporary_path`'s
-    (nothing is created)."""
+    """A name for a new temporary in ``path``'s folder (nothing is created: see
+    :func:`create`), named as this module's docstring says; ``path``'s suffix is
+    kept (if ≤ 16 characters)."""
     suffix = path.suffix if len(path.suffix) <= 16 else ""
     return path.parent / f".rawsim-{HOST}-{os.getpid()}-{secrets.token_hex(4)}.tmp{suffix}"
 

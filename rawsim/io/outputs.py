@@ -39,7 +39,7 @@ from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from rawsim.io import remote
-from rawsim.io.atomic import HOST, running, temporary_name, temporary_path
+from rawsim.io.atomic import HOST, create, running, temporary_name
 from rawsim.io.task import Task
 
 MARKER_PREFIX = ".rawsim-unfinished-"
@@ -107,11 +107,15 @@ def _mark(location: Path, text: str) -> None:
     ``<host>-<pid>``, or a file of ``text`` where links cannot be made."""
     tmp = temporary_name(location)
     try:
-        os.symlink(f"{HOST}-{os.getpid()}", tmp)
-    except OSError:
-        tmp = temporary_path(location)
-        tmp.write_text(text)
-    os.replace(tmp, location)
+        try:
+            os.symlink(f"{HOST}-{os.getpid()}", tmp)
+        except OSError:
+            create(tmp)
+            tmp.write_text(text)
+        os.replace(tmp, location)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def clear(outputs: Mapping[str, Path | str]) -> None:
@@ -148,18 +152,22 @@ def atomic_outputs(outputs: Mapping[str, Path]) -> Iterator[dict[str, Path]]:
     them all in place as one set (:func:`placing`), the sidecar last.
 
     On any error every temporary is removed; outputs already renamed stay for the
-    caller (:func:`rawsim.run.jobs._run_one` removes the ones it wrote).
+    caller (:func:`rawsim.run.jobs._run_one` removes the ones it wrote). A signal
+    raises between any two steps, so each temporary's name is held before its file
+    is made and let go only after its rename.
     """
     paths = {kind: Path(p) for kind, p in outputs.items()}
     temporaries: dict[str, Path] = {}
     try:
         for kind, path in paths.items():
             path.parent.mkdir(parents=True, exist_ok=True)
-            temporaries[kind] = temporary_path(path)
+            temporaries[kind] = temporary_name(path)
+            create(temporaries[kind])
         yield dict(temporaries)
         with placing(paths):
             for kind, path in _in_order(paths):
-                _place(temporaries.pop(kind), path)
+                _place(temporaries[kind], path)
+                del temporaries[kind]
     finally:
         for tmp in temporaries.values():
             tmp.unlink(missing_ok=True)
