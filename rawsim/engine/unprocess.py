@@ -153,11 +153,15 @@ def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
     for x in range(dn.shape[0]):
         noise[x] = math.sqrt(k * max(dn[x] - black, 0.0) + read_var) * z[x]
     limit = EXACT_POISSON_BELOW * k
-    at = np.empty(dn.shape[0], np.intp)
+    marks = _marks(dn.shape[0])
     n = 0
     for x in range(dn.shape[0]):
-        at[n] = x
-        n += (dn[x] - black < limit) & (dn[x] - black > 0.0)
+        marks[x] = (dn[x] - black < limit) & (dn[x] - black > 0.0)
+        n += marks[x]
+    if n == 0:
+        return
+    at = np.empty(n + 1, np.intp)
+    _marked(marks, at)
     lam, sites, counts = np.empty(n), np.empty(n, np.uint64), np.empty(n)
     for i in range(n):
         lam[i] = max(dn[at[i]] - black, 0.0) / k
@@ -168,6 +172,34 @@ def _shot_noise(dn, first, physics, p, poisson, k0, k1, z, noise):
         positive = max(dn[x] - black, 0.0)
         shot = k * counts[i] - positive
         noise[x] = shot if physics else shot + read * z[x]
+
+
+@njit(inline="always")
+def _marks(n):
+    """Marks for ``n`` sites, uint8, to be set 0 or 1 by the caller: rounded up to
+    whole words of eight, the padding 0, for :func:`_marked`."""
+    marks = np.empty((n + 7) // 8 * 8, np.uint8)
+    marks[n:] = 0
+    return marks
+
+
+@njit(**_JIT)
+def _marked(marks, at):
+    """The positions of the marked sites of ``marks`` (:func:`_marks`) into ``at``
+    (at least their count + 1 long), in order; returns their count.
+
+    Eight marks are read as one word, so a run of unmarked sites costs a test a
+    word; the positions are gathered without branches only in words that have
+    marks. A branch-free gather over every site took 0.54 ns a site (one core),
+    a third of the shot noise's time on a photo."""
+    words = marks.view(np.uint64)
+    n = 0
+    for k in range(words.size):
+        if words[k] != 0:
+            for x in range(8 * k, 8 * k + 8):
+                at[n] = x
+                n += marks[x]
+    return n
 
 
 @njit(**_JIT)
@@ -213,17 +245,31 @@ def add_noise_rows(
 
 
 @njit(**_JIT)
-def _linear_row(pixels, lut, scale, ccm_bias, r, g, b):
+def _code_tables(lut, scale, ccm_bias):
+    """(3, codes) float64: the linear value of each code in each channel,
+    ``lut[code] · scale − ccm_bias[channel]``, the arithmetic :func:`_linear_row`
+    would do at every site (so the same bits); (3, 0) without ``lut``."""
+    tables = np.empty((3, lut.shape[0]))
+    for k in range(3):
+        for code in range(lut.shape[0]):
+            tables[k, code] = np.float64(lut[code]) * scale - ccm_bias[k]
+    return tables
+
+
+@njit(**_JIT)
+def _linear_row(pixels, tables, scale, ccm_bias, r, g, b):
     """Linear RGB of one row of ``pixels`` (w, 3) into ``r``, ``g``, ``b`` (w,) float64:
-    codes through ``lut`` (or floats as they are), times ``scale``, less ``ccm_bias``."""
-    with_lut = lut.shape[0] > 0
+    codes through ``tables`` (:func:`_code_tables`: one load a value), or floats
+    times ``scale``, less ``ccm_bias``."""
+    if tables.shape[1] > 0:
+        for x in range(r.size):
+            r[x] = tables[0, np.intp(pixels[x, 0])]
+            g[x] = tables[1, np.intp(pixels[x, 1])]
+            b[x] = tables[2, np.intp(pixels[x, 2])]
+        return
     bias_r, bias_g, bias_b = ccm_bias[0], ccm_bias[1], ccm_bias[2]
     for x in range(r.size):
-        # One body for codes and floats: the table branch types for both.
-        pr, pg, pb = pixels[x, 0], pixels[x, 1], pixels[x, 2]
-        vr = np.float64(lut[np.intp(pr)]) if with_lut else np.float64(pr)
-        vg = np.float64(lut[np.intp(pg)]) if with_lut else np.float64(pg)
-        vb = np.float64(lut[np.intp(pb)]) if with_lut else np.float64(pb)
+        vr, vg, vb = np.float64(pixels[x, 0]), np.float64(pixels[x, 1]), np.float64(pixels[x, 2])
         r[x], g[x], b[x] = vr * scale - bias_r, vg * scale - bias_g, vb * scale - bias_b
 
 
@@ -231,22 +277,53 @@ def _linear_row(pixels, lut, scale, ccm_bias, r, g, b):
 def _camera_row(r, g, b, colors, matrix, wb, safe, threshold, out):
     """Each site's camera channel, white balance inverted, into ``out`` (w,): the
     channel of column x is ``colors[x]`` (the row of :func:`site_rows` of the CFA's
-    colours). Brooks's safe inverse blends above ``threshold`` of the grey level."""
+    colours). Brooks's safe inverse blends above ``threshold`` of the grey level.
+
+    Below the threshold the safe inverse's blend term is exactly 0 and a site is
+    ``v · (1 / gain)``, so the safe inverse runs without a division: that product
+    at every site (a loop LLVM vectorises), marking the sites whose channel sum
+    could reach the threshold; then the whole formula at those (:func:`_marked`; a
+    photo's highlights are a few percent of its sites). The same bits as the
+    formula everywhere; the three divisions a site were a third of the colour's
+    time (0.66 → 0.41 ns a site on one core)."""
     m = matrix
-    for x in range(r.size):
-        cam0 = m[0, 0] * r[x] + m[0, 1] * g[x] + m[0, 2] * b[x]
-        cam1 = m[1, 0] * r[x] + m[1, 1] * g[x] + m[1, 2] * b[x]
-        cam2 = m[2, 0] * r[x] + m[2, 1] * g[x] + m[2, 2] * b[x]
+    w = r.size
+    if not safe:
+        for x in range(w):
+            c = colors[x]
+            out[x] = _camera_channel(m, c, r[x], g[x], b[x])[0] / wb[c]
+        return
+    inv0, inv1, inv2 = 1.0 / wb[0], 1.0 / wb[1], 1.0 / wb[2]
+    # total < bound (as reals, total < 3·threshold): grey = total / 3 ≤ threshold, rounded.
+    bound = 3.0 * threshold - abs(threshold) * 2.0**-28
+    marks = _marks(w)
+    near = 0
+    for x in range(w):
         c = colors[x]
-        v = cam0 if c == 0 else (cam1 if c == 1 else cam2)
-        gain = wb[0] if c == 0 else (wb[1] if c == 1 else wb[2])
-        if safe:
-            inv = 1.0 / gain
-            gray = (cam0 + cam1 + cam2) / 3.0
-            t = max(gray - threshold, 0.0) / (1.0 - threshold)
-            out[x] = v * (inv + t * t * max(1.0 - inv, 0.0))
-        else:
-            out[x] = v / gain
+        v, total = _camera_channel(m, c, r[x], g[x], b[x])
+        out[x] = v * (inv0 if c == 0 else (inv1 if c == 1 else inv2))
+        marks[x] = total >= bound
+        near += marks[x]
+    if near == 0:
+        return
+    at = np.empty(near + 1, np.intp)
+    for i in range(_marked(marks, at)):
+        x = at[i]
+        c = colors[x]
+        v, total = _camera_channel(m, c, r[x], g[x], b[x])
+        inv = 1.0 / wb[c]
+        t = max(total / 3.0 - threshold, 0.0) / (1.0 - threshold)
+        out[x] = v * (inv + t * t * max(1.0 - inv, 0.0))
+
+
+@njit(inline="always")
+def _camera_channel(m, c, r, g, b):
+    """(camera channel ``c`` of linear sRGB (r, g, b) through ``m``, the sum of the
+    three camera channels): all three are computed, then the one selected."""
+    cam0 = m[0, 0] * r + m[0, 1] * g + m[0, 2] * b
+    cam1 = m[1, 0] * r + m[1, 1] * g + m[1, 2] * b
+    cam2 = m[2, 0] * r + m[2, 1] * g + m[2, 2] * b
+    return (cam0 if c == 0 else (cam1 if c == 1 else cam2)), cam0 + cam1 + cam2
 
 
 @njit(parallel=True, **_JIT)
@@ -257,9 +334,10 @@ def camera_kernel(pixels, lut, scale, ccm_bias, matrix, mono, out):
     (H, W, 3) float32; for ``mono`` the grey (mean of linear R, G, B) in all three."""
     h, w = out.shape[0], out.shape[1]
     m = matrix
+    tables = _code_tables(lut, scale, ccm_bias)
     for y in prange(h):
         r, g, b = np.empty(w), np.empty(w), np.empty(w)
-        _linear_row(pixels[y], lut, scale, ccm_bias, r, g, b)
+        _linear_row(pixels[y], tables, scale, ccm_bias, r, g, b)
         for x in range(w):
             if mono:
                 grey = (r[x] + g[x] + b[x]) / 3.0
@@ -360,10 +438,11 @@ def unprocess_kernel(
     norm = cy * cy + cx * cx
     site_colors, bias_rows = site_rows(colors, w), site_rows(bias_tile, w)
     period = site_colors.shape[0]
+    tables = _code_tables(lut, scale, ccm_bias)
     for i in prange(n):
         y = top + i  # the row in the image: its CFA row, shading, noise counters
         r, g, b, dn = np.empty(w), np.empty(w), np.empty(w), np.empty(w)
-        _linear_row(pixels[i], lut, scale, ccm_bias, r, g, b)
+        _linear_row(pixels[i], tables, scale, ccm_bias, r, g, b)
         if mono:
             for x in range(w):
                 dn[x] = (r[x] + g[x] + b[x]) / 3.0
