@@ -10,7 +10,8 @@ Measures, on this machine:
      strips, as rawsim reads (``read_image`` copies its whole buffer: slower);
      then per file in a batch (``rawsim unprocess`` on folders of 1 and 4 copies,
      fresh processes: the next image is decoded while one is unprocessed) beside
-     the same floor run as a batch;
+     the same floor run as a batch, and the steady state of a batch of 8: the
+     time between one file's end and the next's;
   2. the compute alone (unprocess + mosaic + noise, 24 MP): the compiled engine
      against the eager torch reference, per noise model; and the physics model
      with a 24 MP dark-shading map and black-level error beside without;
@@ -163,45 +164,76 @@ for i, path in enumerate(sys.argv[2:]):
     inp.close()
     with open(f"{sys.argv[1]}/{i}.raw", "wb") as f:  # a mosaic's 16-bit samples
         write_pieces(f, np.zeros(pixels.shape[:2], np.uint16))
+    print(f"done: {path}", file=sys.stderr, flush=True)
 """
 
 
 def batch_24mp(tmp: Path, rounds: int) -> None:
-    """Per 24 MP JPEG in a batch: the marginal seconds of 3 more copies (a folder of 4
-    less a folder of 1, fresh processes, ``rounds`` interleaved rounds, medians) of
-    ``rawsim unprocess`` (DNG + JSON; the next image decoded while this one is
-    unprocessed) and of the floor, OpenImageIO's strip decode plus the mosaic's
-    16-bit samples written in 1 MiB pieces; each run after ``sync``."""
+    """Per 24 MP JPEG in a batch, ``rawsim unprocess`` (DNG + JSON; the next image
+    decoded while this one is unprocessed) beside the floor, OpenImageIO's strip
+    decode plus the mosaic's 16-bit samples written in 1 MiB pieces, each run in
+    fresh processes after ``sync``, ``rounds`` interleaved rounds, medians:
+
+    * the marginal seconds of 3 more copies (a folder of 4 less a folder of 1),
+      which include what a process's first file costs more in a batch than alone
+      (its engine loads while two decodes wait for the interpreter: 0.5–0.8 s
+      from one run to the next);
+    * the steady state of a batch of 8: the time from one file's end to the
+      next's (each reported as it ends), files 2 to 7 (the first loads the
+      engine, the last has no next image to decode beside it).
+    """
     folders = {}
-    for n in (1, 4):
+    for n in (1, 4, 8):
         folders[n] = tmp / f"jpegs{n}"
         folders[n].mkdir()
         for i in range(n):
             shutil.copy(tmp / "photo24.jpg", folders[n] / f"copy{i}.jpg")
     out = tmp / "batch_out"
     runs = {}
-    for n in (1, 4):
+    for n in (1, 4, 8):
         files = [str(p) for p in sorted(folders[n].iterdir())]
         runs[f"floor {n}"] = [sys.executable, "-c", BATCH_FLOOR, str(out), *files]
-        runs[f"rawsim {n}"] = ["rawsim", "-q", "unprocess", str(folders[n]), "-o", str(out)]
+        runs[f"rawsim {n}"] = ["rawsim", "-v", "unprocess", str(folders[n]), "-o", str(out)]
         runs[f"rawsim {n}"] += ["-p", "sony_a7s2", "--iso", "1600"]
     times: dict[str, list[float]] = {name: [] for name in runs}
+    steady: dict[str, list[float]] = {"rawsim": [], "floor": []}
     for _ in range(rounds):
         for name, cmd in runs.items():
             shutil.rmtree(out, ignore_errors=True)
             out.mkdir()
             os.sync()
             start = time.perf_counter()
-            subprocess.run(cmd, check=True, capture_output=True)
+            ends = _file_ends(cmd)
             times[name].append(time.perf_counter() - start)
+            if name.endswith(" 8"):
+                steady[name.split()[0]] += list(np.diff(ends)[:-1])
     shutil.rmtree(out, ignore_errors=True)
     med = {name: statistics.median(t) for name, t in times.items()}
     ours, floor = ((med[f"{k} 4"] - med[f"{k} 1"]) / 3 for k in ("rawsim", "floor"))
-    print(f"   in a batch, per file (marginal over 3 copies, {rounds} rounds, medians):")
+    print(f"   in a batch, per file ({rounds} rounds, medians):")
     print(
-        f"   rawsim {ours:.3f} s, floor (strip decode + 16-bit mosaic written) {floor:.3f} s "
+        f"   marginal over 3 copies: rawsim {ours:.3f} s, floor (strip decode + 16-bit "
+        f"mosaic written) {floor:.3f} s = {ours / floor:.2f}× (issue 28: ≤ 1.3×)"
+    )
+    ours, floor = (statistics.median(steady[k]) for k in ("rawsim", "floor"))
+    print(
+        f"   steady state, files 2–7 of 8: rawsim {ours:.3f} s, floor {floor:.3f} s "
         f"= {ours / floor:.2f}× (issue 28: ≤ 1.3×)"
     )
+
+
+def _file_ends(cmd: list[str]) -> list[float]:
+    """Run ``cmd``; the times (perf_counter) at which it reported each file done
+    (its ``done:`` lines on stderr, read as they come)."""
+    ends = []
+    pipes = {"stderr": subprocess.PIPE, "stdout": subprocess.DEVNULL, "text": True}
+    with subprocess.Popen(cmd, **pipes) as proc:
+        for line in proc.stderr:
+            if line.startswith("done:"):
+                ends.append(time.perf_counter())
+    if proc.returncode:
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode})")
+    return ends
 
 
 def compute_24mp(tmp: Path, repeat: int) -> None:
