@@ -4,6 +4,9 @@ A profile is found by name in the bundled ``sensor_profiles/`` folder or read
 from a path. Two formats are accepted: rawsim's own (see README, "Sensor
 profiles") and the seed's flat config keys (``bayer_pattern``, ``bit``,
 ``color_matrix_d50``, …). Every error names the file and the key.
+
+Loading needs no torch (NumPy only), so the command line lists, shows and checks
+profiles at once.
 """
 
 from __future__ import annotations
@@ -21,10 +24,8 @@ import numpy as np
 from rawsim.cfa import CFA
 from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
-from rawsim.isp.color_matrix import split_seed_matrix
-from rawsim.isp.levels import white_level_for_bits
 from rawsim.noise.dark_shading import read_black_level_error, read_spec
-from rawsim.noise.models import (
+from rawsim.noise.spec import (
     DEFAULT_SPREAD,
     GainCurve,
     LambdaCurve,
@@ -358,13 +359,10 @@ def _levels(r: _Reader, bits_key: str, black_key: str, white_key: str | None):
     if bits != int(bits) or not 1 <= bits <= 16:
         r.fail(bits_key, f"must be an integer in 1..16, got {bits:g}")
     bits = int(bits)
+    top = (1 << bits) - 1  # the largest code (rawsim.isp.levels.white_level_for_bits)
     black = r.number(black_key, minimum=0)
-    white = (
-        r.number(white_key, white_level_for_bits(bits))
-        if white_key
-        else float(white_level_for_bits(bits))
-    )
-    if white > white_level_for_bits(bits):
+    white = r.number(white_key, top) if white_key else float(top)
+    if white > top:
         r.fail(white_key, f"{white:g} does not fit in {bits} bits")
     if not white > black:
         r.fail(white_key or black_key, f"white level {white:g} must exceed black level {black:g}")
@@ -473,6 +471,20 @@ def _strings(r: _Reader, key: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+def _split_seed_matrix(values) -> tuple[np.ndarray, np.ndarray | None]:
+    """The seed's ``color_matrix`` (3×3, or 4×3 whose last row is a bias) as NumPy
+    arrays: :func:`rawsim.isp.color_matrix.split_seed_matrix` without torch."""
+    try:
+        m = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"color matrix must be 3×3 or 4×3 numbers, got {values!r}") from None
+    if m.shape == (3, 3):
+        return m, None
+    if m.shape == (4, 3):
+        return m[:3], m[3]
+    raise ParameterError(f"color matrix must be 3×3 or 4×3 (last row bias), got {m.shape}")
+
+
 def _from_seed(r: _Reader) -> SensorProfile:
     """The seed's flat config keys (SPEC, RGBSensor); defaults are the seed's."""
     data = r.data
@@ -484,7 +496,7 @@ def _from_seed(r: _Reader) -> SensorProfile:
     bits, black, white = _levels(r, "bit", "black_level", None)
     ccm = data.get("color_matrix_d50", [[1, 0, 0], [0, 1, 0], [0, 0, 1]])
     try:
-        matrix, bias = split_seed_matrix(ccm)
+        matrix, bias = _split_seed_matrix(ccm)
         xyz = tuple(tuple(float(v) for v in row) for row in xyz_to_camera_from_ccm(matrix))
     except ParameterError as err:
         r.fail("color_matrix_d50", str(err))
