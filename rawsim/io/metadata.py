@@ -12,6 +12,17 @@ those), and written under its standard EXIF key. Files exiv2 cannot read fall
 back to what LibRaw reports (ISO, exposure, aperture, focal length, time,
 artist).
 
+A zero where zero means "not recorded" (exposure time, f-number, ISO, focal
+length, subject distance: a firmware's or a converter's placeholder) is no value:
+it is neither shown nor carried. Exposure bias 0 and Flash 0 ("no flash") are values.
+
+Canon's maker notes hold some fields as raw codes (ISO, and in CRW files exposure,
+aperture and focal length, which CRW has nowhere else); they are decoded as
+exiftool decodes them (:data:`_CANON`), not through exiv2's CRW conversion, which
+reads the signed exposure code as unsigned (every exposure longer than 1 s
+became 1 s), turns a 0 aperture code into F1, and gives the capture time in the
+reading machine's time zone.
+
 Writing (:func:`exif_block`, :func:`embed`): exiv2 encodes the EXIF (its own
 TIFF structure: IFD0, the Exif and GPS IFDs), which goes as it is into a PNG
 ``eXIf`` chunk and heads rawsim's TIFF files (:mod:`rawsim.io.tiff`); JPEG files
@@ -70,12 +81,20 @@ FIELDS: dict[str, tuple[str, ...]] = {
     ),
     "Exif.Photo.SubSecTimeOriginal": ("Exif.Photo.SubSecTimeOriginal", "Exif.Photo.SubSecTime"),
     "Exif.Photo.OffsetTimeOriginal": ("Exif.Photo.OffsetTimeOriginal", "Exif.Photo.OffsetTime"),
-    "Exif.Photo.ExposureTime": ("Exif.Photo.ExposureTime", "Exif.Image.ExposureTime"),
-    "Exif.Photo.FNumber": ("Exif.Photo.FNumber", "Exif.Image.FNumber"),
+    "Exif.Photo.ExposureTime": (
+        "Exif.Photo.ExposureTime",
+        "Exif.Image.ExposureTime",
+        "Exif.CanonSi.ShutterSpeedValue",
+    ),
+    "Exif.Photo.FNumber": (
+        "Exif.Photo.FNumber",
+        "Exif.Image.FNumber",
+        "Exif.CanonSi.ApertureValue",
+    ),
     "Exif.Photo.ISOSpeedRatings": (
         "Exif.Photo.ISOSpeedRatings",
         "Exif.Image.ISOSpeedRatings",
-        "Exif.CanonSi.ISOSpeed",
+        "Exif.CanonCs.ISOSpeed",
         "Exif.Nikon3.ISOSpeed",
     ),
     "Exif.Photo.ExposureProgram": ("Exif.Photo.ExposureProgram", "Exif.Image.ExposureProgram"),
@@ -85,7 +104,11 @@ FIELDS: dict[str, tuple[str, ...]] = {
     ),
     "Exif.Photo.MeteringMode": ("Exif.Photo.MeteringMode", "Exif.Image.MeteringMode"),
     "Exif.Photo.Flash": ("Exif.Photo.Flash", "Exif.Image.Flash"),
-    "Exif.Photo.FocalLength": ("Exif.Photo.FocalLength", "Exif.Image.FocalLength"),
+    "Exif.Photo.FocalLength": (
+        "Exif.Photo.FocalLength",
+        "Exif.Image.FocalLength",
+        "Exif.Canon.FocalLength",
+    ),
     "Exif.Photo.FocalLengthIn35mmFilm": ("Exif.Photo.FocalLengthIn35mmFilm",),
     "Exif.Photo.SubjectDistance": ("Exif.Photo.SubjectDistance", "Exif.Image.SubjectDistance"),
     "Exif.Image.Artist": ("Exif.Image.Artist",),
@@ -108,6 +131,28 @@ _JPEG_TAGS = (
     ("Exif.Image.YCbCrPositioning", "1"),
     ("Exif.Photo.ComponentsConfiguration", "1 2 3 0"),
 )
+#: Fields whose 0 means "not recorded" (EXIF 2.32 says so of SubjectDistance and
+#: FocalLengthIn35mmFilm, and of ExposureProgram and MeteringMode's 0; an exposure,
+#: f-number, ISO or focal length of 0 cannot be). Other fields' 0 is a value.
+_ZERO_UNKNOWN = frozenset(
+    {
+        "Exif.Photo.ExposureTime",
+        "Exif.Photo.FNumber",
+        "Exif.Photo.ISOSpeedRatings",
+        "Exif.Photo.FocalLength",
+        "Exif.Photo.FocalLengthIn35mmFilm",
+        "Exif.Photo.SubjectDistance",
+        "Exif.Photo.LensSpecification",
+        "Exif.Photo.ExposureProgram",
+        "Exif.Photo.MeteringMode",
+    }
+)
+#: Fields that are numbers: a maker-note source must give a positive number.
+_NUMBERS = frozenset({"Exif.Photo.ISOSpeedRatings"})
+#: What exiv2 makes up for a CRW (its CrwMap) rather than reads: skipped there, in
+#: favour of Canon's own codes (:data:`_CANON`).
+_CRW_MADE_UP = frozenset({"Exif.Photo.ExposureTime", "Exif.Photo.FNumber"})
+_CRW_MIME = "image/x-canon-crw"
 #: Descriptions some raws carry in ImageDescription that describe nothing (a
 #: firmware's placeholder): dropped.
 _EMPTY_DESCRIPTIONS = ("", "OLYMPUS DIGITAL CAMERA", "SONY DSC", "DCIM")
@@ -185,9 +230,13 @@ def read_metadata(path: str | Path, libraw: bool = True) -> PhotoMetadata:
     except exiv2.Exiv2Error:
         return _from_libraw(path) if libraw else PhotoMetadata()
     data = image.exifData()
+    crw = image.mimeType() == _CRW_MIME
     fields: list[tuple[str, str]] = []
     for key, sources in FIELDS.items():
-        value = _first(data, sources)
+        if crw and key == "Exif.Photo.DateTimeOriginal":
+            value = _crw_capture_time(path)
+        else:
+            value = _first(data, key, sources, crw)
         if value is not None:
             fields.append((key, value))
     fields += [
@@ -199,31 +248,216 @@ def read_metadata(path: str | Path, libraw: bool = True) -> PhotoMetadata:
     return PhotoMetadata(tuple(fields), xmp or "", str(path))
 
 
-def _first(data, sources: tuple[str, ...]) -> str | None:
-    """The first usable value among ``sources`` (see :data:`FIELDS`), as text."""
+def _first(data, key: str, sources: tuple[str, ...], crw: bool = False) -> str | None:
+    """The first usable value of field ``key`` among ``sources`` (see :data:`FIELDS`),
+    as text; in a CRW (``crw``) not what exiv2 makes up (:data:`_CRW_MADE_UP`)."""
     import exiv2
 
     for source in sources:
+        if crw and source in _CRW_MADE_UP:
+            continue
         found = data.findKey(exiv2.ExifKey(source))
         if found == data.end():
             continue
         standard = source.split(".")[1] in ("Image", "Photo")
-        # maker-note values (lens codes, ISO codes) read best as exiv2 prints them
-        value = found.toString() if standard else found.print(data)
-        value = value.strip().strip("\0").strip()
-        if _usable(source, value, standard):
+        if source in _CANON:
+            value = _CANON[source](data, found, crw)
+        else:
+            # maker-note values (lens codes) read best as exiv2 prints them
+            value = found.toString() if standard else found.print(data)
+        value = None if value is None else value.strip().strip("\0").strip()
+        if value is not None and _usable(key, source, value, standard):
             return value
     return None
 
 
-def _usable(source: str, value: str, standard: bool) -> bool:
-    """Whether a value carries information: not empty, not a zero rational, not a
-    placeholder description, and from maker notes not a code exiv2 cannot name."""
-    if not value or value in ("0", "0/0", "0/1", "(0)", "n/a") or value.startswith("Unknown"):
+def _usable(key: str, source: str, value: str, standard: bool) -> bool:
+    """Whether a value of field ``key`` read from ``source`` carries information: not
+    empty, not a zero where zero means unknown (:data:`_ZERO_UNKNOWN`), not a
+    placeholder description, a positive number where a number is due, and from maker
+    notes not a code exiv2 cannot name."""
+    if not value or value in ("0/0", "(0)", "n/a") or value.startswith("Unknown"):
+        return False
+    if key in _ZERO_UNKNOWN and _all_zero(value):
         return False
     if source.endswith("ImageDescription") and value.upper() in _EMPTY_DESCRIPTIONS:
         return False
-    return standard or not (value[0] == "(" or value.isdigit())
+    if key in _NUMBERS:
+        return _number(value) is not None
+    return standard or source in _CANON or not (value[0] == "(" or value.isdigit())
+
+
+def _all_zero(value: str) -> bool:
+    """Whether every number of an EXIF value's text (``0``, ``0/10``, ``0/1 0/1``) is 0."""
+    parts = value.split()
+    return all(p.partition("/")[0].strip("+-").strip("0.") == "" for p in parts)
+
+
+def _number(value: str) -> float | None:
+    """A positive finite number written as ``x`` or ``n/d``, else None."""
+    head, _, tail = value.partition("/")
+    try:
+        x = float(head) / float(tail) if tail else float(head)
+    except (ValueError, ZeroDivisionError):
+        return None
+    return x if 0 < x < float("inf") else None
+
+
+# ------------------------------------------------------------------ Canon's codes
+def _int16(datum, i: int) -> int | None:
+    """Element ``i`` of a maker-note array exiv2 holds as unsigned shorts, as the
+    signed number Canon wrote; None where the array is shorter."""
+    if datum.count() <= i:
+        return None
+    v = int(datum.toInt64(i))
+    return v - 0x10000 if v >= 0x8000 else v
+
+
+def _find(data, key: str):
+    import exiv2
+
+    found = data.findKey(exiv2.ExifKey(key))
+    return None if found == data.end() else found
+
+
+def _canon_ev(code: int) -> float:
+    """Canon's EV code (1/32 EV, with 0x0c and 0x14 for 1/3 and 2/3), as exiftool's
+    ``CanonEv``."""
+    sign, code = (-1, -code) if code < 0 else (1, code)
+    frac = code & 0x1F
+    whole = code - frac
+    thirds = {0x0C: 32 / 3, 0x14: 64 / 3}.get(frac, frac)
+    return sign * (whole + thirds) / 32
+
+
+def _canon_iso(data, found, crw: bool) -> str | None:
+    """exiftool's Canon ISO: CameraSettings' CameraISO where it is a number, else
+    ShotInfo's BaseISO × AutoISO / 100, rounded."""
+    if found.count() < 1:
+        return None
+    code = int(found.toInt64(0))  # unsigned: 0x4000 flags an ISO written as a number
+    if code >= 0x7FFF:
+        return None
+    if code & 0x4000:
+        return str(code & 0x3FFF)
+    if code in _CANON_ISO_CODES:
+        return str(_CANON_ISO_CODES[code])
+    base = _find(data, "Exif.CanonSi.ISOSpeed")
+    auto = _find(data, "Exif.CanonSi.AutoISO")
+    base = None if base is None else _int16(base, 0)
+    auto = None if auto is None else _int16(auto, 0)
+    if not base or auto is None:
+        return None
+    iso = 2 ** (base / 32) * 100 / 32 * 2 ** (auto / 32)
+    return f"{iso:.0f}"
+
+
+_CANON_ISO_CODES = {16: 50, 17: 100, 18: 200, 19: 400, 20: 800}
+
+
+def _canon_exposure(data, found, crw: bool) -> str | None:
+    """A CRW's exposure time from ShotInfo's code (a signed 1/32 EV; 0 is 1 s in a
+    CRW, as exiftool takes it), as a camera writes it: 1/N below 1/4 s, else tenths."""
+    code = _int16(found, 0)
+    if not crw or code is None:
+        return None  # other files' EXIF has it; their 0 means "not recorded"
+    seconds = 2 ** -_canon_ev(code)
+    if seconds < 0.25001:
+        return f"1/{round(1 / seconds)}"
+    return _fraction(round(seconds * 10), 10)
+
+
+def _canon_aperture(data, found, crw: bool) -> str | None:
+    """A CRW's f-number from ShotInfo's code (1/32 EV of Av; 0: not recorded), to two
+    significant figures as exiftool prints it."""
+    code = _int16(found, 0)
+    if not crw or not code:
+        return None
+    f = float(f"{2 ** (_canon_ev(code) / 2):.2g}")
+    return _fraction(round(f * 10), 10)
+
+
+def _canon_focal_length(data, found, crw: bool) -> str | None:
+    """Canon's FocalLength record's focal length over CameraSettings' FocalUnits (per mm)."""
+    focal = _int16(found, 1)
+    units = _find(data, "Exif.CanonCs.FocalUnits")
+    units = (None if units is None else _int16(units, 0)) or 1
+    if not focal or focal < 0 or units < 0:
+        return None
+    return _fraction(focal, units)
+
+
+def _fraction(n: int, d: int) -> str:
+    from math import gcd
+
+    g = gcd(n, d) or 1
+    return f"{n // g}/{d // g}"
+
+
+#: Maker-note sources held as Canon's raw codes: source key → decoder
+#: ``(exif data, datum, crw) → text or None``, each as exiftool decodes it.
+_CANON = {
+    "Exif.CanonCs.ISOSpeed": _canon_iso,
+    "Exif.CanonSi.ShutterSpeedValue": _canon_exposure,
+    "Exif.CanonSi.ApertureValue": _canon_aperture,
+    "Exif.Canon.FocalLength": _canon_focal_length,
+}
+
+
+def _crw_capture_time(path: str | Path) -> str | None:
+    """A CRW's capture time: its CIFF TimeStamp record (0x180e: seconds since 1970 of
+    the camera's clock, local time), as exiftool and LibRaw read it, in UTC terms.
+    (exiv2 converts it to the reading machine's time zone.) None if absent or 0."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+            if len(head) < 14 or head[6:14] != b"HEAPCCDR":
+                return None
+            order = {b"II": "<", b"MM": ">"}.get(head[:2])
+            if order is None:
+                return None
+            (start,) = struct.unpack(order + "I", head[2:6])
+            fh.seek(0, 2)
+            size = fh.tell()
+            stamp = _ciff_find(fh, order, start, size - start, 0x180E, depth=0)
+    except OSError:
+        return None
+    if not stamp:
+        return None
+    import datetime
+
+    when = datetime.datetime(1970, 1, 1) + datetime.timedelta(seconds=stamp)
+    return when.strftime("%Y:%m:%d %H:%M:%S")
+
+
+def _ciff_find(fh, order: str, start: int, length: int, tag: int, depth: int) -> int | None:
+    """The first 32-bit value of CIFF record ``tag`` in the heap at ``start``
+    (``length`` bytes) or the heaps below it; None if absent."""
+    if depth > 8 or length < 6:
+        return None
+    fh.seek(start + length - 4)
+    (table,) = struct.unpack(order + "I", fh.read(4))
+    if table + 2 > length:
+        return None
+    fh.seek(start + table)
+    (count,) = struct.unpack(order + "H", fh.read(2))
+    entries = fh.read(10 * count)
+    if len(entries) < 10 * count:
+        return None
+    for i in range(count):
+        kind, size, offset = struct.unpack(order + "HII", entries[10 * i : 10 * i + 10])
+        if (kind & 0x3FFF) == tag:
+            if kind & 0x4000:  # the value sits in the entry itself
+                return size
+            if size < 4 or offset + 4 > length:
+                return None
+            fh.seek(start + offset)
+            return struct.unpack(order + "I", fh.read(4))[0]
+        if kind & 0x3800 in (0x2800, 0x3000) and offset + size <= length:  # a heap
+            found = _ciff_find(fh, order, start + offset, size, tag, depth + 1)
+            if found is not None:
+                return found
+    return None
 
 
 def _from_libraw(path: str | Path) -> PhotoMetadata:
