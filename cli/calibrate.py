@@ -8,24 +8,24 @@ from pathlib import Path
 
 import click
 
-from rawsim_cli.options import output_options, usage_errors
+from rawsim_cli.options import PathType, output_options, usage_errors
 
 
 @click.command("calibrate")
 @output_options
-@click.argument("raws", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("raws", nargs=-1, required=True, type=PathType("input"))
 @click.option(
     "-o",
     "--output",
     required=True,
-    type=click.Path(dir_okay=False),
+    type=PathType("out_file", example="mycam.json"),
     help="The profile JSON to write.",
 )
 @click.option(
     "--dark",
     "darks",
     multiple=True,
-    type=click.Path(exists=True),
+    type=PathType("input"),
     help="A dark frame (lens cap on), repeatable; a folder adds every raw in it.",
 )
 @click.option(
@@ -38,7 +38,9 @@ from rawsim_cli.options import output_options, usage_errors
 )
 @click.option("--iso", type=float, help="Use this ISO for every file instead of its metadata.")
 @click.option("--name", help="Profile name (default: from the output file name).")
-@click.option("--plot", type=click.Path(dir_okay=False), help="Write a PNG of the fits.")
+@click.option(
+    "--plot", type=PathType("out_file", example="fit.png"), help="Write a PNG of the fits."
+)
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON list, one object per ISO.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output profile.")
 @click.option(
@@ -60,8 +62,10 @@ from rawsim_cli.options import output_options, usage_errors
     help="An ISO where the sensor switches conversion gain: dark shading is fitted per "
     "range. Repeatable.",
 )
+@click.pass_context
 @usage_errors
 def command(
+    ctx,
     raws,
     output,
     darks,
@@ -108,6 +112,25 @@ def command(
       rawsim calibrate photos/*.CR2 --method patches -o mycam.json --json
       rawsim calibrate flats/ --dark darks/ --dark-shading --gain-switch 800 -o mycam.json
     """
+    from rawsim.errors import shown
+    from rawsim.io.images import RAW_EXTENSIONS
+    from rawsim.run.batch import discover
+
+    # The usage errors first, before the fitting code (torch, SciPy) is imported.
+    if dark_shading and not darks:
+        raise click.UsageError(
+            "--dark-shading needs dark frames: add --dark FOLDER (8 or more frames per "
+            "ISO), or drop --dark-shading",
+            ctx,
+        )
+    for given, what in ((raws, "RAWS"), (darks, "--dark")):
+        if given and not discover(given, RAW_EXTENSIONS).found:
+            raise click.UsageError(
+                f"{what}: no raw files in {', '.join(shown(g) for g in given)}: give raw "
+                "files (DNG, CR2, NEF, ARW, RAF, …) or folders of them",
+                ctx,
+            )
+
     from rawsim.calibrate import (
         CalibrationRefused,
         build_profile,
@@ -119,10 +142,8 @@ def command(
     from rawsim.dark_calibration import PatternRemoval, accumulate, add_to_profile
     from rawsim.errors import ParameterError
     from rawsim.io.atomic import atomic_output
-    from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.io.raw import read_raw
     from rawsim.profiles import profile_from_dict
-    from rawsim.run.batch import discover
 
     out = Path(output)
     if out.exists() and not overwrite:  # the same policy as every command: skip

@@ -7,19 +7,20 @@ from pathlib import Path
 
 import click
 
-from rawsim_cli.options import output_options, usage_errors
+from rawsim_cli.options import PathType, output_options, usage_errors
 
 
 @click.command("events")
 @output_options
-@click.argument("frames", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("frames", nargs=-1, required=True, type=PathType("input"))
 @click.option(
     "-o",
     "--output",
     "out_dir",
     required=True,
-    type=click.Path(file_okay=False),
-    help="Output folder: events.npz (and preview/ with --preview).",
+    type=PathType("out_folder"),
+    help="Output folder (made when the first output is written): events.<format> "
+    "(and preview/ with --preview).",
 )
 @click.option(
     "--fps",
@@ -114,8 +115,10 @@ from rawsim_cli.options import output_options, usage_errors
     "there is one. The same events, bit for bit, on each.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON record of the run on stdout.")
+@click.pass_context
 @usage_errors
 def command(
+    ctx,
     frames,
     out_dir,
     fps,
@@ -157,26 +160,36 @@ def command(
     Example:
       rawsim events clip/ -o clip_events --fps 240 --format h5 --refractory-s 1e-4
     """
-    import numpy as np
-
-    from rawsim.errors import ParameterError
-    from rawsim.events.files import SUFFIX, EventFile
-    from rawsim.events.stream import EventParams, EventStream, voxel_grid
-    from rawsim.io.atomic import atomic_output
-    from rawsim.io.images import IMAGE_EXTENSIONS, write_image
+    from rawsim.errors import shown
+    from rawsim.events.files import SUFFIX
+    from rawsim.io.images import IMAGE_EXTENSIONS
     from rawsim.run.batch import discover
 
-    out = Path(out_dir)
-    target = out / f"events{SUFFIX[fmt]}"
-    if target.exists() and not overwrite:  # the same policy as every command: skip
-        click.echo(f"skip: {target} exists (use --overwrite to replace it)", err=True)
-        return
+    # The usage errors first, before the simulator and its libraries are imported.
     paths = []
     for item in frames:
         found = discover([item], IMAGE_EXTENSIONS).found
         paths += [p for p, _ in found]
     if len(paths) < 2:
-        raise ParameterError(f"need at least 2 frames, got {len(paths)}")
+        given = ", ".join(shown(f) for f in frames)
+        raise click.UsageError(
+            f"{given}: {len(paths)} frame{'s' * (len(paths) != 1)} found, events need at "
+            "least 2: give a folder of frames, or two or more image files in time order",
+            ctx,
+        )
+    out = Path(out_dir)
+    target = out / f"events{SUFFIX[fmt]}"
+    if target.exists() and not overwrite:  # the same policy as every command: skip
+        click.echo(f"skip: {target} exists (use --overwrite to replace it)", err=True)
+        return
+
+    import numpy as np
+
+    from rawsim.events.files import EventFile
+    from rawsim.events.stream import EventParams, EventStream, voxel_grid
+    from rawsim.io.atomic import atomic_output
+    from rawsim.io.images import write_image
+
     params = EventParams(
         threshold_pos, threshold_neg, sigma_threshold, cutoff_hz, leak_rate_hz, shot_noise_rate_hz
     )
@@ -194,7 +207,6 @@ def command(
     stream = EventStream(params, first.shape, seed, refractory_s, device=where)
     stream.start(first, 0.0)
     meta = {"fps": fps, "seed": seed, "refractory_s": refractory_s, **params.to_dict()}
-    out.mkdir(parents=True, exist_ok=True)
     totals = np.zeros(2, dtype=np.int64)
     voxels, previews = [], []
     with EventFile(target, fmt, first.shape, meta) as sink:
@@ -215,8 +227,7 @@ def command(
             np.save(fh, np.stack(voxels))
         written.append(str(out / "voxels.npy"))
     if preview:
-        folder = out / "preview"
-        folder.mkdir(exist_ok=True)
+        folder = out / "preview"  # made by the first preview written
         peak = max(max(int(c.max()) for c in previews), 1)
         for t, counts in enumerate(previews):
             level = np.round(counts * (255.0 / peak)).astype(np.uint8)

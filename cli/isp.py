@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from rawsim_cli.options import output_options, usage_errors
+from rawsim_cli.options import PathType, output_options, usage_errors
 
 
 @click.group("isp")
@@ -29,7 +29,7 @@ def show_cmd():
 
 @command.command("check")
 @output_options
-@click.argument("config", type=click.Path(dir_okay=False))
+@click.argument("config", type=PathType("file", exists=True))
 @usage_errors
 def check_cmd(config):
     """Validate a config file; print the effective stage order."""

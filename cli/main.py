@@ -6,19 +6,28 @@ Subcommands are imported only when run, so ``rawsim --help`` and
 
 from __future__ import annotations
 
-import importlib
-import logging
-import os
-import sys
-from importlib.metadata import PackageNotFoundError, version
+import time
 
-import click
+#: When this process started, nearly: this module is the first the ``rawsim`` script
+#: imports. Run summaries count from here (the imports and checks take seconds).
+STARTED = time.monotonic()
+
+import importlib  # noqa: E402  (after the clock starts)
+import logging  # noqa: E402
+import os  # noqa: E402
+import sys  # noqa: E402
+from importlib.metadata import PackageNotFoundError, version  # noqa: E402
+
+import click  # noqa: E402
 
 #: name → (module, one-line help). The help is here so that listing commands
 #: needs no import.
 COMMANDS = {
-    "unprocess": ("rawsim_cli.unprocess", "Turn sRGB/EXR images into noisy Bayer DNGs."),
-    "process": ("rawsim_cli.process", "Render camera raws through rawsim's ISP."),
+    "unprocess": (
+        "rawsim_cli.unprocess",
+        "Turn sRGB/EXR images into noisy raw DNGs (Bayer, X-Trans, any CFA).",
+    ),
+    "process": ("rawsim_cli.process", "Render camera raws (and rawsim's DNGs) through its ISP."),
     "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
     "info": ("rawsim_cli.info", "Print what rawsim reads from raws and will use."),
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
@@ -108,7 +117,8 @@ def cli(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     from rawsim_cli.options import set_log_level
 
     separate_stderr()  # before any reader thread collects the libraries' lines
-    ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug}
+    started = (ctx.obj or {}).get("started", time.monotonic())
+    ctx.obj = {"verbose": verbose, "quiet": quiet, "debug": debug, "started": started}
     logging.basicConfig(level=logging.WARNING, format="rawsim: %(message)s", stream=sys.stderr)
     set_log_level(ctx.obj)
 
@@ -118,7 +128,7 @@ def main() -> None:
 
     rawsim.engine.lean_start = True  # no user code compiles here: skip numba's BLAS probe
     try:
-        cli()
+        cli(obj={"started": STARTED})
     except SystemExit as done:
         _exit(done.code)
     _exit(0)

@@ -4,12 +4,60 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import traceback
 
 import click
 
 # Literal copy of rawsim.isp.tone.TONE_CURVES (checked by a test), so --help needs no torch.
 TONES = ("none", "smoothstep", "reinhard", "aces", "hable")
+
+class PathType(click.ParamType):
+    """A path option or argument whose refusals say what was given, what is wrong
+    and what to do: ``Invalid value for '-o' / '--output': out.png is a file, not a
+    folder: …``. ``kind`` is one of
+
+    * ``"input"``: a file or folder that exists;
+    * ``"file"``: a file to read (``exists``: it must be there), not a folder;
+    * ``"out_folder"``: a folder to write into, which need not exist: not a file;
+    * ``"out_file"``: a file to write, which need not exist: not a folder.
+
+    Values stay ``str``; nothing is created here.
+    """
+
+    name = "path"
+
+    def __init__(self, kind: str, exists: bool = False, example: str = "out.json") -> None:
+        if kind not in ("input", "file", "out_folder", "out_file"):
+            raise ValueError(f"unknown path kind {kind!r}")
+        self.kind, self.exists, self.example = kind, exists or kind == "input", example
+
+    def convert(self, value, param, ctx):
+        from rawsim.errors import shown
+
+        text = os.fspath(value)
+        if self.kind == "input" and not os.path.lexists(text):
+            what = "folder" if text.endswith(os.sep) or not os.path.splitext(text)[1] else "file"
+            self.fail(f"{shown(text)}: no such {what} (check the path)", param, ctx)
+        if self.kind == "file":
+            if os.path.isdir(text):
+                self.fail(f"{shown(text)} is a folder: give the file in it", param, ctx)
+            if self.exists and not os.path.exists(text):
+                self.fail(f"{shown(text)}: no such file (check the path)", param, ctx)
+        if self.kind == "out_folder" and os.path.exists(text) and not os.path.isdir(text):
+            self.fail(
+                f"{shown(text)} is a file, not a folder: give a folder (made when the "
+                "first output is written), or move the file away",
+                param,
+                ctx,
+            )
+        if self.kind == "out_file" and os.path.isdir(text):
+            example = os.path.join(text, self.example)
+            self.fail(
+                f"{shown(text)} is a folder: give a file name, e.g. {shown(example)}", param, ctx
+            )
+        return text
+
 
 overwrite_opt = click.option(
     "--overwrite",
@@ -82,10 +130,12 @@ def files_in_out(func):
         "--output",
         "out_dir",
         required=True,
-        type=click.Path(file_okay=False),
-        help="Output folder or URL (s3://bucket/prefix, …); the input folder tree is "
-        "mirrored under it.",
+        type=PathType("out_folder"),
+        help="Output folder or URL (s3://bucket/prefix, …), made when the first output "
+        "is written; the input folder tree is mirrored under it.",
     )(func)
+    # Not PathType("input"): an input may be a URL, and a missing one is reported with
+    # the others (rawsim.run.batch.discover), once the options are known to be good.
     return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=str))(func)
 
 
@@ -96,6 +146,12 @@ def batch_options(func):
     for option in reversed(options):
         func = option(func)
     return func
+
+
+def bad_option(hint: str, err: Exception) -> click.BadParameter:
+    """``err`` (a :class:`~rawsim.errors.RawsimError`) as a usage error of the option
+    ``hint`` (``"--iso"``): click prints ``Invalid value for '--iso': <err>``."""
+    return click.BadParameter(str(err), param_hint=f"'{hint}'")
 
 
 def usage_errors(func):

@@ -6,12 +6,13 @@ import click
 
 from rawsim_cli.options import (
     TONES,
+    PathType,
     batch_options,
     files_in_out,
     output_options,
     usage_errors,
 )
-from rawsim_cli.report import run_files
+from rawsim_cli.report import check_inputs, run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
@@ -29,7 +30,7 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "-c",
     "--config",
     "config_path",
-    type=click.Path(dir_okay=False),
+    type=PathType("file", exists=True),
     help="ISP config (TOML, see 'rawsim isp show'); flags below override it.",
 )
 @click.option(
@@ -216,11 +217,10 @@ def command(
     Example:
       rawsim process raws/ -o renders/ --wb camera --demosaic wcd --format tiff --bits 16
     """
-    from rawsim.device import resolve_device
     from rawsim.io.images import RAW_EXTENSIONS
     from rawsim.isp.config import IspConfig
-    from rawsim.pipelines.process import ProcessOptions, process_file
 
+    # Every usage error first, before the pipeline (and numba) is imported.
     config = IspConfig.load(config_path) if config_path else IspConfig.default()
     if half_size and demosaic:
         raise click.UsageError("--half-size replaces the demosaic: drop --demosaic", ctx)
@@ -248,12 +248,21 @@ def command(
         find_lens(lens, required=True)
     if thumbnail:
         if ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT and fmt != "jpg":
-            raise click.UsageError("--thumbnail writes the raw's embedded JPEG: --format jpg", ctx)
+            raise click.UsageError(
+                "--thumbnail writes the raw's embedded JPEG: use --format jpg, or drop it", ctx
+            )
         fmt = "jpg"
     nbits = int(bits) if bits else (16 if fmt == "exr" else 8)
     valid = {"png": (8, 16), "tiff": (8, 16), "jpg": (8,), "exr": (16, 32)}[fmt]
     if nbits not in valid:
         raise click.UsageError(f"--format {fmt} takes --bits {' or '.join(map(str, valid))}", ctx)
+    checked = check_inputs(
+        ctx, inputs, RAW_EXTENSIONS, "raw files", out_dir, shard, jobs, executor, address
+    )
+
+    from rawsim.device import resolve_device
+    from rawsim.pipelines.process import ProcessOptions, process_file
+
     resolve_device(device)
     options = ProcessOptions(
         config=config,
@@ -266,12 +275,8 @@ def command(
     )
     run_files(
         ctx,
-        inputs,
-        RAW_EXTENSIONS,
-        "raw files",
-        out_dir,
+        checked,
         0,  # processing draws no random numbers
-        shard,
         process_file,
         options,
         jobs,

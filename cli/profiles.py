@@ -6,7 +6,7 @@ import json
 
 import click
 
-from rawsim_cli.options import output_options, usage_errors
+from rawsim_cli.options import PathType, bad_option, output_options, usage_errors
 
 
 @click.group("profiles")
@@ -84,7 +84,7 @@ def _curve(spec: dict, unit: str) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @click.option(
     "--plot",
-    type=click.Path(dir_okay=False),
+    type=PathType("out_file", example="noise.png"),
     help="Write a PNG of noise σ versus signal at several ISOs.",
 )
 @usage_errors
@@ -101,9 +101,13 @@ def show_cmd(profile, iso, as_json, plot):
       rawsim profiles show nikon_d850 --iso 6400 --json
       rawsim profiles show sony_a7s2 --plot noise.png
     """
+    from rawsim.errors import RawsimError
     from rawsim.profiles import load_profile
 
-    p = load_profile(profile)
+    try:
+        p = load_profile(profile)
+    except RawsimError as err:
+        raise bad_option("NAME|PATH", err) from None
     if plot:
         from rawsim.plots import plot_noise_profile
 

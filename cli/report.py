@@ -6,18 +6,77 @@ import gc
 import json
 import sys
 import time
+from dataclasses import dataclass
 
 import click
 
 
-def run_files(
+@dataclass
+class Inputs:
+    """What :func:`check_inputs` found and checked, for :func:`run_files`."""
+
+    found: list
+    missing: list
+    ignored: list
+    out_dir: str
+    shard: tuple[int, int]
+
+
+def check_inputs(
     ctx: click.Context,
     inputs,
     extensions,
     what: str,
     out_dir,
-    seed: int,
     shard,
+    jobs: int = 1,
+    executor: str = "local",
+    address: str | None = None,
+) -> Inputs:
+    """Find ``inputs`` and check the options of the batch, before anything heavy
+    (torch, numba, the image libraries) is imported: each mistake exits 2 at once,
+    with one line naming what was given, what is wrong and what to do.
+
+    The output folder is checked, not made: the first output written makes it, so a
+    run that writes nothing leaves no folder behind.
+    """
+    from rawsim.errors import RawsimError
+    from rawsim.run import batch
+
+    if executor == "ray" and jobs > 1:
+        raise click.UsageError(
+            "--jobs is for local workers; with --executor ray the "
+            "cluster's CPUs set how many files run at once: drop --jobs",
+            ctx,
+        )
+    if address and executor != "ray":
+        raise click.UsageError("--address needs --executor ray: add it, or drop --address", ctx)
+    try:
+        parts = batch.parse_shard(shard)
+    except RawsimError as err:
+        raise click.BadParameter(str(err), ctx, param_hint="'--shard'") from None
+    found, missing, ignored = batch.discover(inputs, extensions)
+    if not found:
+        if missing:
+            raise click.UsageError(missing[0].message, ctx)
+        listed = ", ".join(_printable(str(i)) for i in inputs)
+        if ignored:
+            why = f"found only {_kinds(ignored)}"
+        else:
+            why = "it is empty" if len(inputs) == 1 else "they are empty"
+        raise click.UsageError(
+            f"no {what} in {listed} ({why}): give folders of {_extensions(extensions)} "
+            "files, or name a file to take it whatever its extension",
+            ctx,
+        )
+    _check_writable(ctx, out_dir)
+    return Inputs(found, missing, ignored, out_dir, parts)
+
+
+def run_files(
+    ctx: click.Context,
+    checked: Inputs,
+    seed: int,
     job,
     options,
     jobs: int,
@@ -26,35 +85,21 @@ def run_files(
     executor: str = "local",
     address: str | None = None,
 ) -> None:
-    """Discover ``inputs``, plan their outputs, run ``job`` on each and report; exits."""
+    """Plan the outputs of the inputs :func:`check_inputs` found, run ``job`` on each
+    and report; exits."""
     from rawsim.run import batch
 
-    found, missing, ignored = batch.discover(inputs, extensions)
-    if not found:
-        if missing:
-            raise click.UsageError(missing[0].message, ctx)
-        hint = f" (found only {_kinds(ignored)})" if ignored else ""
-        raise click.UsageError(f"no {what} found in {', '.join(inputs)}{hint}", ctx)
-    if executor == "ray" and jobs > 1:
-        raise click.UsageError(
-            "--jobs is for local workers; with --executor ray the "
-            "cluster's CPUs set how many files run at once",
-            ctx,
-        )
-    if address and executor != "ray":
-        raise click.UsageError("--address needs --executor ray", ctx)
-    _check_writable(ctx, out_dir)
-    if ignored:
+    if checked.ignored:
         verbose = (ctx.obj or {}).get("verbose")
         click.echo(
-            f"rawsim: not taken for their extension: {_kinds(ignored)}"
+            f"rawsim: not taken for their extension: {_kinds(checked.ignored)}"
             + ("" if verbose else " (-v lists them)"),
             err=True,
         )
-        for path in ignored if verbose else ():
+        for path in checked.ignored if verbose else ():
             click.echo(f"not taken: {_printable(str(path))}", err=True)
     tasks, pre_failed = batch.plan(
-        found, out_dir, options.output_suffixes(), seed, batch.parse_shard(shard)
+        checked.found, checked.out_dir, options.output_suffixes(), seed, checked.shard
     )
     # What is loaded by now (the pipeline, numba, torch) lives as long as the process:
     # out of the collector's reach, a full collection visits only the batch's own
@@ -71,7 +116,14 @@ def run_files(
         address=address,
         options=options,
     )
-    run_batch(ctx, tasks, results, missing + pre_failed, json_records)
+    run_batch(ctx, tasks, results, checked.missing + pre_failed, json_records)
+
+
+def _extensions(extensions, shown: int = 6) -> str:
+    """``.png, .jpg, .tif, … (14 kinds)``: the first few extensions a command takes."""
+    exts = list(dict.fromkeys(e.lower() for e in extensions))
+    more = f", … ({len(exts)} kinds)" if len(exts) > shown else ""
+    return ", ".join(exts[:shown]) + more
 
 
 def _kinds(paths) -> str:
@@ -84,25 +136,42 @@ def _kinds(paths) -> str:
 
 
 def _check_writable(ctx: click.Context, out_dir) -> None:
-    """Create the output folder and write a file in it, before any input is read:
-    exit 2 with one message if that cannot be done."""
+    """Check that the output folder can be written, without making it (the first
+    output written makes it): exit 2 with one message if it cannot be."""
+    import os
     import tempfile
     from pathlib import Path
 
     from rawsim.io import remote
 
     out_dir = remote.localize(out_dir)
+    shown = _printable(str(out_dir))
     try:
         if remote.is_url(out_dir):
             remote.check_writable(out_dir)
             return
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=out_dir) as probe:  # removed on close
-            probe.write(b"rawsim")
+        folder = Path(out_dir)
+        nearest = folder  # the folder itself, or the nearest of its parents that exists
+        while not nearest.exists() and nearest != nearest.parent:
+            nearest = nearest.parent
+        if not nearest.is_dir():
+            which = "it" if nearest == folder else _printable(str(nearest))
+            reason = f"{which} is a file, not a folder"
+            fix = "give another --output, or move the file away"
+        elif nearest == folder:  # write a file in it; removed on close
+            with tempfile.TemporaryFile(dir=folder) as probe:
+                probe.write(b"rawsim")
+            return
+        elif os.access(nearest, os.W_OK | os.X_OK):
+            return
+        else:
+            reason = f"{_printable(str(nearest))} is not writable (permission denied)"
+            fix = "give a folder you can write to"
     except OSError as err:
         reason = (err.strerror or str(err)).lower()
-        click.echo(f"rawsim: cannot write to {_printable(str(out_dir))}: {reason}", err=True)
-        ctx.exit(2)
+        fix = "give a folder you can write to"
+    click.echo(f"rawsim: cannot write to {shown}: {reason}: {fix}", err=True)
+    ctx.exit(2)
 
 
 def _printable(text: str) -> str:
@@ -125,6 +194,14 @@ _RECORD_KEYS = (
 )
 
 
+def elapsed(ctx: click.Context) -> float:
+    """Seconds since the command started: since the process started when run as
+    ``rawsim`` (``rawsim_cli.main.STARTED``), else since the group's callback
+    (a test's ``CliRunner``), so the summary counts the imports and the checks too."""
+    started = (ctx.obj or {}).get("started")
+    return time.monotonic() - started if started is not None else 0.0
+
+
 def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
     """Consume batch results with a progress bar; print failures, summary; exit.
 
@@ -137,7 +214,6 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
     obj = ctx.obj or {}
     quiet, verbose, debug = obj.get("quiet"), obj.get("verbose", 0), obj.get("debug")
     summary = Summary()
-    start = time.perf_counter()
     total = len(tasks) + len(pre_failed)
 
     def report(result) -> None:
@@ -189,7 +265,7 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
                 raise
             interrupted = Interrupted(signal_received())  # a library's error for it
             results_iter.close()
-    summary.seconds = time.perf_counter() - start
+    summary.seconds = elapsed(ctx)
     if interrupted is not None:
         left = total - summary.done - summary.skipped - summary.failed
         message = f"rawsim: interrupted by {interrupted}: {summary}, {left} not finished"

@@ -1,4 +1,8 @@
-"""``rawsim unprocess``: images → noisy CFA DNGs (Bayer, X-Trans, any periodic layout)."""
+"""``rawsim unprocess``: images → noisy CFA DNGs (Bayer, X-Trans, any periodic layout).
+
+Every usage error is found before the pipeline (torch, numba) is imported, so it is
+answered at once.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import click
 
 from rawsim_cli.options import (
     TONES,
+    bad_option,
     batch_options,
     files_in_out,
     output_options,
@@ -13,7 +18,7 @@ from rawsim_cli.options import (
     seed_opt,
     usage_errors,
 )
-from rawsim_cli.report import run_files
+from rawsim_cli.report import check_inputs, run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
@@ -205,19 +210,50 @@ def command(
       rawsim unprocess photos/ -o kit/ --profile canon_eos_700d --iso 400 \\
         --lens "Canon EF-S 18-55mm f/3.5-5.6 IS STM" --focal-length 18 --aperture 3.5
     """
-    from rawsim.device import resolve_device
+    from rawsim.errors import RawsimError
     from rawsim.io.images import IMAGE_EXTENSIONS
-    from rawsim.isp.transfer import TransferSpec
-    from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
     from rawsim.profiles import load_profile
 
-    if (iso is None) == (not iso_range):
-        raise click.UsageError("give exactly one of --iso N or --iso-range MIN MAX", ctx)
-    prof = load_profile(profile)
+    # Every usage error first, each with its option named, before torch and numba load.
+    if iso is not None and iso_range:
+        raise click.UsageError("both --iso and --iso-range given: keep one of them", ctx)
+    try:
+        prof = load_profile(profile)
+    except RawsimError as err:
+        raise bad_option("--profile", err) from None
+    if iso is None and not iso_range:
+        raise click.UsageError(
+            f"no ISO given: add --iso N or --iso-range MIN MAX ({_iso_span(prof)})", ctx
+        )
     if iso is None and iso_range[0] > iso_range[1]:
-        raise click.UsageError("--iso-range MIN MAX needs MIN ≤ MAX", ctx)
+        raise bad_option(
+            "--iso-range",
+            f"MIN {iso_range[0]:g} exceeds MAX {iso_range[1]:g}: give MIN MAX in increasing order",
+        )
+    given = [(iso, "--iso")] if iso is not None else [(v, "--iso-range") for v in iso_range]
+    for value, hint in given:
+        try:
+            prof.check_iso(value)
+        except RawsimError as err:
+            raise bad_option(hint, err) from None
+        try:
+            prof.noise.levels(noise, value)
+        except RawsimError as err:
+            raise bad_option("--noise", f"{err}: choose another --noise or profile") from None
+    if cfa is not None:
+        if sensor_kind == "mono":
+            raise click.UsageError(
+                "--cfa needs --sensor rgb: a mono sensor has no colour filter; drop one of them",
+                ctx,
+            )
+        try:
+            prof = prof.with_cfa(cfa)
+        except RawsimError as err:
+            raise bad_option("--cfa", err) from None
     if (focal_length or aperture) and not lens:
-        raise click.UsageError("--focal-length and --aperture go with --lens NAME", ctx)
+        raise click.UsageError(
+            "--focal-length and --aperture go with --lens NAME: add --lens, or drop them", ctx
+        )
     lens_record = None
     if lens:  # lensfun's lens on the profile's camera; an unknown name is a usage error
         from rawsim.io.lensfun import lens_params
@@ -227,6 +263,19 @@ def command(
         )
         for warning in warnings:
             click.echo(f"warning: {warning}", err=True)
+    checked = check_inputs(
+        ctx, inputs, IMAGE_EXTENSIONS, "input images", out_dir, shard, jobs, executor, address
+    )
+
+    # Then the pipeline (torch, numba).
+    from rawsim.device import resolve_device
+    from rawsim.isp.transfer import TransferSpec
+    from rawsim.pipelines.unprocess import UnprocessOptions
+
+    try:
+        spec = str(TransferSpec.parse(transfer))
+    except RawsimError as err:
+        raise bad_option("--transfer", err) from None
     resolve_device(device)
     options = UnprocessOptions(
         profile=prof,
@@ -237,7 +286,7 @@ def command(
         formats=("dng", "npz") if fmt == "both" else (fmt,),
         noise=noise,
         tone=tone,
-        transfer=str(TransferSpec.parse(transfer)),
+        transfer=spec,
         exposure_ev=exposure,
         vignetting=vignetting,
         safe_white_balance=wb_inverse == "safe",
@@ -246,17 +295,13 @@ def command(
         sensor=sensor_kind,
         strip_metadata=strip_metadata,
         lens=lens_record,
-    ).with_cfa(cfa)
+    )
     options.check_isos()
     run_files(
         ctx,
-        inputs,
-        IMAGE_EXTENSIONS,
-        "input images",
-        out_dir,
+        checked,
         seed,
-        shard,
-        unprocess_file,
+        unprocess_checked,
         options,
         jobs,
         overwrite,
@@ -264,3 +309,58 @@ def command(
         executor,
         address,
     )
+
+
+def _iso_span(prof) -> str:
+    """The ISOs a profile takes, for messages: ``sony_a7s2 takes ISO 100–409600``."""
+    if prof.iso_range is None:
+        return f"{prof.name} takes any ISO > 0"
+    lo, hi = prof.iso_range
+    return f"{prof.name} takes ISO {lo:g}" + ("" if lo == hi else f"–{hi:g}")
+
+
+#: The smallest X-Trans image LibRaw demosaics with its default interpolation, rows
+#: and columns alike. Measured with rawpy 0.28 / LibRaw 0.22.2 (tests/test_startup.py
+#: checks it): 510 × 900 and 900 × 510 DNGs fail with an I/O error in
+#: ``postprocess()``, 512 × 512 ones render; LibRaw treats any 6 × 6
+#: CFARepeatPatternDim as X-Trans. Its half-size and linear renders take any size.
+LIBRAW_XTRANS_MIN = 512
+
+
+def libraw_size_warning(record: dict, options) -> str | None:
+    """Why LibRaw (rawpy, and the tools built on it) cannot render the DNG of
+    ``record`` (a sidecar) with its default demosaic, and what to do; None if it can."""
+    if "dng" not in options.formats or options.sensor == "mono":
+        return None
+    if tuple(options.profile.cfa.period) != (6, 6):
+        return None
+    h, w = record.get("height", 0), record.get("width", 0)
+    if min(h, w) >= LIBRAW_XTRANS_MIN:
+        return None
+    return (
+        f"{w}×{h} X-Trans DNG: LibRaw (rawpy) cannot demosaic one under "
+        f"{LIBRAW_XTRANS_MIN}×{LIBRAW_XTRANS_MIN} (its postprocess() fails with an I/O "
+        "error; half_size or a linear demosaic work): give larger images, or a Bayer "
+        "profile or --cfa RGGB"
+    )
+
+
+def unprocess_checked(task, options) -> dict:
+    """:func:`~rawsim.pipelines.unprocess.unprocess_file`, with a warning for a DNG
+    that LibRaw cannot render (:func:`libraw_size_warning`)."""
+    from rawsim.pipelines.unprocess import unprocess_file
+
+    record = unprocess_file(task, options)
+    warning = libraw_size_warning(record, options)
+    if warning is not None:
+        record = {**record, "warnings": [*record.get("warnings", []), warning]}
+    return record
+
+
+def _read_ahead(task, options) -> None:
+    from rawsim.pipelines.unprocess import read_ahead
+
+    read_ahead(task, options)
+
+
+unprocess_checked.read_ahead = _read_ahead  # type: ignore[attr-defined]

@@ -113,12 +113,14 @@ class SensorProfile:
 
     def check_iso(self, iso: float) -> float:
         """Return ``iso`` if the profile allows it, else raise a clear error."""
+        span = "" if self.iso_range is None else "{:g}–{:g}".format(*self.iso_range)
         if not iso > 0:
-            raise ParameterError(f"ISO must be > 0, got {iso:g}")
+            within = f" (profile {self.name!r} takes {span})" if span else ""
+            raise ParameterError(f"ISO must be > 0, got {iso:g}: give a positive ISO{within}")
         if self.iso_range is not None and not self.iso_range[0] <= iso <= self.iso_range[1]:
-            lo, hi = self.iso_range
             raise ParameterError(
-                f"ISO {iso:g} is outside the range of profile {self.name!r} ({lo:g}–{hi:g})"
+                f"ISO {iso:g} is outside the range of profile {self.name!r} ({span}): "
+                "give an ISO within it, or another profile"
             )
         return iso
 
@@ -205,7 +207,12 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
-        raise ProfileError(f"{path}: profile file not found") from None
+        raise ProfileError(
+            f"{path}: profile file not found (check the path, or give a bundled name: "
+            "'rawsim profiles list')"
+        ) from None
+    except IsADirectoryError:
+        raise ProfileError(f"{path} is a folder: give a profile's JSON file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise ProfileError(f"{path}: cannot read profile ({err})") from None
     except json.JSONDecodeError as err:

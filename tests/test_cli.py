@@ -172,7 +172,7 @@ def test_debug_shows_tracebacks(photos, tmp_path):
 def test_usage_errors_exit_2(photos, tmp_path):
     out = tmp_path / "out"
     r = run("unprocess", photos, "-o", out, "-p", "sony_a7s2")
-    assert r.exit_code == 2 and "exactly one of --iso" in r.output
+    assert r.exit_code == 2 and "no ISO given: add --iso N" in r.output
     r = run("unprocess", photos, "-o", out, "-p", "nikon_d850", "--iso", 51200)
     assert r.exit_code == 2 and "outside the range" in r.output
     r = run("unprocess", photos, "-o", out, "-p", "no_such_camera", "--iso", 100)
@@ -188,12 +188,12 @@ def test_usage_errors_exit_2(photos, tmp_path):
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "notes.txt").write_text("x")
     r = run("unprocess", tmp_path / "empty", "-o", out, "-p", "sony_a7s2", "--iso", 100)
-    assert r.exit_code == 2 and "no input images found" in r.output and ".txt ×1" in r.output
+    assert r.exit_code == 2 and "no input images in" in r.output and ".txt ×1" in r.output
     blocked = tmp_path / "a_file"
     blocked.write_text("x")
     r = run("unprocess", photos, "-o", blocked / "out", "-p", "sony_a7s2", "--iso", 100)
     assert r.exit_code == 2 and r.output.count("cannot write to") == 1, r.output
-    assert "not a directory" in r.output
+    assert "a_file is a file, not a folder: give another --output" in r.output
     r = run("unprocess", photos, "-o", out, "-p", "sony_a7s2", "--iso", 100, "--transfer", "pq")
     assert r.exit_code == 2 and "transfer" in r.output
     assert not out.exists()

@@ -35,15 +35,43 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     writers that choose a format by extension still work.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    made: list[Path] = []
     tmp = temporary_name(path)
     try:  # the name is held before the file exists: a signal at any point leaves none
+        make_folder(path.parent, made)
         create(tmp)
         yield tmp
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        remove_made(made)
         raise
+
+
+def make_folder(folder: Path, made: list[Path]) -> None:
+    """Make ``folder`` and its missing parents, recording each in ``made`` (deepest
+    first) before it is made, so that :func:`remove_made` can take away what a write
+    that failed had made: a run that writes nothing leaves no folder."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    for f in reversed(missing):  # the outermost first
+        made.insert(0, f)
+        f.mkdir(exist_ok=True)
+
+
+def remove_made(made: list[Path]) -> None:
+    """Remove the folders of ``made`` (deepest first) that are empty. One that is not
+    (another output is in it) and those above it stay; :func:`create` makes again a
+    folder removed under another write that had just made it."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except FileNotFoundError:
+            continue
+        except OSError:
+            return
 
 
 def create(tmp: Path) -> None:
@@ -55,7 +83,14 @@ def create(tmp: Path) -> None:
     2^32 against each other temporary of this process) fails this write, and the
     other one, whose file its cleanup removes: no partial output either way.
     """
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
+    for attempt in range(3):
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666 & ~_UMASK))
+            return
+        except FileNotFoundError:  # a failed write beside this one took the empty folder
+            if attempt == 2:
+                raise
+            tmp.parent.mkdir(parents=True, exist_ok=True)
 
 
 def temporary_name(path: Path) -> Path:

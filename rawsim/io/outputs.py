@@ -39,7 +39,7 @@ from dataclasses import replace
 from pathlib import Path, PurePosixPath
 
 from rawsim.io import remote
-from rawsim.io.atomic import HOST, create, running, temporary_name
+from rawsim.io.atomic import HOST, create, make_folder, remove_made, running, temporary_name
 from rawsim.io.task import Task
 
 MARKER_PREFIX = ".rawsim-unfinished-"
@@ -151,16 +151,18 @@ def atomic_outputs(outputs: Mapping[str, Path]) -> Iterator[dict[str, Path]]:
     suffix for writers that choose a format by it); when the block succeeds, put
     them all in place as one set (:func:`placing`), the sidecar last.
 
-    On any error every temporary is removed; outputs already renamed stay for the
-    caller (:func:`rawsim.run.jobs._run_one` removes the ones it wrote). A signal
-    raises between any two steps, so each temporary's name is held before its file
-    is made and let go only after its rename.
+    The outputs' folders are made here, at the first write; on any error every
+    temporary is removed, and the folders made here if they are left empty; outputs
+    already renamed stay for the caller (:func:`rawsim.run.jobs._run_one` removes the
+    ones it wrote). A signal raises between any two steps, so each temporary's name
+    is held before its file is made and let go only after its rename.
     """
     paths = {kind: Path(p) for kind, p in outputs.items()}
     temporaries: dict[str, Path] = {}
+    made: list[Path] = []  # the folders this set's first write makes
     try:
         for kind, path in paths.items():
-            path.parent.mkdir(parents=True, exist_ok=True)
+            make_folder(path.parent, made)
             temporaries[kind] = temporary_name(path)
             create(temporaries[kind])
         yield dict(temporaries)
@@ -168,6 +170,11 @@ def atomic_outputs(outputs: Mapping[str, Path]) -> Iterator[dict[str, Path]]:
             for kind, path in _in_order(paths):
                 _place(temporaries[kind], path)
                 del temporaries[kind]
+    except BaseException:
+        for tmp in temporaries.values():
+            tmp.unlink(missing_ok=True)
+        remove_made(made)  # those left empty: a failed set leaves no folder
+        raise
     finally:
         for tmp in temporaries.values():
             tmp.unlink(missing_ok=True)
