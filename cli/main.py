@@ -25,7 +25,7 @@ import click  # noqa: E402
 COMMANDS = {
     "unprocess": (
         "rawsim_cli.unprocess",
-        "Turn sRGB/EXR images into noisy raw DNGs (Bayer, X-Trans, any CFA).",
+        "Turn sRGB/EXR images into noisy raw DNGs (Bayer, X-Trans, …).",
     ),
     "process": ("rawsim_cli.process", "Render camera raws (and rawsim's DNGs) through its ISP."),
     "isp": ("rawsim_cli.isp", "Show and check ISP configs."),
@@ -33,6 +33,7 @@ COMMANDS = {
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
     "calibrate": ("rawsim_cli.calibrate", "Fit a noise profile from a camera's raws."),
     "events": ("rawsim_cli.events", "Simulate event-camera (DVS) counts from frames."),
+    "compile": ("rawsim_cli.compile", "Compile the engine's kernels for this CPU ahead of time."),
 }
 
 
