@@ -33,6 +33,7 @@ COMMANDS = {
     "profiles": ("rawsim_cli.profiles", "List and show sensor profiles."),
     "calibrate": ("rawsim_cli.calibrate", "Fit a noise profile from a camera's raws."),
     "events": ("rawsim_cli.events", "Simulate event-camera (DVS) counts from frames."),
+    "compile": ("rawsim_cli.compile", "Compile the engine's kernels for this CPU ahead of time."),
 }
 
 

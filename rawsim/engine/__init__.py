@@ -56,7 +56,8 @@ def _import_numba_lean() -> None:
 
 
 def configure() -> None:
-    """Choose a fork-safe threading layer before any kernel runs.
+    """Choose a fork-safe threading layer before any kernel runs, and log the
+    kernels numba compiles (:mod:`rawsim.engine.compile_log`).
 
     Batch jobs and DataLoaders fork workers; a child forked after GNU OpenMP has
     started its threads is killed ("fork() called from a process already using
@@ -65,9 +66,12 @@ def configure() -> None:
     """
     import numba
 
+    from rawsim.engine import compile_log
+
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = "forksafe"
     _allow_runtime_overlap_checks()
+    compile_log.install()
 
 
 #: LLVM vectoriser limits, raised: a loop whose arrays LLVM cannot prove disjoint is

@@ -1,0 +1,180 @@
+"""``rawsim compile``: build every compiled kernel for this CPU ahead of time.
+
+The engine's kernels are numba functions cached on disk (see :mod:`rawsim.engine`).
+Without this step the first command that needs a kernel compiles it (seconds to
+minutes, logged as it happens); after it, the first command runs as fast as the
+second. It runs each command the engine serves once, on tiny images made here,
+in ``--jobs`` processes at a time: the commands compile exactly what they use.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+
+import click
+
+from rawsim_cli.options import output_options, usage_errors
+
+BAYER = "unprocess: 8-bit photo, Bayer, physics noise"
+RENDER = "process: Bayer, every demosaic, 8/16-bit output"
+LENS = "unprocess: through a lens"
+XTRANS = "unprocess: X-Trans"
+
+#: (what it builds, the task whose outputs or kernels it needs or None, rawsim
+#: arguments), in the order they start: ``{in}`` is the folder of inputs, ``{out}``
+#: of outputs. Each command compiles what a user's run of its kind uses (input
+#: types, CFA, noise model, output type, lens). A task whose kernels share callees
+#: with another's waits for it, and loads those callees from the cache instead of
+#: compiling them a second time alongside.
+TASKS: tuple[tuple[str, str | None, str], ...] = (
+    (
+        BAYER,
+        None,
+        "unprocess {in}/photo.png -o {out}/bayer -p sony_a7s2 --iso 1600 --noise physics --clean",
+    ),
+    (
+        "unprocess: 16-bit photo, Poisson-Gaussian noise",
+        None,
+        "unprocess {in}/photo16.png -o {out}/u16 -p nikon_d850 --iso 3200 --noise poisson-gaussian",
+    ),
+    (RENDER, BAYER, "process {out}/bayer/photo.dng -o {out}/png"),
+    ("process: float output", RENDER, "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
+    ("process: half size", RENDER, "process {out}/bayer/photo.dng -o {out}/half --half-size"),
+    (XTRANS, BAYER, "unprocess {in}/photo.png -o {out}/xtrans -p fujifilm_xt3 --iso 800"),
+    ("process: X-Trans", XTRANS, "process {out}/xtrans/photo.dng -o {out}/xtrans_png"),
+    (
+        LENS,
+        BAYER,
+        "unprocess {in}/photo.png -o {out}/lens -p canon_eos_700d --iso 800 "
+        "--lens 'Canon EF-S 18-55mm f/3.5-5.6 IS STM' --focal-length 18 --aperture 3.5",
+    ),
+    (
+        "process: lens correction",
+        LENS,
+        "process {out}/lens/photo.dng -o {out}/lens_png --lens-correction auto",
+    ),
+    (
+        "unprocess: linear EXR, Gaussian noise",
+        None,
+        "unprocess {in}/linear.exr -o {out}/linear -p nikon_d850 --iso 800 --noise gaussian",
+    ),
+    (
+        "unprocess: monochrome sensor",
+        BAYER,
+        "unprocess {in}/photo.png -o {out}/mono -p sony_a7s2 --iso 800 --sensor mono",
+    ),
+    ("events", None, "events {in}/frames -o {out}/events --fps 100"),
+)
+
+_COMPILED = re.compile(r"^rawsim: compiled (\S+) in ", re.M)
+
+
+@click.command("compile")
+@output_options
+@click.option(
+    "-j",
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Commands compiled at a time (default: the cores this process may use).",
+)
+@usage_errors
+def command(jobs):
+    """Compile the engine's kernels for this CPU now, so no later command waits.
+
+    Each command the compiled engine serves (unprocess, process, events, in each
+    of their kinds: 8/16-bit and float inputs, noise models, Bayer and X-Trans,
+    lenses, float outputs) is run once on tiny images in a temporary folder; numba
+    caches what they compile on disk, where every later run loads it. Run it once
+    after installing or upgrading rawsim (a few minutes); a second run finds the
+    kernels cached and takes seconds. Progress goes to stderr.
+
+    \b
+    Example:
+      pip install rawsim && rawsim compile
+    """
+    jobs = jobs or len(os.sched_getaffinity(0))
+    started = time.monotonic()
+    click.echo(
+        f"rawsim: compiling the engine's kernels: {len(TASKS)} commands, {jobs} at a time",
+        err=True,
+    )
+    compiled = 0
+    with tempfile.TemporaryDirectory(prefix="rawsim-compile-") as tmp:
+        folders = {"in": Path(tmp) / "in", "out": Path(tmp) / "out"}
+        _inputs(folders["in"])
+        for done, (what, seconds, kernels) in enumerate(_schedule(folders, jobs), 1):
+            compiled += len(kernels)
+            news = f"{len(kernels)} kernels compiled" if kernels else "cached already"
+            click.echo(f"rawsim: [{done}/{len(TASKS)}] {what}: {news} ({seconds:.1f} s)", err=True)
+    click.echo(
+        f"rawsim: {compiled} kernels compiled in {time.monotonic() - started:.1f} s; "
+        "later runs load them from numba's cache",
+        err=True,
+    )
+
+
+def _schedule(folders: dict[str, Path], jobs: int):
+    """Run :data:`TASKS`, ``jobs`` at a time, each once the task it needs is done;
+    yield (what, seconds, kernels compiled) as each ends."""
+    waiting, finished = list(TASKS), set()
+    with ThreadPoolExecutor(jobs) as pool:
+        running = {}
+        while waiting or running:
+            for task in [t for t in waiting if t[1] is None or t[1] in finished]:
+                if len(running) == jobs:
+                    break
+                waiting.remove(task)
+                running[pool.submit(_run, task[2], folders)] = task[0]
+            ended = next(as_completed(running))
+            what = running.pop(ended)
+            finished.add(what)
+            yield (what, *ended.result())
+
+
+def _run(args: str, folders: dict[str, Path]) -> tuple[float, list[str]]:
+    """Run one rawsim command in a fresh process; its seconds and the kernels it compiled."""
+    argv = [a.format_map(folders) for a in shlex.split(args)]
+    started = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "rawsim_cli.main", *argv],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+    )
+    if proc.returncode:
+        lines = proc.stderr.strip().splitlines()
+        raise click.ClickException(
+            f"'rawsim {' '.join(argv)}' failed while compiling (exit {proc.returncode}): "
+            f"{lines[-1] if lines else 'no message'}; rerun it with --debug to see why"
+        )
+    return time.perf_counter() - started, _COMPILED.findall(proc.stderr)
+
+
+def _inputs(folder: Path) -> None:
+    """The tiny inputs: a 96 × 144 8-bit and 16-bit photo, a linear EXR of it, and
+    three frames for events. Smooth gradients with a little texture: every code path
+    (highlights, darks) is reached."""
+    import numpy as np
+
+    from rawsim.io.images import write_image
+
+    folder.mkdir()
+    (folder / "frames").mkdir()
+    y, x = np.mgrid[0:96, 0:144].astype(np.float32)
+    base = np.stack([x / 143, y / 95, 0.5 + 0.5 * np.sin(x / 7) * np.cos(y / 5)], axis=-1)
+    photo = np.clip(base, 0, 1)
+    write_image(folder / "photo.png", np.round(photo * 255).astype(np.uint8), "png")
+    write_image(folder / "photo16.png", np.round(photo * 65535).astype(np.uint16), "png")
+    write_image(folder / "linear.exr", (photo**2.2 * 1.5).astype(np.float32), "exr", color=None)
+    for i in range(3):
+        frame = np.clip(photo * (0.6 + 0.2 * i), 0, 1)
+        write_image(folder / "frames" / f"{i}.png", np.round(frame * 255).astype(np.uint8), "png")
