@@ -62,18 +62,36 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
             click.echo(f"error: {err}", err=True)
             failed += 1
             continue
+        if not facts.get("iso"):  # LibRaw's 0: not recorded, not a value
+            facts["iso"] = None
         if as_json:
             click.echo(json.dumps(facts))
             continue
         click.echo(shown(path))
-        for key, value in facts.items():
-            if key == "renderable":
-                value = "yes" if value else f"no — {facts['reason']}"
-            if key == "reason":
-                continue
-            if key == "metadata":
-                for tag, text in value.items():
-                    click.echo(f"  {tag:<24} {text}")
-            elif key != "file" and value not in (None, []):
-                click.echo(f"  {key:<24} {value}")
+        for line in _lines(facts):
+            click.echo(line)
     ctx.exit(1 if failed else 0)
+
+
+def _lines(facts: dict) -> list[str]:
+    """The text form of ``describe``'s record: one ``key value`` line a fact (none for
+    an unknown one), then the photo metadata under its own heading, less the Make and
+    Model already given as ``make`` and ``model``."""
+    out = []
+    metadata = facts.get("metadata") or {}
+    for key, value in facts.items():
+        if key in ("file", "reason", "metadata") or value in (None, []):
+            continue
+        if key == "renderable":
+            value = "yes" if value else f"no — {facts['reason']}"
+        elif key == "iso":
+            value = f"{value:g}"
+            if "ISOSpeedRatings" not in metadata:  # e.g. a Kodak DC50's, from LibRaw's table
+                value += " (LibRaw's figure for this camera; the file records no ISO)"
+        out.append(f"  {key:<24} {value}")
+    same = {"Make": facts.get("make"), "Model": facts.get("model")}
+    shown = {tag: text for tag, text in metadata.items() if same.get(tag) != text}
+    if shown:
+        out.append("  metadata (carried into renders)")
+        out += [f"    {tag:<22} {text}" for tag, text in shown.items()]
+    return out

@@ -205,4 +205,4 @@ def test_info_shows_the_fields_and_the_baseline_exposure(tagged_raw):
     assert facts["metadata"]["GPSLatitude"] == "52 deg 31' 12.34\""
     assert facts["baseline_exposure"] == 0.0 and facts["baseline_exposure_applied"] is True
     text = CliRunner().invoke(cli, ["info", str(tagged_raw)])
-    assert "  Copyright                (c) 2024 Jane Doe" in text.output
+    assert "    Copyright              (c) 2024 Jane Doe" in text.output

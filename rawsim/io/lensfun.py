@@ -147,6 +147,7 @@ def find_camera(make: str, model: str):
     """lensfun's camera for EXIF ``make`` and ``model``, or None. A model without its
     make (``Canon``, ``EOS 700D``: rawsim's sensor profiles and the DNGs they write)
     is looked up as lensfun spells it too (``Canon EOS 700D``)."""
+    make, model = _named(make), _named(model)
     if not make or not model:
         return None
     found = database().find_cameras(make, model)
@@ -253,9 +254,10 @@ def lens_params(
         )
     if camera is None:
         crop = found.crop_factor
-        who = _camera_text(make, model) or "the camera"
+        who = _camera_text(make, model)
+        who = f"the camera {who!r}" if who else "the camera (the raw names none)"
         warnings.append(
-            f"{what}: {who} is not in lensfun's database: assuming the sensor "
+            f"{what}: lensfun does not know {who}: assuming the sensor "
             f"{found.model} was calibrated on (crop factor {crop:.3g})"
         )
     else:
@@ -372,10 +374,19 @@ def raw_lens(
 
 
 def _camera_text(make: str, model: str) -> str:
-    """ "Canon EOS 60D" for make Canon, model "Canon EOS 60D"; "SONY ILCE-6000"."""
+    """ "Canon EOS 60D" for make Canon, model "Canon EOS 60D"; "SONY ILCE-6000";
+    the model alone where the make is not known; "" where neither is."""
+    make, model = _named(make), _named(model)
     if model.casefold().startswith(make.casefold()):
-        return model.strip()
+        return model
     return f"{make} {model}".strip()
+
+
+def _named(name: str) -> str:
+    """A camera name, or "" for none: rawsim's raws say "unknown" where the file
+    names no make or model (:class:`~rawsim.io.raw.RawImage`), which is no name."""
+    name = (name or "").strip()
+    return "" if name.casefold() == "unknown" else name
 
 
 def _of(camera: str) -> str:

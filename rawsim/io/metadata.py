@@ -178,7 +178,7 @@ class PhotoMetadata:
         """Tag name → value (exiv2's human-readable form), for ``rawsim info`` and sidecars."""
 
         data = self._exif_data()
-        return {d.tagName(): d.print(data) for d in data}
+        return {d.tagName(): _shown(d, data) for d in data}
 
     def _exif_data(self, output: Output | None = None):
         """exiv2's ExifData of the fields; for an ``output``, also the tags EXIF
@@ -201,6 +201,16 @@ class PhotoMetadata:
             data["Exif.Image.Orientation"] = str(output.orientation)
             data[SOFTWARE_KEY] = output.software
         return data
+
+
+def _shown(datum, data) -> str:
+    """exiv2's human-readable form of a value; an f-number to one decimal, as exiftool
+    and cameras show it (exiv2's two significant figures make f/22.6 "F23")."""
+    if datum.key() == "Exif.Photo.FNumber" and datum.count() == 1:
+        f = datum.toFloat(0)
+        if f > 0:
+            return f"F{f:.1f}".removesuffix(".0")
+    return datum.print(data)
 
 
 @dataclass(frozen=True)

@@ -222,6 +222,7 @@ class _TiffFacts:
     make: str = "unknown"
     model: str = "unknown"
     cfa_rows: tuple[str, ...] | None = None
+    dng: bool = False
 
 
 def _tiff_facts(path: Path) -> _TiffFacts:
@@ -243,7 +244,8 @@ def _tiff_facts(path: Path) -> _TiffFacts:
                 cfa_rows = _dng_cfa(tif)
             except Exception:  # a tag we cannot parse: LibRaw's reading stands
                 cfa_rows = None
-            return _TiffFacts(make or "unknown", model or "unknown", cfa_rows)
+            dng = "DNGVersion" in tags
+            return _TiffFacts(make or "unknown", model or "unknown", cfa_rows, dng)
     except Exception:  # not TIFF-based: rawpy does not expose the names; exiv2 may
         return _TiffFacts(*_exiv2_camera(path))
 
@@ -568,7 +570,9 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
     elif cfa is None:
         data = np.ascontiguousarray(data[:, :, :3])
         black_level = black[:3].copy()
-        warnings.append("no CFA (linear DNG): rendered as 3-channel linear data")
+        # a linear DNG, or another raw LibRaw gives as full colour (some old Kodaks)
+        kind = "a linear DNG" if tiff.dng else "LibRaw gives it as full-colour pixels"
+        warnings.append(f"no CFA ({kind}): rendered as 3-channel linear data")
     else:
         h, w = data.shape
         ph, pw = cfa.period
