@@ -39,20 +39,28 @@ def available() -> bool:
 
 
 def _import_numba_lean() -> None:
-    """Import numba with ``scipy.linalg`` hidden, once, if nothing imported it before.
+    """Import numba with ``scipy.linalg`` and ``cffi`` hidden, once, if nothing
+    imported them before.
 
     numba probes for BLAS (for ``np.dot`` in compiled code) by importing
     ``scipy.linalg``: 0.15 s of a cold start, for functions the engine does not
     use. Hidden, the probe fails and numba marks BLAS absent in this process;
-    ``scipy.linalg`` itself imports normally afterwards.
+    ``scipy.linalg`` itself imports normally afterwards. Likewise numba's typing of
+    cffi functions builds a C parser (pycparser, 0.04 s) when the first cached
+    kernel loads; the engine passes no cffi function, and ``cffi`` itself imports
+    normally afterwards.
     """
-    if "numba" in sys.modules or "scipy.linalg" in sys.modules:
+    hidden = ("scipy.linalg", "cffi")
+    if "numba" in sys.modules or any(name in sys.modules for name in hidden):
         return
-    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]
+    for name in hidden:
+        sys.modules[name] = None  # type: ignore[assignment]
     try:
+        import numba.core.typing.cffi_utils  # noqa: F401  (where cffi is tried)
         import numba.np.arraymath  # noqa: F401  (where the probe runs)
     finally:
-        del sys.modules["scipy.linalg"]
+        for name in hidden:
+            del sys.modules[name]
 
 
 def configure() -> None:
