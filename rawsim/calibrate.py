@@ -67,9 +67,12 @@ TILE_FOOTPRINT = 96
 MIN_TILE = 16
 #: The high-pass of the patch method and the flatness check (unit white-noise gain).
 HIGH_PASS = np.array([1.0, -4.0, 6.0, -4.0, 1.0]) / math.sqrt(70.0)
-#: Order of the patch method's second detail filter (its systematic check): scene texture
-#: reaches a 6th-order difference far less than the 4th-order one, noise equally.
-CHECK_ORDER = 6
+#: Orders of the patch method's further detail filters (its systematic checks): scene
+#: texture reaches a 6th- and an 8th-order difference less and less (by how much depends
+#: on the texture's spectrum: fine texture reaches them nearly as much), noise equally.
+#: K's systematic error is its largest distance from the K these give (issue 42: the
+#: 6th order alone caught too little of fine texture's bias on unseen photos).
+CHECK_ORDERS = (6, 8)
 #: Quantile of block variances taken as the noise in a level set (patch method).
 PATCH_QUANTILE = 0.05
 #: Signal bins (log-spaced) and the fewest blocks a bin needs.
@@ -125,11 +128,12 @@ class FrameStats:
 
     ``var`` is each block's noise variance estimate, ``row_var`` the variance of
     its rows' offsets (flat method) and ``group`` (N,) its region for the
-    bootstrap. ``var_check`` is a second estimate of each block's noise variance
-    that the method's known bias reaches differently: the high-pass noise of a
-    flat tile (which an illumination's curvature does not reach), the
-    :data:`CHECK_ORDER` detail of a patch block (which scene texture reaches far
-    less); the spread of K between the two is the fit's systematic error.
+    bootstrap. ``var_check`` (E, C, N) holds further estimates of each block's
+    noise variance that the method's known bias reaches differently: the
+    high-pass noise of a flat tile (which an illumination's curvature does not
+    reach; E = 1), the :data:`CHECK_ORDERS` details of a patch block (which scene
+    texture reaches less and less; E = 2); the largest distance of K from the K
+    each of these gives is the fit's systematic error.
     ``tile`` is the flat method's tile side (:func:`tile_side`). ``flatness`` is
     the median ratio of tile variance to high-pass noise (flat method; ≈ 1 for a
     flat field).
@@ -263,11 +267,11 @@ def high_pass(x: np.ndarray, order: int = 4) -> np.ndarray:
     return sum(k[j] * y[..., :, j : w - order + j] for j in range(order + 1))
 
 
-def _check_detail(planes: np.ndarray) -> np.ndarray:
-    """The :data:`CHECK_ORDER` detail of (C, H, W) on the 4th-order detail's pixels:
+def _check_detail(planes: np.ndarray, order: int) -> np.ndarray:
+    """The ``order``-th detail of (C, H, W) on the 4th-order detail's pixels:
     (C, H − 4, W − 4); the planes are mirrored at the edges for the extra support."""
-    pad = (CHECK_ORDER - 4) // 2
-    return high_pass(np.pad(planes, ((0, 0), (pad, pad), (pad, pad)), mode="reflect"), CHECK_ORDER)
+    pad = (order - 4) // 2
+    return high_pass(np.pad(planes, ((0, 0), (pad, pad), (pad, pad)), mode="reflect"), order)
 
 
 def _blocks(x: np.ndarray, size: int) -> np.ndarray:
@@ -315,12 +319,15 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         hp = (high_pass(x) ** 2).mean(axis=(-2, -1))
         ratio = stats[1] / np.maximum(hp, 1e-12)
         mean, var, row_var = stats
-        check = hp
+        checks = [hp]
     else:
         d = _blocks(high_pass(planes), BLOCK)
         support = _blocks(planes[:, 2:-2, 2:-2], BLOCK)
         var = (d**2).mean(axis=(-2, -1))
-        check = (_blocks(_check_detail(planes), BLOCK) ** 2).mean(axis=(-2, -1))
+        checks = [
+            (_blocks(_check_detail(planes, order), BLOCK) ** 2).mean(axis=(-2, -1))
+            for order in CHECK_ORDERS
+        ]
         mean = support.mean(axis=(-2, -1))
         peak, low = _block_extremes(planes, d.shape[1], d.shape[2])
         row_var, ratio = None, None
@@ -344,7 +351,7 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
         row_var=None if row_var is None else flat(row_var).astype(np.float32),
         valid=flat(valid),
         group=_regions(ny, nx).astype(np.int32),
-        var_check=flat(check).astype(np.float32),
+        var_check=np.stack([flat(c) for c in checks]).astype(np.float32),
         flatness=flatness,
         tile=tile,
     )
@@ -449,12 +456,13 @@ def pure_noise_quantile(q: float = PATCH_QUANTILE, order: int = 4) -> float:
     return float(np.quantile(v, q))
 
 
-def _bin_statistic(method: str, check: bool = False) -> tuple[float, float]:
-    """(quantile, divisor) of a bin's variances (of ``var``, or of ``var_check`` with
-    ``check``) that estimates its noise variance."""
+def _bin_statistic(method: str, check: int | None = None) -> tuple[float, float]:
+    """(quantile, divisor) of a bin's variances (of ``var``, or of ``var_check[check]``)
+    that estimates its noise variance."""
     if method == "flat":
         return 0.5, 1.0
-    return PATCH_QUANTILE, pure_noise_quantile(PATCH_QUANTILE, CHECK_ORDER if check else 4)
+    order = 4 if check is None else CHECK_ORDERS[check]
+    return PATCH_QUANTILE, pure_noise_quantile(PATCH_QUANTILE, order)
 
 
 @dataclass
@@ -536,19 +544,20 @@ class ChannelData:
     var: np.ndarray
     group: np.ndarray  # bootstrap unit: frame × region
     tile: int = TILE  # the flat tiles' side (plane pixels): their variances' precision
-    check: np.ndarray | None = None  # the second variance estimate (FrameStats.var_check)
+    check: np.ndarray | None = None  # (E, N) further variance estimates (FrameStats.var_check)
 
 
 def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, np.ndarray, Line]:
     """The line of ``data``, its bootstrap and its check: (line, (RESAMPLES, 2 + BINS)
-    draws, the line of ``data.check``).
+    draws, the check line).
 
     The first pass bins the raw variances. The second bins each block's
     variance over the first line at its level, scaled back at the bin's level,
     and drops blocks within 5 σ of the white level. The bootstrap resamples the
     groups (weights on the second pass); each draw row holds slope, offset and
-    the bin values. The check line is the second pass on ``data.check`` (the
-    same blocks, bins and first line); NaN without it.
+    the bin values. A line is fitted to each row of ``data.check`` by the second
+    pass (the same blocks, bins and first line); the check line is the one whose
+    slope is farthest from the line's, NaN without checks or if any gives no line.
     """
     edges = _bin_edges(data.mean)
     q, divisor = _bin_statistic(method)
@@ -574,8 +583,12 @@ def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, 
     line = second(bins, np.ones(group.size))
     check = unchecked
     if data.check is not None:
-        check_divisor = _bin_statistic(method, check=True)[1]
-        check = second(binned(data.check), np.ones(group.size), check_divisor)
+        checks = [
+            second(binned(var), np.ones(group.size), _bin_statistic(method, e)[1])
+            for e, var in enumerate(data.check)
+        ]
+        if all(math.isfinite(c.slope) for c in checks):
+            check = max(checks, key=lambda c: abs(c.slope - line.slope))
     groups, inverse = np.unique(group, return_inverse=True)
     rng = np.random.default_rng(12345)
     for r in range(RESAMPLES):
@@ -658,28 +671,30 @@ def calibrate_iso(
         m = [f.mean[c][f.valid[c]] for f in flats for c in idx]
         v = [f.var[c][f.valid[c]] for f in flats for c in idx]
         g = [f.group[f.valid[c]] + i * REGIONS**2 for i, f in enumerate(flats) for c in idx]
-        check = [f.var_check[c][f.valid[c]] for f in flats for c in idx]
-        if method == "flat":  # dark frames' tiles anchor both lines at zero signal
+        check = [f.var_check[:, c][:, f.valid[c]] for f in flats for c in idx]
+        estimators = flats[0].var_check.shape[0]
+        if method == "flat":  # dark frames' tiles anchor all lines at zero signal
             for i, d in enumerate(darks):
                 for c in idx:
                     m.append(np.zeros(d.read_var.shape[1]))
                     v.append(d.read_var[c])
-                    check.append(d.read_var[c])
+                    check.append(np.broadcast_to(d.read_var[c], (estimators, d.read_var.shape[1])))
                     g.append(np.arange(d.read_var.shape[1]) + (len(flats) + i) * REGIONS**2)
-        m, v, g, check = (np.concatenate(a) for a in (m, v, g, check))
+        m, v, g = (np.concatenate(a) for a in (m, v, g))
+        check = np.concatenate(check, axis=-1)
         per_channel.append(ChannelData(m, v, g, flats[0].tile, check))
     if min(d.mean.size for d in per_channel) < 8:
         raise CalibrationRefused(
             [f"ISO {iso:g}: too few unsaturated blocks to fit; expose the frames below white"]
         )
-    pooled = {k: np.concatenate([getattr(d, k) for d in per_channel]) for k in _POOLED}
+    pooled = {k: np.concatenate([getattr(d, k) for d in per_channel], -1) for k in _POOLED}
     line, draws, check = fit_with_errors(ChannelData(**pooled, tile=flats[0].tile), method, span)
     k_stat, k_sys = _std(draws[:, 0]), abs(line.slope - check.slope)
     errors = {"K": math.hypot(k_stat, k_sys), "K_statistical": k_stat, "K_systematic": k_sys}
     problems += _line_problems(line, draws, darks, span, errors["K"])
     if math.isfinite(line.slope) and not math.isfinite(check.slope):
         problems.append(
-            f"the second variance estimator ({_CHECKS[method]}) gives no line, so K's "
+            f"a further variance estimator ({_CHECKS[method]}) gives no line, so K's "
             "systematic error is unknown; " + _LEVELS_HINT
         )
     channels, points = {}, {}
@@ -737,10 +752,14 @@ def calibrate_iso(
     )
 
 
-#: The arrays of :class:`ChannelData` pooled over channels, and each method's second
-#: variance estimator (:attr:`FrameStats.var_check`), as the problems name it.
+#: The arrays of :class:`ChannelData` pooled over channels (along the blocks), and each
+#: method's further variance estimators (:attr:`FrameStats.var_check`), as the problems
+#: name them.
 _POOLED = ("mean", "var", "group", "check")
-_CHECKS = {"flat": "the tiles' high-pass noise", "patches": f"the {CHECK_ORDER}th-order detail"}
+_CHECKS = {
+    "flat": "the tiles' high-pass noise",
+    "patches": " or ".join(f"the {n}th-order detail" for n in CHECK_ORDERS),
+}
 
 
 def channel_planes(channels: tuple[str, ...]) -> dict[str, list[int]]:
