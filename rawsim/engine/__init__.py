@@ -64,7 +64,8 @@ def _import_numba_lean() -> None:
 
 
 def configure() -> None:
-    """Choose a fork-safe threading layer before any kernel runs, and log the
+    """Choose a fork-safe threading layer before any kernel runs, as many threads as
+    the process may keep busy (:func:`rawsim.cores.usable_cores`), and log the
     kernels numba compiles (:mod:`rawsim.engine.compile_log`).
 
     Batch jobs and DataLoaders fork workers; a child forked after GNU OpenMP has
@@ -74,10 +75,13 @@ def configure() -> None:
     """
     import numba
 
+    from rawsim.cores import usable_cores
     from rawsim.engine import compile_log
 
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = "forksafe"
+    if "NUMBA_NUM_THREADS" not in os.environ:  # a CPU quota below the visible cores
+        numba.set_num_threads(min(numba.get_num_threads(), usable_cores()))
     _allow_runtime_overlap_checks()
     compile_log.install()
 

@@ -24,7 +24,6 @@ where the encoding has H.273 code points; text attributes as ``tEXt`` chunks.
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from concurrent.futures import ThreadPoolExecutor
@@ -32,13 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
+from rawsim.cores import usable_cores
 from rawsim.io.pieces import open_empty, write_pieces
 
 #: Rows per independently filtered and deflated band.
 BAND_ROWS = 128
 _FILTER_AVERAGE = 3
 #: Deflate threads; batch workers set their share of the cores (:func:`set_threads`).
-_threads = os.cpu_count() or 1
+_threads = usable_cores()
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Channels → PNG colour type: grey, grey + alpha, RGB, RGBA.
 _COLOUR_TYPES = {1: 0, 2: 4, 3: 2, 4: 6}

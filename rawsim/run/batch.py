@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import NamedTuple
 
+from rawsim.cores import usable_cores
 from rawsim.errors import ParameterError, shown
 from rawsim.io import remote
 from rawsim.io.atomic import remove_stale_temporaries
@@ -288,7 +289,7 @@ def _outputs_exist(task: Task) -> bool:
 
 def _run_pool(tasks, job, jobs, overwrite, debug, kwargs) -> Iterator[Result]:
     """:func:`run` in ``jobs`` worker processes (each with its share of the threads)."""
-    threads = max(1, (os.cpu_count() or 1) // jobs)
+    threads = max(1, usable_cores() // jobs)
     pool = ProcessPoolExecutor(
         max_workers=jobs,
         mp_context=_worker_context(),

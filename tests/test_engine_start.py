@@ -1,0 +1,120 @@
+"""How the engine starts: the cores it may use (cgroup quotas), and compiles said aloud."""
+
+import logging
+import os
+import subprocess
+import sys
+
+import numba
+import pytest
+
+import rawsim.engine
+from rawsim.cores import cgroup_quota, usable_cores
+from rawsim.engine import compile_log
+from tests.conftest import ROOT
+
+
+def _cgroup(tmp_path, membership: str, files: dict[str, str]):
+    (tmp_path / "self").write_text(membership)
+    for name, text in files.items():
+        path = tmp_path / "fs" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    return tmp_path / "self", tmp_path / "fs"
+
+
+@pytest.mark.parametrize(
+    "membership, files, cores",
+    [
+        ("0::/\n", {"cpu.max": "max 100000\n"}, None),  # v2, no quota
+        ("0::/\n", {"cpu.max": "200000 100000\n"}, 2),  # v2, 2 cores' worth
+        ("0::/\n", {"cpu.max": "150000 100000\n"}, 2),  # 1.5 cores: rounded up
+        ("0::/\n", {"cpu.max": "20000 100000\n"}, 1),  # a fifth of a core: still 1
+        # v2: a parent's lower quota holds for its children
+        (
+            "0::/job/step\n",
+            {"job/step/cpu.max": "400000 100000\n", "job/cpu.max": "100000 100000\n"},
+            1,
+        ),
+        # v1: cpu controller, quota -1 is none
+        (
+            "4:cpu,cpuacct:/\n",
+            {"cpu,cpuacct/cpu.cfs_quota_us": "-1\n", "cpu,cpuacct/cpu.cfs_period_us": "100000\n"},
+            None,
+        ),
+        (
+            "4:cpu,cpuacct:/\n",
+            {
+                "cpu,cpuacct/cpu.cfs_quota_us": "300000\n",
+                "cpu,cpuacct/cpu.cfs_period_us": "100000\n",
+            },
+            3,
+        ),
+        ("0::/\n", {}, None),  # no cpu.max file (cpu controller not enabled)
+    ],
+)
+def test_cgroup_quota(tmp_path, membership, files, cores):
+    assert cgroup_quota(*_cgroup(tmp_path, membership, files)) == cores
+
+
+def test_usable_cores_within_affinity():
+    assert 1 <= usable_cores() <= len(os.sched_getaffinity(0))
+
+
+def test_engine_threads_capped_by_usable_cores():
+    rawsim.engine.configure()
+    if "NUMBA_NUM_THREADS" not in os.environ:
+        assert numba.get_num_threads() <= usable_cores()
+
+
+def test_compile_is_logged_once_per_kernel(caplog):
+    """A rawsim kernel's compile (a cache miss) logs its start, with how to compile
+    ahead, and its end with the seconds; a second call (compiled) logs nothing."""
+
+    def probe(x):
+        return x + 1
+
+    probe.__qualname__ = "probe"
+    probe.__module__ = "rawsim.engine.probe"  # as if rawsim's: only those are logged
+    kernel = numba.njit(probe)  # no cache: a compile every test run
+    rawsim.engine.configure()
+    compile_log._listener._announced = False
+    with caplog.at_level(logging.WARNING, logger="rawsim.engine"):
+        assert kernel(1) == 2
+        assert kernel(2) == 3
+    lines = [r.getMessage() for r in caplog.records]
+    assert "rawsim compile" in lines[0]
+    assert lines[1] == "compiling engine.probe.probe …"
+    assert lines[2].startswith("compiled engine.probe.probe in ") and lines[2].endswith(" s")
+    assert len(lines) == 3
+
+
+def test_foreign_kernels_are_not_logged(caplog):
+    kernel = numba.njit(lambda x: x * 2)
+    rawsim.engine.configure()
+    with caplog.at_level(logging.WARNING, logger="rawsim.engine"):
+        assert kernel(2) == 4
+    assert not caplog.records
+
+
+@pytest.mark.slow
+def test_first_run_with_empty_cache_says_it_compiles(tmp_path):
+    """A user's first command on an empty numba cache says on stderr that it compiles."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    import numpy as np
+
+    from rawsim.io.images import write_image
+
+    for i in range(2):
+        write_image(frames / f"{i}.png", np.full((16, 16, 3), 60 * (i + 1), np.uint8), "png")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    cmd = [sys.executable, "-m", "rawsim_cli.main", "events", str(frames), "--fps", "100"]
+    cmd += ["-o", str(tmp_path / "ev")]
+    first = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=ROOT)
+    assert first.returncode == 0, first.stderr
+    assert "compiling the engine's kernels for this CPU" in first.stderr
+    assert "rawsim compile" in first.stderr
+    again = subprocess.run([*cmd, "--overwrite"], env=env, capture_output=True, text=True, cwd=ROOT)
+    assert again.returncode == 0, again.stderr
+    assert "compiling" not in again.stderr
