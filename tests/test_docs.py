@@ -10,12 +10,12 @@
   page's earlier blocks. Shell blocks run under ``bash -euo pipefail`` with this
   interpreter's ``bin`` first on PATH (so ``rawsim`` and ``python`` are the ones
   under test); ``console`` blocks run their ``$ `` lines.
-* Not run: install commands (``pip install``, ``apt-get``: a line or ``&&`` segment
-  starting with one is dropped, and a block of nothing else is skipped), and blocks
-  preceded by ``<!-- doc-test: skip REASON -->`` (a Slurm script, a real bucket or
-  cluster, a long training run), each with its reason shown in the skip. Output
-  examples are ```` ```text ````, configs ```` ```toml ```` / ```` ```json ````;
-  those are not code.
+* Not run: install commands (``pip install``, ``apt-get``, ``rawsim compile``: a line
+  or ``&&`` segment starting with one is dropped, and a block of nothing else is
+  skipped), and blocks preceded by ``<!-- doc-test: skip REASON -->`` (a Slurm
+  script, a real bucket or cluster, a long training run), each with its reason
+  shown in the skip. Output examples are ```` ```text ````, configs
+  ```` ```toml ```` / ```` ```json ````; those are not code.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
 RUN = {"sh", "bash", "console", "python"}
 SKIP = re.compile(r"<!--\s*doc-test:\s*skip\s+(.+?)\s*-->")
-INSTALL = re.compile(r"^\s*(sudo\s+)?(pip3?|python3? -m pip|apt-get|apt)\s")
+INSTALL = re.compile(r"^\s*((sudo\s+)?(pip3?|python3? -m pip|apt-get|apt)\s|rawsim compile\s*$)")
 TIMEOUT = 240  # seconds per block: a cold machine compiles the engine's kernels once
 
 
