@@ -16,9 +16,10 @@ import importlib  # noqa: E402  (after the clock starts)
 import logging  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
-from importlib.metadata import PackageNotFoundError, version  # noqa: E402
 
 import click  # noqa: E402
+
+from rawsim._version import __version__  # noqa: E402  (the package's version, as pip has it)
 
 #: name → (module, one-line help). The help is here so that listing commands
 #: needs no import.
@@ -40,13 +41,6 @@ COMMANDS = {
 EXIT_INTERNAL, EXIT_INTERRUPTED = 3, 130
 #: 128 + SIGPIPE, as a shell reports a program its pipe reader left.
 EXIT_BROKEN_PIPE = 141
-
-
-def _version() -> str:
-    try:
-        return version("rawsim")
-    except PackageNotFoundError:  # running from a source tree
-        return "unknown"
 
 
 class LazyGroup(click.Group):
@@ -90,7 +84,7 @@ class LazyGroup(click.Group):
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(_version(), "--version", prog_name="rawsim")
+@click.version_option(__version__, "--version", prog_name="rawsim")
 @click.option("-v", "--verbose", count=True, help="More output (repeat for debug logs).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors and the summary.")
 @click.option("--debug", is_flag=True, help="Show tracebacks for errors.")
