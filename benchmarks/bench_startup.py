@@ -14,16 +14,23 @@ usage error under 0.5 s, none of those libraries imported.
 worktree, run with this interpreter and ``PYTHONPATH`` pointing at it), for a
 before/after on the same machine at the same moment.
 
-The report starts with the machine: CPU model, vector extensions (avx2, avx512f,
-fma from /proc/cpuinfo), cores, and this process's CPU affinity. Sections are
-functions in ``SECTIONS``; each takes the parsed arguments and returns its lines.
+``--fresh-venv`` adds the first hour of a new user: the checkout copied into an
+empty folder (as CI does), a new virtual environment, ``pip install -c
+constraints.txt -e .`` timed, then the README's quickstart command
+(``rawsim unprocess examples/photos …``) and a ``rawsim process`` of one of its
+DNGs, each run twice, the first beside the second: once without ``rawsim
+compile`` (the first run compiles what it uses) and once, on an empty numba cache
+(``NUMBA_CACHE_DIR``), after it. Target: after ``rawsim compile``, the first
+command within 2× of the second. Several minutes.
+
+The report starts with the machine (:mod:`machine`). Sections are functions in
+``SECTIONS``; each takes the parsed arguments and returns its lines.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import shutil
 import statistics
 import subprocess
@@ -31,6 +38,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from machine import describe
 
 ROOT = Path(__file__).resolve().parents[1]
 CODE = "import sys; from rawsim_cli.main import main; sys.argv[0] = 'rawsim'; main()"
@@ -54,29 +63,6 @@ CASES = {
     "profiles show sony_a7s2": ("profiles show sony_a7s2", 0),
     "--help": ("--help", 0),
 }
-
-
-def machine() -> list[str]:
-    """CPU model, vector extensions, cores: what the timings were taken on."""
-    model, flags = platform.processor() or "unknown", set()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name" and model in ("unknown", "x86_64", ""):
-                model = value.strip()
-            elif key.strip() in ("flags", "Features") and not flags:
-                flags = set(value.split())
-    except OSError:
-        pass
-    vector = [f for f in ("avx2", "avx512f", "fma") if f in flags]
-    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
-    return [
-        f"CPU: {model}",
-        f"vector extensions: {', '.join(vector) or 'none of avx2, avx512f, fma'}",
-        f"cores: {os.cpu_count()} (this process may use {usable}); load average: "
-        + " ".join(f"{v:.2f}" for v in os.getloadavg()),
-        f"Python {platform.python_version()}, {sys.executable}",
-    ]
 
 
 def scratch(folder: Path) -> None:
@@ -155,20 +141,88 @@ def usage_errors(args) -> list[str]:
     return lines
 
 
+def fresh_venv(args) -> list[str]:
+    """A new user's first commands, in a copy of the checkout with a new venv."""
+    if not args.fresh_venv:
+        return []
+    lines = ["first commands after a fresh install (a copy of the checkout, a new venv):"]
+    with tempfile.TemporaryDirectory(prefix="rawsim-fresh-") as tmp:
+        tree, venv = Path(tmp) / "rawsim", Path(tmp) / "venv"
+        files = subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            check=True,
+        ).stdout.split(b"\0")
+        for name in filter(None, files):
+            (tree / os.fsdecode(name)).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / os.fsdecode(name), tree / os.fsdecode(name))
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+        env = {**os.environ, "PATH": f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}"}
+        env.pop("NUMBA_CACHE_DIR", None)
+
+        def run(command: str, run_env: dict) -> float:
+            start = time.perf_counter()
+            subprocess.run(
+                command,
+                shell=True,
+                cwd=tree,
+                env=run_env,
+                check=True,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            return time.perf_counter() - start
+
+        seconds = run("pip install -q -c constraints.txt -e .", env)
+        lines.append(f"  pip install -c constraints.txt -e .      {seconds:7.1f} s")
+        quickstart = (
+            "rawsim unprocess examples/photos -o {o} --profile sony_a7s2 --iso 1600 --clean"
+        )
+        render = "rawsim process {o}/chelsea.dng -o {o}/rgb"
+        cases = [("without rawsim compile", env, None)]
+        cases.append(
+            (
+                "after rawsim compile, empty cache",
+                {**env, "NUMBA_CACHE_DIR": f"{tmp}/cache"},
+                "rawsim compile",
+            )
+        )
+        for k, (label, run_env, first) in enumerate(cases):
+            lines.append(f"  {label}:")
+            if first:
+                lines.append(f"    {first:<38} {run(first, run_env):7.1f} s")
+            for name, template in (
+                ("unprocess (quickstart)", quickstart),
+                ("process one DNG", render),
+            ):
+                a = run(template.format(o=f"out{k}a"), run_env)
+                b = run(template.format(o=f"out{k}b"), run_env)
+                lines.append(
+                    f"    {name:<24} first {a:6.1f} s, second {b:5.1f} s: {a / b:5.1f}×"
+                    + (" (target ≤ 2×)" if first else "")
+                )
+    return lines
+
+
 #: The report's sections, in order: each takes the arguments, returns its lines.
-#: (A "first command of a fresh venv against the second" section goes here.)
-SECTIONS = [usage_errors]
+SECTIONS = [usage_errors, fresh_venv]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=7, help="fresh processes per case")
     parser.add_argument("--git-ref", help="also time this commit (e.g. HEAD~3), same machine")
+    parser.add_argument(
+        "--fresh-venv", action="store_true", help="also a new venv's first commands (minutes)"
+    )
     args = parser.parse_args()
-    print("\n".join(machine()), flush=True)
+    print("\n".join(describe()), flush=True)
     for section in SECTIONS:
-        print()
-        print("\n".join(section(args)), flush=True)
+        lines = section(args)
+        if lines:
+            print()
+            print("\n".join(lines), flush=True)
 
 
 if __name__ == "__main__":
