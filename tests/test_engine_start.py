@@ -118,3 +118,37 @@ def test_first_run_with_empty_cache_says_it_compiles(tmp_path):
     again = subprocess.run([*cmd, "--overwrite"], env=env, capture_output=True, text=True, cwd=ROOT)
     assert again.returncode == 0, again.stderr
     assert "compiling" not in again.stderr
+
+
+def test_compile_runs_each_task_once_after_the_task_it_needs(monkeypatch):
+    """``rawsim compile``'s schedule: every task once, none before the task whose
+    DNGs or kernels it needs has ended, at most ``jobs`` at a time."""
+    import threading
+    import time
+
+    from rawsim_cli import compile as rc
+
+    names = [t[0] for t in rc.TASKS]
+    assert len(set(names)) == len(names)
+    assert all(need is None or need in names for _, need, _ in rc.TASKS)
+    events, lock, running = [], threading.Lock(), [0]
+    needs = {args: need for _, need, args in rc.TASKS}
+    what = {args: name for name, _, args in rc.TASKS}
+
+    def fake_run(args, folders):
+        with lock:
+            running[0] += 1
+            assert running[0] <= 2
+            events.append(("start", what[args], needs[args]))
+        time.sleep(0.01)
+        with lock:
+            running[0] -= 1
+            events.append(("end", what[args], None))
+        return 0.01, ["engine.x.kernel"]
+
+    monkeypatch.setattr(rc, "_run", fake_run)
+    ended = [w for w, _, _ in rc._schedule({}, 2)]
+    assert sorted(ended) == sorted(names)
+    for i, (kind, name, need) in enumerate(events):
+        if kind == "start" and need is not None:
+            assert ("end", need, None) in events[:i], f"{name} started before {need} ended"
