@@ -5,8 +5,10 @@ test_calibrate) with the Sony A7S II profile's physics noise, and each fitted on
 its own with the patch method; the truth is the profile's K at the ISO. Texture
 biases the patch method's K upwards by up to ~10 % (ISO 200), several times the
 bootstrap's standard error; the reported uncertainty must cover it. Measured on
-these 30 fits: 70 % of the accepted ones within 2 statistical σ, 96 % within 2σ
-of the reported uncertainty (statistical and systematic).
+these 30 fits (27 accepted): 70 % (19) of the accepted ones within 2 statistical
+σ, 100 % (27) within 2σ of the reported uncertainty (statistical and systematic;
+96 % when the systematic part came from the 6th-order detail alone). These photos
+tuned the method; tests/test_calibrate_heldout.py checks it on photos that did not.
 """
 
 import numpy as np
@@ -33,11 +35,16 @@ SEEDS = (1, 2)
 CROP = 256  # source pixels a side: 1024 × 1024 at camera resolution
 
 
-def _camera_photo(name: str) -> torch.Tensor:
-    """A centre crop of a test photo at camera resolution, (1, 3, 4·CROP, 4·CROP) in [0, 1]."""
+def _camera_photo(name: str, where: str = "centre") -> torch.Tensor:
+    """A crop of a test photo at camera resolution, (1, 3, 4·CROP, 4·CROP) in [0, 1]:
+    its centre, or a corner ("top-left", "top-right", "bottom-left", "bottom-right")."""
     decoded = read_image(DATA / name)
     x = torch.from_numpy(decoded.pixels[..., :3].astype(np.float32) / decoded.code_max)
     top, left = (x.shape[0] - CROP) // 2, (x.shape[1] - CROP) // 2
+    if where != "centre":
+        vertical, horizontal = where.split("-")
+        top = 0 if vertical == "top" else x.shape[0] - CROP
+        left = 0 if horizontal == "left" else x.shape[1] - CROP
     x = x[top : top + CROP, left : left + CROP].permute(2, 0, 1)[None]
     return torch.nn.functional.interpolate(x, scale_factor=4, mode="bicubic").clamp(0, 1)
 
@@ -96,3 +103,29 @@ def test_the_uncertainty_splits_into_statistical_and_systematic(patch_fits):
         assert e["K"] == pytest.approx(np.hypot(e["K_statistical"], e["K_systematic"]))
         assert e["K_statistical"] > 0 and e["K_systematic"] >= 0
         assert fit.to_dict()["uncertainty"]["K_systematic"] == e["K_systematic"]
+
+
+#: Tuning fits where K's systematic error from the 6th-order detail alone did not cover
+#: the truth (issue 42: fine texture reaches the 6th order nearly as much as the 4th):
+#: (photo, crop, ISO, seed, K's relative error then).
+TEXTURED = (
+    ("srgb/astronaut.png", "bottom-left", 200, 1, 0.052),
+    ("srgb/astronaut.png", "bottom-right", 12800, 1, -0.053),
+    ("srgb/astronaut.png", "bottom-right", 12800, 2, -0.062),
+    ("srgb/coffee.png", "centre", 200, 1, 0.072),
+    ("srgb/coffee.png", "top-left", 3200, 1, 0.049),
+    ("srgb16/hdr_room_16bit.png", "bottom-left", 200, 1, 0.043),
+    ("srgb/rocket.jpg", "top-left", 200, 2, 0.045),
+    ("srgb/rocket.jpg", "top-left", 800, 2, 0.041),
+    ("srgb/rocket.jpg", "bottom-left", 200, 1, 0.086),
+)
+
+
+def test_textured_crops_that_the_6th_order_check_missed_are_covered():
+    for name, where, iso, seed, _ in TEXTURED:
+        image = _camera_photo(name, where)
+        noisy, _, meta = unprocess(image, SENSOR, [seed], iso=iso, noise="physics")
+        truth = meta[0]["noise"]["gain_dn_per_electron"]
+        fit = calibrate_iso(iso, [frame_stats(_raw(noisy, iso), "patches")], [], "patches")
+        assert not fit.problems, fit.problems
+        assert abs(fit.K - truth) <= 2 * fit.errors["K"], (name, where, iso, seed, fit.K, truth)
