@@ -184,9 +184,10 @@ class IsoFit:
 
     ``errors`` holds the standard error of K, read_sigma, row_sigma and lambda;
     those of K and (without dark frames) read_sigma are the statistical error (a
-    bootstrap, under ``K_statistical``) and the systematic error (the spread
-    between the method's two variance estimators, under ``K_systematic``) in
-    quadrature. ``problems`` says why the fit is not to be trusted (empty when it is).
+    bootstrap, under ``K_statistical``) and the systematic error (the largest
+    distance from the fit of the method's further variance estimators,
+    :attr:`FrameStats.var_check`, under ``K_systematic``) in quadrature.
+    ``problems`` says why the fit is not to be trusted (empty when it is).
     """
 
     iso: float
