@@ -12,6 +12,7 @@ import click
 # Literal copy of rawsim.isp.tone.TONE_CURVES (checked by a test), so --help needs no torch.
 TONES = ("none", "smoothstep", "reinhard", "aces", "hable")
 
+
 class PathType(click.ParamType):
     """A path option or argument whose refusals say what was given, what is wrong
     and what to do: ``Invalid value for '-o' / '--output': out.png is a file, not a

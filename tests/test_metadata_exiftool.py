@@ -174,7 +174,8 @@ def make_crw(path, shot: dict, camera_iso: int, focal: int, when: int) -> Path:
 
 
 #: D30 shots: 5 s at f/5.6 ISO 100 (its exposure code negative: longer than 1 s);
-#: Tv 8 (1/256 s, as exiftool gives it), Auto ISO (BaseISO 100 × AutoISO 200 % = 200), no aperture recorded;
+#: Tv 8 (1/256 s, as exiftool gives it), Auto ISO (BaseISO 100 × AutoISO 200 % = 200),
+#: no aperture recorded;
 #: a code of 0: 1 s in a CRW.
 CRWS = {
     "five_seconds": dict(shot={2: 160, 21: 160, 22: -76}, camera_iso=17, focal=50),

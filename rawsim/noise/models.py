@@ -95,7 +95,6 @@ def sample_tukey_lambda(shape, lam: float, generator=None, device=None, dtype=to
     return tukey_lambda_quantile(_uniform(shape, generator, device, dtype), lam)
 
 
-
 def add_noise(
     dn: torch.Tensor, black, levels: NoiseLevels, key, cfa=None, top: int = 0, height=None
 ):
