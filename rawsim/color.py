@@ -49,6 +49,20 @@ def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> 
     return m
 
 
+def split_seed_matrix(values) -> tuple[np.ndarray, np.ndarray | None]:
+    """The seed's ``color_matrix`` (3×3, or 4×3 whose last row is a bias) as a
+    float64 (3, 3) matrix and a (3,) bias or None."""
+    try:
+        m = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"color matrix must be 3×3 or 4×3 numbers, got {values!r}") from None
+    if m.shape == (3, 3):
+        return m, None
+    if m.shape == (4, 3):
+        return m[:3], m[3]
+    raise ParameterError(f"color matrix must be 3×3 or 4×3 (last row bias), got {m.shape}")
+
+
 def camera_from_srgb(xyz_to_camera) -> np.ndarray:
     """Linear sRGB → white-balanced camera RGB, the way dcraw/LibRaw build it.
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from rawsim.cfa import CFA
-from rawsim.color import as_matrix, daylight_gains, xyz_to_camera_from_ccm
+from rawsim.color import as_matrix, daylight_gains, split_seed_matrix, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.noise.dark_shading import read_black_level_error, read_spec
 from rawsim.noise.spec import (
@@ -478,20 +478,6 @@ def _strings(r: _Reader, key: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _split_seed_matrix(values) -> tuple[np.ndarray, np.ndarray | None]:
-    """The seed's ``color_matrix`` (3×3, or 4×3 whose last row is a bias) as NumPy
-    arrays: :func:`rawsim.isp.color_matrix.split_seed_matrix` without torch."""
-    try:
-        m = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ParameterError(f"color matrix must be 3×3 or 4×3 numbers, got {values!r}") from None
-    if m.shape == (3, 3):
-        return m, None
-    if m.shape == (4, 3):
-        return m[:3], m[3]
-    raise ParameterError(f"color matrix must be 3×3 or 4×3 (last row bias), got {m.shape}")
-
-
 def _from_seed(r: _Reader) -> SensorProfile:
     """The seed's flat config keys (SPEC, RGBSensor); defaults are the seed's."""
     data = r.data
@@ -503,7 +489,7 @@ def _from_seed(r: _Reader) -> SensorProfile:
     bits, black, white = _levels(r, "bit", "black_level", None)
     ccm = data.get("color_matrix_d50", [[1, 0, 0], [0, 1, 0], [0, 0, 1]])
     try:
-        matrix, bias = _split_seed_matrix(ccm)
+        matrix, bias = split_seed_matrix(ccm)
         xyz = tuple(tuple(float(v) for v in row) for row in xyz_to_camera_from_ccm(matrix))
     except ParameterError as err:
         r.fail("color_matrix_d50", str(err))

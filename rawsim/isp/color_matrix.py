@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from rawsim import color
 from rawsim.errors import ParameterError, check_image
 
 
@@ -48,13 +49,9 @@ def invert_color_matrix(y: torch.Tensor, matrix, bias=None) -> torch.Tensor:
 
 
 def split_seed_matrix(values) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Split the seed's ``color_matrix`` (3×3, or 4×3 whose last row is a bias)."""
-    m = torch.as_tensor(values, dtype=torch.float64)
-    if tuple(m.shape) == (3, 3):
-        return m, None
-    if tuple(m.shape) == (4, 3):
-        return m[:3], m[3]
-    raise ParameterError(f"color matrix must be 3×3 or 4×3 (last row bias), got {tuple(m.shape)}")
+    """:func:`rawsim.color.split_seed_matrix` as float64 tensors."""
+    matrix, bias = color.split_seed_matrix(values)
+    return torch.from_numpy(matrix), None if bias is None else torch.from_numpy(bias)
 
 
 class ColorMatrix(nn.Module):
