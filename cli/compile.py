@@ -9,7 +9,6 @@ in ``--jobs`` processes at a time: the commands compile exactly what they use.
 
 from __future__ import annotations
 
-import os
 import re
 import shlex
 import subprocess
@@ -87,7 +86,8 @@ _COMPILED = re.compile(r"^rawsim: compiled (\S+) in ", re.M)
     help="Commands compiled at a time (default: the cores this process may use).",
 )
 @usage_errors
-def command(jobs):
+@click.pass_context
+def command(ctx, jobs):
     """Compile the engine's kernels for this CPU now, so no later command waits.
 
     Each command the compiled engine serves (unprocess, process, events, in each
@@ -101,12 +101,16 @@ def command(jobs):
     Example:
       pip install rawsim && rawsim compile
     """
-    jobs = jobs or len(os.sched_getaffinity(0))
+    from rawsim.cores import usable_cores
+
+    jobs = jobs or usable_cores()
+    quiet = (ctx.obj or {}).get("quiet")
     started = time.monotonic()
-    click.echo(
-        f"rawsim: compiling the engine's kernels: {len(TASKS)} commands, {jobs} at a time",
-        err=True,
-    )
+    if not quiet:
+        click.echo(
+            f"rawsim: compiling the engine's kernels: {len(TASKS)} commands, {jobs} at a time",
+            err=True,
+        )
     compiled = 0
     with tempfile.TemporaryDirectory(prefix="rawsim-compile-") as tmp:
         folders = {"in": Path(tmp) / "in", "out": Path(tmp) / "out"}
@@ -114,7 +118,10 @@ def command(jobs):
         for done, (what, seconds, kernels) in enumerate(_schedule(folders, jobs), 1):
             compiled += len(kernels)
             news = f"{len(kernels)} kernels compiled" if kernels else "cached already"
-            click.echo(f"rawsim: [{done}/{len(TASKS)}] {what}: {news} ({seconds:.1f} s)", err=True)
+            if not quiet:
+                click.echo(
+                    f"rawsim: [{done}/{len(TASKS)}] {what}: {news} ({seconds:.1f} s)", err=True
+                )
     click.echo(
         f"rawsim: {compiled} kernels compiled in {time.monotonic() - started:.1f} s; "
         "later runs load them from numba's cache",
