@@ -220,6 +220,7 @@ def test_dataset_is_deterministic_across_workers_and_epochs(sensor):
         rawsim.UnprocessDataset(DATA / "srgb", sensor, crop=63)
 
 
+@pytest.mark.slow
 def test_example_training_script_denoises_held_out_crops():
     """The README's example, shorter: on crops of a photo it never trains on, the
     denoised planes are closer to the clean ones than the noisy input (the full

@@ -399,6 +399,7 @@ def test_profiles_print_readably_and_flags_errors_speak_in_flags(tmp_path):
     assert "stage" not in r.output
 
 
+@pytest.mark.slow
 def test_slurm_array_shards_union_is_the_single_run(photos, tmp_path):
     """Three real processes with a Slurm array's variables (indices 4, 6, 8: --array=4-8:2)
     and --shard auto: each file is done once, and the union is the single run's bytes."""

@@ -130,6 +130,7 @@ def here(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
+@pytest.mark.slow
 def test_ray_run_is_byte_identical_to_a_local_run(photos, local_run, cluster, tmp_path):
     out, code, said = local_run
     assert code == 1 and said.count("error:") == 1 and "broken.jpg" in said
@@ -159,6 +160,7 @@ def _bundle_workers() -> list[int]:
     return pids
 
 
+@pytest.mark.slow
 def test_a_killed_ray_worker_is_retried_and_the_outputs_are_complete(
     photos, local_run, cluster, tmp_path
 ):
@@ -185,6 +187,7 @@ def test_a_killed_ray_worker_is_retried_and_the_outputs_are_complete(
     assert digest(tmp_path) == digest(out)  # complete, no stray temporaries
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_a_ray_run_and_a_rerun_completes_it(photos, local_run, cluster, tmp_path):
     """SIGINT mid-run: exit 130 within seconds, the summary says what is unfinished, no
     partial output; the same command again finishes with the local run's bytes."""
@@ -237,6 +240,7 @@ def _objects(client, prefix: str) -> dict[str, str]:
     }
 
 
+@pytest.mark.slow
 def test_s3_inputs_and_outputs_give_the_local_bytes(photos, local_run, s3, tmp_path):
     out, _, said = local_run
     _upload(s3, photos, "photos")
@@ -262,6 +266,7 @@ def test_s3_inputs_and_outputs_give_the_local_bytes(photos, local_run, s3, tmp_p
     assert _objects(s3, "from-local") == digest(tmp_path / "a")
 
 
+@pytest.mark.slow
 def test_s3_with_the_ray_executor(photos, local_run, s3, cluster):
     out, _, _ = local_run
     _upload(s3, photos, "photos-ray")
@@ -292,6 +297,7 @@ def _leave_unfinished(client, prefix: str, stem: str, marked: bool) -> None:
 SUFFIXES = {"dng": ".dng", "clean_dng": ".clean.dng", "json": ".json"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("executor", ["local", "ray"])
 def test_an_unfinished_remote_set_is_finished_and_a_foreign_one_refused(
     photos, s3, executor, request, tmp_path
@@ -314,6 +320,7 @@ def test_an_unfinished_remote_set_is_finished_and_a_foreign_one_refused(
     assert objects == expected  # the marker gone, the set whole, the foreign one untouched
 
 
+@pytest.mark.slow
 def test_bad_urls_say_what_is_wrong(s3, tmp_path):
     r = here("unprocess", f"s3://{BUCKET}/nothing-here", "-o", tmp_path, *COMMON)
     assert r.exit_code == 2 and "no such file or folder (check the URL)" in r.output
@@ -323,6 +330,7 @@ def test_bad_urls_say_what_is_wrong(s3, tmp_path):
     assert r.exit_code == 2 and "install an fsspec file system for nosuchscheme://" in r.output
 
 
+@pytest.mark.slow
 def test_ray_data_pairs_are_the_cli_samples(photos, local_run, cluster):
     """RawPairs in Dataset.map_batches gives, row by row, the DNGs' samples."""
     import ray  # here: Ray reads RAY_AUTH_MODE (set by the cluster fixture) on import
@@ -352,6 +360,7 @@ def test_ray_data_pairs_are_the_cli_samples(photos, local_run, cluster):
         assert row["iso"] == 1600
 
 
+@pytest.mark.slow
 def test_process_on_ray_and_from_s3_gives_the_local_renders(s3, cluster, tmp_path):
     """Camera raws (a DNG, a QuickTake, a Kodak KDC) rendered on Ray and from S3: the
     bytes of a local run."""

@@ -216,6 +216,7 @@ def dark_frames(tmp_path_factory):
     return root, sensor
 
 
+@pytest.mark.slow
 def test_calibration_recovers_dark_shading(dark_frames, tmp_path):
     root, sensor = dark_frames
     out = tmp_path / "cam.json"
@@ -249,6 +250,7 @@ def test_calibration_recovers_dark_shading(dark_frames, tmp_path):
     assert all(read[i] > 1.2 * fits[i]["read_sigma"] for i in (800, 3200))
 
 
+@pytest.mark.slow
 def test_too_few_dark_frames_or_isos_are_refused(dark_frames, tmp_path):
     root, _ = dark_frames
     out = tmp_path / "cam.json"

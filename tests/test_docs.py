@@ -138,6 +138,7 @@ def run_block(block: Block, cwd: Path) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("block", ALL, ids=[b.id for b in ALL])
 def test_block_runs(block: Block, workspaces):
     if block.skip:
@@ -160,6 +161,7 @@ def test_block_runs(block: Block, workspaces):
     )
 
 
+@pytest.mark.slow
 def test_site_builds_strict(tmp_path):
     """The site builds without a warning; the CLI reference lists every command."""
     done = subprocess.run(

@@ -197,6 +197,7 @@ def _check(done, expect: dict[str, str], out: Path, suffixes: tuple[str, ...]) -
         assert not outputs or outputs == names, f"{name!r}: a partial set {outputs}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("jobs", ["2"])
 def test_unprocess_fault_campaign(tmp_path, jobs):
     expect = image_corpus(tmp_path / "in")
@@ -211,6 +212,7 @@ def test_unprocess_fault_campaign(tmp_path, jobs):
     assert "clash" not in done.stderr_text
 
 
+@pytest.mark.slow
 def test_process_fault_campaign(tmp_path):
     expect = raw_corpus(tmp_path / "in")
     assert len(expect) >= 50

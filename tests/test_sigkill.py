@@ -20,7 +20,10 @@ from tests.conftest import DATA
 from tests.test_cli import digest
 from tests.test_signals import children, running
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc"),
+]
 
 FILES = 12
 #: The CLI with a hook that holds each output set half in place: after every rename,

@@ -22,7 +22,10 @@ import pytest
 from tests.conftest import DATA
 from tests.test_cli import digest
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc"),
+]
 
 COPIES = 24
 CLI = [sys.executable, "-c", "from rawsim_cli.main import cli; cli()"]
