@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -20,6 +21,29 @@ TOL = {torch.float32: 2e-5, torch.float64: 1e-10}
 def pytest_collection_modifyitems(config, items):
     if not DATA.is_dir():
         raise pytest.UsageError(f"test data not found at {DATA} (it is part of the repository)")
+
+
+#: Test modules that start Ray. Under pytest-xdist (``-n 2 --dist loadfile``: each
+#: module whole on one worker) they take turns: the cluster fixture's
+#: ``ray stop --force`` ends every Ray process on the machine, and a run without
+#: ``--address`` joins the latest cluster started.
+RAY_MODULES = {"test_cluster", "test_sigkill"}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_ray_module_at_a_time(request, tmp_path_factory):
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        yield
+        return
+    if request.module.__name__.rsplit(".", 1)[-1] not in RAY_MODULES:
+        yield
+        return
+    import fcntl
+
+    # the workers' base folders (popen-gw0, ...) share their parent, one per run
+    with open(tmp_path_factory.getbasetemp().parent / "ray.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
 
 
 @pytest.fixture(params=PATTERNS)
