@@ -23,6 +23,15 @@ def pytest_collection_modifyitems(config, items):
         raise pytest.UsageError(f"test data not found at {DATA} (it is part of the repository)")
 
 
+@pytest.fixture(autouse=True)
+def _seeded_global_rngs():
+    """Each test draws from torch's and NumPy's global generators from the same state,
+    whatever ran before it in its process: a test's inputs do not depend on the tests
+    selected (``-m``, ``-k``) or on how pytest-xdist shares modules among workers."""
+    torch.manual_seed(0)
+    np.random.seed(0)
+
+
 #: Test modules that start Ray. Under pytest-xdist (``-n 2 --dist loadfile``: each
 #: module whole on one worker) they take turns: the cluster fixture's
 #: ``ray stop --force`` ends every Ray process on the machine, and a run without
