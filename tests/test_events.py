@@ -128,7 +128,7 @@ def test_events_cli_on_a_short_sequence(tmp_path):
     one = CliRunner().invoke(
         cli, ["events", str(frames / "frame_000.png"), "-o", str(tmp_path / "x"), "--fps", "1"]
     )
-    assert one.exit_code == 2 and "at least 2 frames" in one.output
+    assert one.exit_code == 2 and "events need at least 2" in one.output
 
 
 # ---- event streams --------------------------------------------------------------------

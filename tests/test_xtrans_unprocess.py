@@ -142,7 +142,7 @@ def test_cli_cfa_errors_are_usage_errors(tmp_path):
     r = run(*args, "--iso", 800, "--cfa", "RGBG")
     assert r.exit_code == 2 and "unknown CFA pattern 'RGBG'" in r.output, r.output
     r = run(*args, "--iso", 800, "--cfa", "XTRANS", "--sensor", "mono")
-    assert r.exit_code == 2 and "mono has no colour filter" in r.output, r.output
+    assert r.exit_code == 2 and "a mono sensor has no colour filter" in r.output, r.output
     assert not list(tmp_path.iterdir())
     assert "--cfa RGGB|BGGR|GRBG|GBRG|XTRANS|ROWS" in run("unprocess", "--help").output
 
