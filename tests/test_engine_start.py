@@ -6,11 +6,13 @@ import subprocess
 import sys
 
 import numba
+import numpy as np
 import pytest
 
 import rawsim.engine
 from rawsim.cores import cgroup_quota, usable_cores
 from rawsim.engine import compile_log
+from rawsim.engine.tiles import next_tile
 from tests.conftest import ROOT
 
 
@@ -102,8 +104,6 @@ def test_first_run_with_empty_cache_says_it_compiles(tmp_path):
     """A user's first command on an empty numba cache says on stderr that it compiles."""
     frames = tmp_path / "frames"
     frames.mkdir()
-    import numpy as np
-
     from rawsim.io.images import write_image
 
     for i in range(2):
@@ -152,3 +152,28 @@ def test_compile_runs_each_task_once_after_the_task_it_needs(monkeypatch):
     for i, (kind, name, need) in enumerate(events):
         if kind == "start" and need is not None:
             assert ("end", need, None) in events[:i], f"{name} started before {need} ended"
+
+
+@numba.njit(parallel=True)
+def _take_all(n, threads):
+    counter = np.zeros(1, np.int64)
+    seen = np.zeros(n, np.int64)
+    owner = np.full(n, -1, np.int64)
+    for t in numba.prange(threads):
+        while True:
+            i = next_tile(counter)
+            if i >= n:
+                break
+            seen[i] += 1  # no race: each index is taken once
+            owner[i] = t
+    return seen, owner
+
+
+def test_next_tile_hands_out_every_tile_once():
+    """The engine's tile counter: every index exactly once across the threads, and a
+    thread that asks again gets the next one (so a slowed thread takes fewer)."""
+    seen, owner = _take_all(20_000, 2)
+    assert (seen == 1).all()
+    assert (owner >= 0).all()
+    seen, _ = _take_all(3, 2)  # fewer tiles than threads
+    assert (seen == 1).all()

@@ -22,6 +22,7 @@ from numba import njit, prange
 
 from rawsim.engine import configure
 from rawsim.engine.process import HALO, OUT_FLOAT, TILE_COLS, TILE_ROWS, _finish, _rgb_buffers
+from rawsim.engine.tiles import next_tile
 from rawsim.errors import ParameterError, check_choice
 from rawsim.io.lensfun import LensField, LensParams, lens_field
 
@@ -121,9 +122,13 @@ def lens_kernel(
     rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
     tiles = rows * cols
     threads = max(1, min(tiles, threads))
-    for t in prange(threads):
+    counter = np.zeros(1, np.int64)  # the next tile (see rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread: its buffers, then tiles while any are left
         rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
-        for tile in range(t, tiles, threads):
+        while True:
+            tile = next_tile(counter)
+            if tile >= tiles:
+                break
             r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1)

@@ -1,7 +1,8 @@
 """The fused process kernel: a Bayer mosaic in DN → an RGB image, tile by tile.
 
 The image is cut into tiles of :data:`TILE_ROWS` × :data:`TILE_COLS` pixels,
-parallel over tiles (``prange`` over the threads, each with its own buffers).
+parallel over tiles (``prange`` over the threads, each with its own buffers, each
+taking the next tile while any are left: :mod:`rawsim.engine.tiles`).
 For each tile every stage runs while the data is in cache: the mosaic stages
 (black level, lens shading, white balance, highlight clip, in the config's
 order) on the tile and a :data:`HALO` of context, the demosaic
@@ -33,6 +34,7 @@ from numba import njit, prange
 
 from rawsim.engine import configure
 from rawsim.engine import xtrans as xt
+from rawsim.engine.tiles import next_tile
 
 configure()
 
@@ -868,11 +870,15 @@ def process_kernel(
     cmap = np.empty((2, shape[1]), np.int8)  # colour index at (row parity, buffer column)
     for j in range(shape[1]):
         cmap[0, j], cmap[1, j] = colors[j & 1], colors[2 + (j & 1)]
-    for t in prange(threads):
+    counter = np.zeros(1, np.int64)  # the next tile (see rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread: its buffers, then tiles while any are left
         m = np.empty(shape, np.float32)
         rgb = _rgb_buffers(shape)
         bufs = _scratch_buffers(shape)
-        for tile in range(t, tiles, threads):
+        while True:
+            tile = next_tile(counter)
+            if tile >= tiles:
+                break
             r0, c0 = (tile // cols) * tile_rows, (tile % cols) * tile_cols
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _load_mosaic(raw, m, table, colors, pre_ops, pre_f, r0, r1, c0, c1, h, w)
@@ -973,10 +979,14 @@ def periodic_kernel(
     tiles = n_r * n_c
     threads = max(1, min(tiles, threads))
     ny, nx = (tile_rows + 2 * halo_rows) // ph, (tile_cols + 2 * halo_cols) // pw
-    for t in prange(threads):
+    counter = np.zeros(1, np.int64)  # the next tile (see rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread: its buffers, then tiles while any are left
         m, est, buf, scratch = xt.new_buffers(ph, pw, ny, nx)
         rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
-        for tile in range(t, tiles, threads):
+        while True:
+            tile = next_tile(counter)
+            if tile >= tiles:
+                break
             r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _load_planes(raw, m, rows, cols, r0, c0, cmap, table, pre_ops, pre_f, h, w)
@@ -1070,11 +1080,15 @@ def half_kernel(
     bayer = ph == 2 and pw == 2 and table.shape[0] > 0
     for k in range(3):
         bayer = bayer and ((cmap == k).sum() > 0)
-    for t in prange(threads):
+    counter = np.zeros(1, np.int64)  # the next tile (see rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread: its buffers, then tiles while any are left
         rgb = _rgb_buffers((tile_rows + 2 * HALO, tile_cols + 2 * HALO))
         total = np.zeros(3, np.float32)
         count = np.zeros(3, np.int64)
-        for tile in range(t, tiles, threads):
+        while True:
+            tile = next_tile(counter)
+            if tile >= tiles:
+                break
             r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
             r1, c1 = min(h2, r0 + tile_rows), min(w2, c0 + tile_cols)
             for i in range(r0, r1):

@@ -28,6 +28,7 @@ from numba import njit, prange
 
 from rawsim.cfa import CFA, phase_reflect_index
 from rawsim.engine import configure
+from rawsim.engine.tiles import next_tile
 from rawsim.errors import ParameterError, check_choice
 from rawsim.isp.xtrans_stencils import (
     EDGE_WEIGHTS_3,
@@ -440,9 +441,13 @@ def _demosaic_image(
     n_r, n_c = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
     tiles = n_r * n_c
     threads = max(1, min(tiles, threads))
-    for t in prange(threads):
+    counter = np.zeros(1, np.int64)  # the next tile (see rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread: its buffers, then tiles while any are left
         m, est, buf, scratch = new_buffers(ph, pw, ny, nx)
-        for tile in range(t, tiles, threads):
+        while True:
+            tile = next_tile(counter)
+            if tile >= tiles:
+                break
             r0, c0 = (tile // n_c) * tile_rows, (tile % n_c) * tile_cols
             _load_float(mosaic, m, rows, cols, r0, c0)
             result = demosaic_planes(m, est, buf, scratch, geometry)
