@@ -156,7 +156,7 @@ def fresh_venv(args) -> list[str]:
         ).stdout.split(b"\0")
         for name in filter(None, files):
             (tree / os.fsdecode(name)).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / os.fsdecode(name), tree / os.fsdecode(name))
+            shutil.copy2(ROOT / os.fsdecode(name), tree / os.fsdecode(name), follow_symlinks=False)
         subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
         env = {**os.environ, "PATH": f"{venv / 'bin'}{os.pathsep}{os.environ['PATH']}"}
         env.pop("NUMBA_CACHE_DIR", None)
