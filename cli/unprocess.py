@@ -270,7 +270,7 @@ def command(
     # Then the pipeline (torch, numba).
     from rawsim.device import resolve_device
     from rawsim.isp.transfer import TransferSpec
-    from rawsim.pipelines.unprocess import UnprocessOptions
+    from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
 
     try:
         spec = str(TransferSpec.parse(transfer))
@@ -301,7 +301,7 @@ def command(
         ctx,
         checked,
         seed,
-        unprocess_checked,
+        unprocess_file,
         options,
         jobs,
         overwrite,
@@ -317,50 +317,3 @@ def _iso_span(prof) -> str:
         return f"{prof.name} takes any ISO > 0"
     lo, hi = prof.iso_range
     return f"{prof.name} takes ISO {lo:g}" + ("" if lo == hi else f"–{hi:g}")
-
-
-#: The smallest X-Trans image LibRaw demosaics with its default interpolation, rows
-#: and columns alike. Measured with rawpy 0.28 / LibRaw 0.22.2 (tests/test_startup.py
-#: checks it): 510 × 900 and 900 × 510 DNGs fail with an I/O error in
-#: ``postprocess()``, 512 × 512 ones render; LibRaw treats any 6 × 6
-#: CFARepeatPatternDim as X-Trans. Its half-size and linear renders take any size.
-LIBRAW_XTRANS_MIN = 512
-
-
-def libraw_size_warning(record: dict, options) -> str | None:
-    """Why LibRaw (rawpy, and the tools built on it) cannot render the DNG of
-    ``record`` (a sidecar) with its default demosaic, and what to do; None if it can."""
-    if "dng" not in options.formats or options.sensor == "mono":
-        return None
-    if tuple(options.profile.cfa.period) != (6, 6):
-        return None
-    h, w = record.get("height", 0), record.get("width", 0)
-    if min(h, w) >= LIBRAW_XTRANS_MIN:
-        return None
-    return (
-        f"{w}×{h} X-Trans DNG: LibRaw (rawpy) cannot demosaic one under "
-        f"{LIBRAW_XTRANS_MIN}×{LIBRAW_XTRANS_MIN} (its postprocess() fails with an I/O "
-        "error; half_size or a linear demosaic work): give larger images, or a Bayer "
-        "profile or --cfa RGGB"
-    )
-
-
-def unprocess_checked(task, options) -> dict:
-    """:func:`~rawsim.pipelines.unprocess.unprocess_file`, with a warning for a DNG
-    that LibRaw cannot render (:func:`libraw_size_warning`)."""
-    from rawsim.pipelines.unprocess import unprocess_file
-
-    record = unprocess_file(task, options)
-    warning = libraw_size_warning(record, options)
-    if warning is not None:
-        record = {**record, "warnings": [*record.get("warnings", []), warning]}
-    return record
-
-
-def _read_ahead(task, options) -> None:
-    from rawsim.pipelines.unprocess import read_ahead
-
-    read_ahead(task, options)
-
-
-unprocess_checked.read_ahead = _read_ahead  # type: ignore[attr-defined]

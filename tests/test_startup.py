@@ -319,11 +319,11 @@ def test_the_summary_counts_from_the_start(tmp_path):
 
 def test_xtrans_dngs_below_libraws_minimum_are_warned_about(tmp_path):
     """LibRaw's X-Trans interpolation refuses images under 512 rows or columns: the
-    minimum rawsim_cli.unprocess.LIBRAW_XTRANS_MIN states, checked against rawpy."""
+    minimum rawsim.pipelines.unprocess.LIBRAW_XTRANS_MIN states, checked against rawpy."""
     import rawpy
     from PIL import Image
 
-    from rawsim_cli.unprocess import LIBRAW_XTRANS_MIN
+    from rawsim.pipelines.unprocess import LIBRAW_XTRANS_MIN
 
     src = tmp_path / "in"
     src.mkdir()
@@ -352,3 +352,6 @@ def test_xtrans_dngs_below_libraws_minimum_are_warned_about(tmp_path):
         with rawpy.imread(str(out / f"{name}.dng")) as raw:  # as the warning says
             assert raw.postprocess(half_size=True).ndim == 3
     assert json.loads((out / "least.json").read_text())["width"] == 512
+    sidecar = json.loads((out / "small_rows.json").read_text())  # recorded with the file
+    assert any("LibRaw (rawpy) cannot demosaic" in w for w in sidecar["warnings"])
+    assert not json.loads((out / "least.json").read_text())["warnings"]

@@ -604,6 +604,29 @@ def _iso_warning(options: UnprocessOptions) -> list[str]:
     ]
 
 
+#: The smallest X-Trans image LibRaw demosaics with its default interpolation, rows
+#: and columns alike. Measured with rawpy 0.28 / LibRaw 0.22.2 (tests/test_startup.py
+#: checks it): 510 × 900 and 900 × 510 DNGs fail with an I/O error in
+#: ``postprocess()``, 512 × 512 ones render; LibRaw treats any 6 × 6
+#: CFARepeatPatternDim as X-Trans. Its half-size and linear renders take any size.
+LIBRAW_XTRANS_MIN = 512
+
+
+def _libraw_size_warning(options: UnprocessOptions, h: int, w: int) -> list[str]:
+    """Why LibRaw (rawpy, and the tools built on it) cannot render an h × w X-Trans
+    DNG with its default demosaic, and what to do; none where it can."""
+    if "dng" not in options.formats or options.sensor == "mono":
+        return []
+    if tuple(options.profile.cfa.period) != (6, 6) or min(h, w) >= LIBRAW_XTRANS_MIN:
+        return []
+    return [
+        f"{w}×{h} X-Trans DNG: LibRaw (rawpy) cannot demosaic one under "
+        f"{LIBRAW_XTRANS_MIN}×{LIBRAW_XTRANS_MIN} (its postprocess() fails with an I/O "
+        "error; half_size or a linear demosaic work): give larger images, or a Bayer "
+        "profile or --cfa RGGB"
+    ]
+
+
 def npz_planes(options: UnprocessOptions) -> tuple[str, ...]:
     """The names of the npz mosaic's planes (its axis 0): ``R, Gr, Gb, B`` for a Bayer
     CFA, :data:`MOSAIC_PLANE` for any other (the whole mosaic), ``Y`` for mono."""
@@ -693,7 +716,9 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "code_max": decoded.code_max,
         "crop": decoded.crop,
         "dropped_channels": list(decoded.dropped_channels),
-        "warnings": list(decoded.warnings) + _iso_warning(options),
+        "warnings": list(decoded.warnings)
+        + _iso_warning(options)
+        + _libraw_size_warning(options, h, w),
         "orientation": decoded.orientation,
         "width": w,
         "height": h,
