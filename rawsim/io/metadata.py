@@ -261,13 +261,11 @@ def read_metadata(path: str | Path, libraw: bool = True) -> PhotoMetadata:
 def _first(data, key: str, sources: tuple[str, ...], crw: bool = False) -> str | None:
     """The first usable value of field ``key`` among ``sources`` (see :data:`FIELDS`),
     as text; in a CRW (``crw``) not what exiv2 makes up (:data:`_CRW_MADE_UP`)."""
-    import exiv2
-
     for source in sources:
         if crw and source in _CRW_MADE_UP:
             continue
-        found = data.findKey(exiv2.ExifKey(source))
-        if found == data.end():
+        found = _find(data, source)
+        if found is None:
             continue
         standard = source.split(".")[1] in ("Image", "Photo")
         if source in _CANON:
@@ -324,6 +322,7 @@ def _int16(datum, i: int) -> int | None:
 
 
 def _find(data, key: str):
+    """exiv2's datum of ``key`` in ``data``, or None."""
     import exiv2
 
     found = data.findKey(exiv2.ExifKey(key))
@@ -642,20 +641,18 @@ def exr_attributes(meta: PhotoMetadata, software: str) -> dict[str, object]:
 
 def _gps_degrees(data) -> dict[str, float]:
     """latitude, longitude (degrees, north and east positive) and altitude (metres)."""
-    import exiv2
-
     out = {}
     for axis, negative in (("Latitude", "S"), ("Longitude", "W")):
-        found = data.findKey(exiv2.ExifKey(f"Exif.GPSInfo.GPS{axis}"))
-        if found == data.end() or found.count() != 3:
+        found = _find(data, f"Exif.GPSInfo.GPS{axis}")
+        if found is None or found.count() != 3:
             continue
         d, m, s = (found.toFloat(i) for i in range(3))
-        ref = data.findKey(exiv2.ExifKey(f"Exif.GPSInfo.GPS{axis}Ref"))
-        sign = -1.0 if ref != data.end() and ref.toString().strip() == negative else 1.0
+        ref = _find(data, f"Exif.GPSInfo.GPS{axis}Ref")
+        sign = -1.0 if ref is not None and ref.toString().strip() == negative else 1.0
         out[axis.lower()] = sign * (d + m / 60 + s / 3600)
-    found = data.findKey(exiv2.ExifKey("Exif.GPSInfo.GPSAltitude"))
-    if found != data.end():
-        ref = data.findKey(exiv2.ExifKey("Exif.GPSInfo.GPSAltitudeRef"))
-        below = ref != data.end() and ref.toInt64(0) == 1
+    found = _find(data, "Exif.GPSInfo.GPSAltitude")
+    if found is not None:
+        ref = _find(data, "Exif.GPSInfo.GPSAltitudeRef")
+        below = ref is not None and ref.toInt64(0) == 1
         out["altitude"] = -found.toFloat(0) if below else found.toFloat(0)
     return out
