@@ -73,6 +73,8 @@ TASKS: tuple[tuple[str, str | None, str], ...] = (
     ("events", None, "events {in}/frames -o {out}/events --fps 100"),
 )
 
+#: The line :mod:`rawsim.engine.compile_log` logs as a kernel's compile ends (its
+#: ``on_end``), as the command's stderr shows it: how a task counts its kernels.
 _COMPILED = re.compile(r"^rawsim: compiled (\S+) in ", re.M)
 
 

@@ -53,6 +53,7 @@ class CompileLog(event.Listener):
         name = _rawsim_kernel(ev)
         if self._local.depth or name is None:
             return
+        # rawsim compile counts a task's kernels by this line (rawsim_cli.compile)
         log.warning("compiled %s in %.1f s", name, time.perf_counter() - self._local.started)
 
 
