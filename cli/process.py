@@ -17,6 +17,7 @@ from rawsim_cli.report import check_inputs, run_files
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend")
+DENOISES = ("none", "gaussian", "bilateral", "profiled")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
 #: Other usual spellings of the formats.
@@ -57,6 +58,24 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "mosaic (LibRaw's half_size), for fast previews.",
 )
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
+@click.option(
+    "--denoise",
+    type=click.Choice(DENOISES),
+    help="profiled: remove the sensor's noise on the mosaic, as its noise model "
+    "predicts it (see --noise-profile); gaussian or bilateral: smoothing filters of "
+    "the RGB image; none.",
+)
+@click.option(
+    "--denoise-strength",
+    type=float,
+    help="Scales the noise σ --denoise profiled removes (default 1: the model's).",
+)
+@click.option(
+    "--noise-profile",
+    help="The noise model for --denoise profiled: a bundled profile or a profile file "
+    "('rawsim calibrate' output). Default: the camera's bundled profile, else the DNG "
+    "NoiseProfile tag, else an estimate from the raw.",
+)
 @click.option("--tone", type=click.Choice(TONES), help="Tone curve.")
 @click.option(
     "--tone-exposure",
@@ -169,6 +188,9 @@ def command(
     demosaic,
     half_size,
     highlights,
+    denoise,
+    denoise_strength,
+    noise_profile,
     tone,
     tone_exposure,
     tone_white,
@@ -230,6 +252,9 @@ def command(
         white_level=white_level,
         demosaic=demosaic,
         highlights=highlights,
+        denoise=denoise,
+        denoise_strength=denoise_strength,
+        noise_profile=noise_profile,
         tone=tone,
         exposure=exposure,
         tone_exposure=tone_exposure,
@@ -242,6 +267,10 @@ def command(
         focal_length=focal_length,
         aperture=aperture,
     )
+    if noise_profile:  # a profile that does not load is a usage error, before any file
+        from rawsim.profiles import load_profile
+
+        load_profile(noise_profile)
     if lens:  # a name lensfun does not know is a usage error, before any file
         from rawsim.io.lensfun import find_lens
 

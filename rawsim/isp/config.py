@@ -59,6 +59,10 @@ HIGHLIGHT_MODES = ("clip", "blend")
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
 DENOISE_METHODS = ("none", "gaussian", "bilateral")
+#: Denoising of the raw mosaic driven by its noise model (:mod:`rawsim.denoise`).
+RAW_DENOISE_METHODS = ("profiled",)
+#: ``rawsim process --denoise``: the filters of the denoise stage, or a raw method.
+DENOISE_CHOICES = (*DENOISE_METHODS, *RAW_DENOISE_METHODS)
 #: dcraw's lightness/chroma transform of the highlight blend (rows: L, C1, C2).
 HIGHLIGHT_TRANSFORM = ((1.0, 1.0, 1.0), (1.7320508, -1.7320508, 0.0), (-1.0, -1.0, 2.0))
 #: EXIF/TIFF orientation → (transpose first, flip rows, flip columns) of (…, H, W).
@@ -261,6 +265,46 @@ class BlackLevelStage(Stage):
             if ADJUST_MAXIMUM * level < top < level:
                 level = top
         info["white_level"] = level
+
+
+def _noise_profile(value):
+    if not isinstance(value, str) or not value.strip():
+        raise ParameterError(f"expected auto, a profile name or a profile file, got {value!r}")
+    return value.strip()
+
+
+@dataclass(frozen=True)
+class RawDenoiseStage(Stage):
+    """Noise removal on the raw mosaic, driven by the raw's noise model; it must come
+    right after ``black_level``, while the mosaic is as the sensor gave it."""
+
+    name: ClassVar[str] = "raw_denoise"
+    on_by_default: ClassVar[bool] = False
+    mosaic_only: ClassVar[bool] = True
+    method: str = _param(
+        "profiled",
+        _choice(RAW_DENOISE_METHODS),
+        "profiled: variance-stabilised two-pass DCT shrinkage (rawsim.denoise.profiled)",
+    )
+    strength: float = _param(
+        1.0, _number(0.05, 10.0), "scales the noise σ the method removes (1 = the model's)"
+    )
+    noise_profile: str = _param(
+        "auto",
+        _noise_profile,
+        "auto (the camera's bundled profile, else the DNG NoiseProfile, else an estimate "
+        "from the raw), or a profile name or JSON file",
+    )
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+        """``info["noise_model"]``: the raw's noise model (:mod:`rawsim.denoise.noise_model`),
+        its source said, and its warnings in ``info["warnings"]``."""
+        from rawsim.denoise.noise_model import noise_model_for
+
+        given = None if self.noise_profile == "auto" else self.noise_profile
+        model = noise_model_for(raw, given)
+        info["noise_model"] = model.to_dict()
+        info["warnings"].extend(model.warnings)
 
 
 @dataclass(frozen=True)
@@ -577,6 +621,7 @@ STAGES: dict[str, type[Stage]] = {
     cls.name: cls
     for cls in (
         BlackLevelStage,
+        RawDenoiseStage,
         DeadPixelStage,
         LensShadingStage,
         AntiAliasingStage,
@@ -605,6 +650,8 @@ _FLAGS: dict[str, tuple[type[Stage], str]] = {
     "tone_exposure": (ToneStage, "exposure"),
     "tone_white": (ToneStage, "white"),
     "exposure": (ExposureStage, "ev"),
+    "denoise_strength": (RawDenoiseStage, "strength"),
+    "noise_profile": (RawDenoiseStage, "noise_profile"),
     "output_space": (ColorMatrixStage, "output_space"),
     "transfer": (TransferStage, "function"),
     "lens": (LensCorrectionStage, "lens"),
@@ -706,8 +753,24 @@ class IspConfig:
         its stage (adding it, if missing, where the default order has it); ``highlights
         blend`` moves the stage to just after demosaic; ``lens_correction`` ``auto``
         enables the lens stage, ``off`` disables it (then no other lens flag may be
-        given). Errors name the flag."""
+        given); ``denoise`` enables the ``raw_denoise`` stage for a raw method
+        (``profiled``) or the ``denoise`` stage for a filter (``gaussian``,
+        ``bilateral``), and disables the other (``none``: both). Errors name the flag."""
         tables = self.to_tables()
+        denoise = flags.pop("denoise", None)
+        if denoise is not None:
+            _choice(DENOISE_CHOICES)(denoise)
+            given = [f for f in ("denoise_strength", "noise_profile") if flags.get(f) is not None]
+            if denoise not in RAW_DENOISE_METHODS and given:
+                flag = "--" + given[0].replace("_", "-")
+                raise ParameterError(f"{flag} sets --denoise profiled, not {denoise}; drop one")
+            raw_table = _table_of(tables, RawDenoiseStage)
+            raw_table["enabled"] = denoise in RAW_DENOISE_METHODS
+            rgb_table = _table_of(tables, DenoiseStage)
+            rgb_table["enabled"] = denoise in DENOISE_METHODS[1:]
+            (raw_table if denoise in RAW_DENOISE_METHODS else rgb_table)["method"] = (
+                denoise if denoise != "none" else rgb_table.get("method", "bilateral")
+            )
         switch = flags.pop("lens_correction", None)
         if switch is not None:
             _choice(("auto", "off"))(switch)
@@ -784,6 +847,12 @@ def _check_order(enabled: tuple[Stage, ...], origin: str) -> None:
         raise ParameterError(f"{origin}: stage {bad!r} must come {where} 'demosaic'")
     if kinds.index(BlackLevelStage) > split:
         raise ParameterError(f"{origin}: 'black_level' must come before 'demosaic'")
+    first = kinds.index(BlackLevelStage) + 1
+    if RawDenoiseStage in kinds and kinds.index(RawDenoiseStage) != first:
+        raise ParameterError(
+            f"{origin}: 'raw_denoise' must come right after 'black_level' (the noise model "
+            "describes the mosaic as the sensor gave it)"
+        )
     if OrientationStage in kinds and kinds[-1] is not OrientationStage:
         raise ParameterError(f"{origin}: 'orientation' must be the last enabled stage")
     for i, stage in enumerate(enabled):

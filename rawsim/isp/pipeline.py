@@ -6,7 +6,7 @@ raw are :mod:`rawsim.isp.config`; :func:`build_isp` turns a config and a
 per stage type (:data:`MODULES`).
 
 Data flow: DN mosaic (B, 1, H, W) — or (B, 3, H, W) for raws without a CFA —
-through black level (→ white = 1), optional mosaic filters, white balance,
+through black level (→ white = 1), raw denoising, optional mosaic filters, white balance,
 highlights, demosaic (→ RGB), denoise, lens correction, colour matrix, exposure,
 tone curve, transfer, YCbCr and orientation.
 """
@@ -20,6 +20,8 @@ import torch
 from torch import nn
 
 from rawsim.cfa import CFA
+from rawsim.denoise.noise_model import stage_model
+from rawsim.denoise.profiled import ProfiledDenoise
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
     HALF_SIZE,
@@ -36,6 +38,7 @@ from rawsim.isp.config import (
     LensCorrectionStage,
     LensShadingStage,
     OrientationStage,
+    RawDenoiseStage,
     ResolvedIsp,
     Stage,
     ToneStage,
@@ -136,8 +139,9 @@ class Isp(nn.Module):
 
 
 STRIP_ROWS = 256
-#: Stages that run once on the whole image (they move pixels across strips).
-WHOLE_IMAGE = (LensCorrection, Orientation)
+#: Stages that run once on the whole image (they move pixels across strips, or, as
+#: raw denoising, work through the image in chunks of their own).
+WHOLE_IMAGE = (ProfiledDenoise, LensCorrection, Orientation)
 
 
 def build_isp(config: IspConfig | list[dict], raw) -> Isp:
@@ -158,6 +162,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     BlackLevelStage: lambda s, r: Levels(
         _black_map(r.raw), r.white_level, r.raw.cfa.period if r.raw.cfa else (2, 2)
     ),
+    RawDenoiseStage: lambda s, r: ProfiledDenoise(r.raw.cfa, *stage_model(r), s.strength),
     DeadPixelStage: lambda s, r: DeadPixelCorrection(
         r.raw.cfa, s.threshold, s.kernel, s.temperature
     ),

@@ -22,6 +22,7 @@ import numpy as np
 
 from rawsim._version import __version__
 from rawsim.colorspaces import Encoding
+from rawsim.denoise.noise_model import stage_model
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
@@ -46,6 +47,7 @@ from rawsim.isp.config import (
     LensCorrectionStage,
     LensShadingStage,
     OrientationStage,
+    RawDenoiseStage,
     ResolvedIsp,
     Stage,
     ToneStage,
@@ -154,6 +156,10 @@ class EnginePlan:
     #: then the kernel renders in two passes, the post ops before ``lens_at`` first.
     lens: dict | None = None
     lens_at: int = 0
+    #: The raw denoise stage's (gain, offset, strength) (see
+    #: :func:`rawsim.engine.denoise.denoise_mosaic`), or None: then the kernels render
+    #: the mosaic it gives.
+    denoise: tuple | None = None
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -234,7 +240,11 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     orientation = 1
     method = "bilinear"
     lens, lens_at = None, 0
+    denoise = None
     for stage in resolved.stages:
+        if isinstance(stage, RawDenoiseStage):
+            denoise = (*stage_model(resolved), stage.strength)
+            continue
         if isinstance(stage, LensCorrectionStage):
             if tail:
                 return None  # after tone/transfer: the reference's order
@@ -275,6 +285,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         resolved.info,
         lens,
         lens_at,
+        denoise,
     )
 
 
@@ -365,6 +376,12 @@ def engine_render(
 
     from rawsim.engine import process as ep
 
+    if plan.denoise is not None:
+        from rawsim.engine.denoise import denoise_mosaic
+
+        black = np.asarray(raw.black_level, np.float64)
+        data = denoise_mosaic(raw.data, raw.cfa, black, plan.info["white_level"], *plan.denoise)
+        raw, plan = replace(raw, data=data), replace(plan, denoise=None)
     transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
     h, w = raw.data.shape
     half = plan.method == HALF_SIZE

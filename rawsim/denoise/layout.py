@@ -1,0 +1,50 @@
+"""How the profiled denoiser reads a mosaic, torch-free (shared by the torch reference,
+:mod:`rawsim.denoise.profiled`, and the compiled engine, :mod:`rawsim.engine.denoise`):
+its planes, their colour mix, and the patch geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from rawsim.cfa import CFA
+
+#: Patch side and step (plane pixels), a pass's reach, plane rows per chunk.
+PATCH = 8
+STEP = 2
+REACH = PATCH - 1
+CHUNK = 64
+#: The first pass's hard threshold, in σ (chosen on photos outside the Kodak set:
+#: benchmarks/bench_denoise.py --tune).
+THRESHOLD = 2.7
+_R2 = 1 / math.sqrt(2.0)
+#: Bayer planes (R, G, G, B) → their mean, (R + B) − (G + G), R − B, G − G; orthonormal.
+BAYER_MIX = (
+    (0.5, 0.5, 0.5, 0.5),
+    (0.5, -0.5, -0.5, 0.5),
+    (_R2, 0.0, 0.0, -_R2),
+    (0.0, _R2, -_R2, 0.0),
+)
+
+
+def plane_layout(cfa: CFA) -> tuple[np.ndarray, int, np.ndarray]:
+    """The planes a mosaic of ``cfa`` is read as: (offsets (C, 2) of each plane's first
+    site, the step between a plane's sites, the (C, C) orthonormal mix of the planes).
+    Bayer: its R, G, G, B planes; any other pattern: the mosaic as one plane."""
+    if cfa.is_bayer:
+        return np.array(cfa.packed_sites, np.int64), 2, np.array(BAYER_MIX, np.float32)
+    return np.zeros((1, 2), np.int64), 1, np.ones((1, 1), np.float32)
+
+
+def plane_shape(shape: tuple[int, int], cfa: CFA) -> tuple[int, int]:
+    """(rows, columns) of every plane of a mosaic of ``shape``: the smallest plane's."""
+    offsets, step, _ = plane_layout(cfa)
+    return tuple(  # type: ignore[return-value]
+        (n - int(offsets[:, k].max()) + step - 1) // step for k, n in enumerate(shape)
+    )
+
+
+def large_enough(shape: tuple[int, int], cfa: CFA) -> bool:
+    """Whether a mosaic of ``shape`` has planes of at least :data:`PATCH` a side."""
+    return min(plane_shape(shape, cfa)) >= PATCH

@@ -1,0 +1,187 @@
+"""Profiled denoising of a raw mosaic (torch reference): the noise model drives a
+variance-stabilising transform, then collaborative shrinkage in the DCT domain.
+
+The method, on a mosaic normalised so that black is 0 and white 1:
+
+1. **Planes.** A Bayer mosaic is read as its four colour planes (R, G, G, B: half
+   size each, :attr:`~rawsim.cfa.CFA.packed_sites`); any other pattern (X-Trans …)
+   as one plane, the mosaic itself.
+2. **Variance stabilisation.** Each site's value x, of variance ``gain·x + offset``
+   for its colour (the noise model, :mod:`rawsim.denoise.noise_model`), goes
+   through the generalised Anscombe transform
+   2·√(x/gain + 3/8 + offset/gain²), after which the noise is close to Gaussian
+   of σ 1 at every level.
+3. **Colour decorrelation.** Bayer planes are mixed by an orthonormal 4×4
+   transform (:data:`~rawsim.denoise.layout.BAYER_MIX`: their mean, the two
+   chroma differences, the green split), which keeps the noise white with σ 1
+   and puts most of the signal in one channel; then each channel is filtered on
+   its own.
+4. **Two passes of sliding 8×8 DCT shrinkage** (Yu & Sapiro, "DCT image
+   denoising: a simple and effective image denoising algorithm", IPOL 2011; the
+   second, Wiener pass as in BM3D's, without block matching): patches start every
+   ``STEP`` plane pixels (on the grid −7 + 2k) over the planes mirrored at
+   their edges. Pass one keeps the coefficients above ``threshold``·σ (and the DC)
+   and averages the patches back, each weighted by 1 / its kept coefficients.
+   Pass two shrinks the noisy coefficients by the Wiener factor P² / (P² + σ²) of
+   the first estimate's P, weighted by 1 / Σ factor². σ is 1 × ``strength``.
+5. **Back:** the inverse mix, then the closed-form unbiased inverse of the
+   transform (Mäkitalo & Foi, "Optimal inversion of the generalized Anscombe
+   transformation for Poisson-Gaussian noise", IEEE TIP 22(1), 2013), which
+   returns the mean, not the median, of the signal. Sites at or above white
+   (clipped: no noise to remove) and sites outside the planes (an odd last row or
+   column of a Bayer mosaic) keep their values.
+
+The planes are worked through in chunks of rows (``CHUNK``), each reading the
+rows it needs around it; a chunk's result does not depend on the chunking, so
+memory stays flat and the compiled engine (:mod:`rawsim.engine.denoise`, which
+computes the same in float32) can split the work as it likes. Domain: any real
+values (values below black stay below black when they are the mean); range: the
+denoised values, not clipped except at 0 in the transform's domain. Gradients
+flow through every step but the threshold's choice of coefficients.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from rawsim.cfa import CFA
+from rawsim.denoise.layout import CHUNK, PATCH, REACH, STEP, THRESHOLD, plane_layout, plane_shape
+
+
+def forward_vst(x: torch.Tensor, gain, offset) -> torch.Tensor:
+    """The generalised Anscombe transform of ``x`` (variance ``gain·x + offset``)."""
+    return 2 * (x / gain + 0.375 + offset / (gain * gain)).clamp_min(0).sqrt()
+
+
+def inverse_vst(d: torch.Tensor, gain, offset) -> torch.Tensor:
+    """The closed-form approximation of the exact unbiased inverse of :func:`forward_vst`
+    (Mäkitalo & Foi 2013): the mean x whose transform's expectation is ``d``; ≥ 0."""
+    d = d.clamp_min(1.0)
+    r = math.sqrt(1.5)
+    i = 0.25 * d * d + 0.25 * r / d - 1.375 / (d * d) + 0.625 * r / d**3 - 0.125
+    return (i - offset / (gain * gain)).clamp_min(0) * gain
+
+
+def _basis(device, dtype) -> torch.Tensor:
+    k = torch.arange(PATCH, dtype=torch.float64)[:, None]
+    j = torch.arange(PATCH, dtype=torch.float64)[None]
+    b = torch.cos(math.pi * (2 * j + 1) * k / (2 * PATCH)) * math.sqrt(2 / PATCH)
+    b[0] /= math.sqrt(2)
+    return b.to(device, dtype)
+
+
+def _reflect(i: torch.Tensor, n: int) -> torch.Tensor:
+    """Indices mirrored into [0, n) without repeating the edge."""
+    i = i.abs()
+    return torch.where(i >= n, 2 * (n - 1) - i, i)
+
+
+def _patches(buf: torch.Tensor) -> torch.Tensor:
+    """(C, rows, cols) → every STEP-th 8×8 patch: (C, nr, nc, 8, 8)."""
+    return buf.unfold(1, PATCH, STEP).unfold(2, PATCH, STEP)
+
+
+def _unpatch(p: torch.Tensor, rows: int, cols: int) -> torch.Tensor:
+    """The sum of patches (C, nr, nc, 8, 8) laid back where :func:`_patches` took them."""
+    c, nr, nc = p.shape[:3]
+    cols_ = p.permute(0, 3, 4, 1, 2).reshape(c, PATCH * PATCH, nr * nc)
+    return F.fold(cols_, (rows, cols), PATCH, stride=STEP)[:, 0]
+
+
+def _pass(noisy, n0, pilot, a, lo, hi, hp, sigma, threshold, basis):
+    """One pass over the patches touching plane rows [lo, hi): (num, den) (C, hi − lo, wp).
+    Arguments as :func:`rawsim.engine.denoise._pass`'s; ``pilot`` None for the first."""
+    wp = noisy.shape[2] - 2 * REACH
+    first = lo - REACH + lo % STEP
+    last = first + (hi - 1 - first) // STEP * STEP
+    rows = last - first + PATCH
+    t = basis @ _patches(noisy[:, first - n0 : first - n0 + rows]) @ basis.T
+    if pilot is None:
+        keep = t.abs() > threshold * sigma
+        keep[..., 0, 0] = True
+        t = t * keep
+        weight = 1 / keep.sum((-2, -1)).to(t.dtype)
+    else:
+        prow = _reflect(torch.arange(first, first + rows), hp) - a
+        pcol = _reflect(torch.arange(-REACH, wp + REACH), wp)
+        q = basis @ _patches(pilot[:, prow][:, :, pcol]) @ basis.T
+        f = q * q / (q * q + sigma * sigma)
+        t = t * f
+        weight = 1 / (f * f).sum((-2, -1)).clamp_min(1e-3)
+    back = basis.T @ t @ basis * weight[..., None, None]
+    ones = weight[..., None, None].expand_as(back)
+    cut = (slice(None), slice(lo - first, hi - first), slice(REACH, REACH + wp))
+    size = (rows, wp + 2 * REACH)
+    return _unpatch(back, *size)[cut], _unpatch(ones, *size)[cut]
+
+
+def profiled_denoise(
+    x: torch.Tensor,
+    cfa: CFA,
+    gain,
+    offset,
+    strength: float = 1.0,
+    threshold: float = THRESHOLD,
+    chunk: int = CHUNK,
+) -> torch.Tensor:
+    """Denoise a mosaic ``x`` (B, 1, H, W) of ``cfa``, normalised (white = 1), whose
+    noise variance is ``gain[c]·x + offset[c]`` for colour c (R, G, B; 3 numbers
+    each). Returns the same shape (see the module doc). Planes smaller than
+    ``PATCH`` a side are returned as they are."""
+    offsets, step, mix = plane_layout(cfa)
+    hp, wp = plane_shape(tuple(x.shape[-2:]), cfa)
+    if min(hp, wp) < PATCH:
+        return x
+    dev, dt = x.device, x.dtype
+    colors = torch.as_tensor(cfa.colors, device=dev).reshape(cfa.period)
+    gains = torch.as_tensor(gain, dtype=dt, device=dev)
+    offs = torch.as_tensor(offset, dtype=dt, device=dev)
+    mix_t, basis = torch.as_tensor(mix, device=dev, dtype=dt), _basis(dev, dt)
+    ph, pw = cfa.period
+    out = x.clone()
+    for n in range(x.shape[0]):
+        sites = []
+        for oy, ox in offsets:
+            ys = oy + step * torch.arange(hp, device=dev)
+            xs = ox + step * torch.arange(wp, device=dev)
+            sites.append((ys, xs, colors[ys % ph][:, xs % pw]))
+        planes = torch.stack([x[n, 0][ys][:, xs] for ys, xs, _ in sites])
+        col = torch.stack([c for _, _, c in sites])
+        g, o = gains[col], offs[col]
+        y = torch.einsum("cd,dhw->chw", mix_t, forward_vst(planes, g, o))
+        result = []
+        for r0 in range(0, hp, chunk):
+            r1 = min(hp, r0 + chunk)
+            a, b = max(0, r0 - REACH), min(hp, r1 + REACH)
+            rows = _reflect(torch.arange(a - REACH, b + REACH, device=dev), hp)
+            cols = _reflect(torch.arange(-REACH, wp + REACH, device=dev), wp)
+            noisy = y[:, rows][:, :, cols]
+            num, den = _pass(noisy, a - REACH, None, a, a, b, hp, strength, threshold, basis)
+            e1 = num / den
+            num, den = _pass(noisy, a - REACH, e1, a, r0, r1, hp, strength, threshold, basis)
+            result.append(num / den)
+        est = torch.einsum("dc,dhw->chw", mix_t, torch.cat(result, 1))
+        denoised = inverse_vst(est, g, o)
+        for k, (ys, xs, _) in enumerate(sites):
+            old = planes[k]
+            out[n, 0, ys[:, None], xs[None]] = torch.where(old >= 1, old, denoised[k])
+    return out
+
+
+class ProfiledDenoise(nn.Module):
+    """The profiled denoise stage on a normalised mosaic (identity reverse). ``model``:
+    the noise model's per-colour ``gain`` and ``offset`` (normalised units)."""
+
+    def __init__(self, cfa: CFA, gain, offset, strength: float = 1.0) -> None:
+        super().__init__()
+        self.cfa, self.gain, self.offset, self.strength = cfa, gain, offset, strength
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return profiled_denoise(x, self.cfa, self.gain, self.offset, self.strength)
+
+    def reverse(self, x: torch.Tensor) -> torch.Tensor:
+        return x
