@@ -17,7 +17,7 @@ REACH = PATCH - 1
 CHUNK = 64
 #: The first pass's hard threshold, in σ (chosen on photos outside the Kodak set:
 #: benchmarks/bench_denoise.py --tune).
-THRESHOLD = 2.7
+THRESHOLD = 2.5
 _R2 = 1 / math.sqrt(2.0)
 #: Bayer planes (R, G, G, B) → their mean, (R + B) − (G + G), R − B, G − G; orthonormal.
 BAYER_MIX = (

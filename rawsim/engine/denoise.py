@@ -357,13 +357,15 @@ def denoise_mosaic(
     gain,
     offset,
     strength: float = 1.0,
+    threshold: float = THRESHOLD,
 ) -> np.ndarray:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` denoised: a new uint16 mosaic (DN).
 
     ``black``: the black level per site of a period (ph, pw) or one number (DN);
     ``white``: the white level (DN); ``gain``, ``offset``: the noise model per colour
     (R, G, B) for values normalised to white = 1, as :func:`rawsim.denoise.profiled.
-    profiled_denoise` takes them; ``strength`` scales the σ removed.
+    profiled_denoise` takes them; ``strength`` scales the σ removed; ``threshold``:
+    the first pass's, in σ.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -378,7 +380,7 @@ def denoise_mosaic(
     out = raw.copy()
     model = np.asarray(gain, np.float32), np.asarray(offset, np.float32)
     args = (raw, out, np.zeros(1, np.int64), offsets, step, colors, mix, black, span, *model)
-    args += (np.float32(strength), np.float32(THRESHOLD))
+    args += (np.float32(strength), np.float32(threshold))
     threads = max(1, min(numba.get_num_threads(), -(-plane_shape(raw.shape, cfa)[0] // CHUNK)))
     if threads == 1:
         denoise_worker(*args)

@@ -1,0 +1,300 @@
+"""Raw denoising against known truth: rawsim's ``profiled`` beside BM3D, LibRaw's
+wavelet denoise and rawsim's ``bilateral``, measured in the same run.
+
+Each photo (default: the 12 Kodak crops in tests/data/kodak; the whole Kodak set
+with ``--images DIR``) is unprocessed by ``rawsim unprocess --clean`` with each
+``--profiles`` at each ``--isos``, seed 1: a noisy DNG and its noise-free
+twin. Every method then denoises the noisy mosaic, and is scored by PSNR (peak:
+white) against the clean mosaic (normalised, black 0, white 1), and against the
+clean render:
+
+* ``profiled``: rawsim's engine (:func:`rawsim.engine.denoise.denoise_mosaic`),
+  with the noise model of the DNG's NoiseProfile tag (the true parameters);
+* ``bm3d``: the ``bm3d`` package (PyPI; a benchmark anchor only, not a dependency
+  of rawsim, whose licence is not for shipping: ``pip install bm3d``) on each CFA
+  plane after the same generalised Anscombe transform, with the same true
+  parameters and the same unbiased inverse;
+* ``bilateral``: rawsim's ``denoise`` stage on the mosaic planes, its range σ
+  swept over 1, 2 and 3 × the noise σ at mid-grey and the best kept per image;
+* ``libraw -n T``: LibRaw's wavelet denoise (``dcraw_emu -n T``), T swept over
+  ``--libraw-thresholds`` and the best kept per image. It works inside LibRaw's
+  own render, so it is scored on renders only: LibRaw's render of the noisy DNG
+  with ``-n T`` against its render of the clean DNG.
+
+Renders: rawsim's (engine, its default ISP: camera white balance, ``wcd``, sRGB,
+16 bits) of the denoised mosaic against rawsim's render of the clean DNG;
+LibRaw's (``dcraw_emu -w -6 -W -T``: AHD, sRGB, 16 bits, no auto-brightening)
+likewise; its times include starting the process. Times are per
+megapixel of mosaic, on this machine (printed first). darktable's profiled
+denoise is not measured: ``darktable-cli`` is not installed here.
+
+    python benchmarks/bench_denoise.py                       # the vendored crops
+    python benchmarks/bench_denoise.py --images /path/to/kodak
+    python benchmarks/bench_denoise.py --tune                # the threshold, on other photos
+
+``--tune`` sweeps the first pass's threshold on the vendored photos of
+tests/data/srgb (not Kodak), so that the table's photos play no part in choosing it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from machine import describe
+
+from rawsim.denoise.layout import THRESHOLD, plane_layout
+from rawsim.denoise.noise_model import dng_noise_profile
+from rawsim.engine.denoise import denoise_mosaic
+from rawsim.io.raw import read_raw
+
+HERE = Path(__file__).resolve().parents[1]
+KODAK = HERE / "tests" / "data" / "kodak"
+OTHER = HERE / "tests" / "data" / "srgb"
+
+
+def unprocess(images: Path, out: Path, profile: str, iso: int) -> list[tuple[Path, Path]]:
+    """(noisy, clean) DNG pairs of every photo in ``images``."""
+    cmd = ["rawsim", "unprocess", str(images), "-o", str(out), "--profile", profile]
+    cmd += ["--iso", str(iso), "--clean", "--seed", "1", "-q"]
+    subprocess.run(cmd, check=True)
+    return [
+        (p, p.with_name(p.stem + ".clean.dng"))
+        for p in sorted(out.rglob("*.dng"))
+        if not p.name.endswith(".clean.dng")
+    ]
+
+
+def normalised(raw) -> np.ndarray:
+    """The mosaic as float64, black 0, white 1."""
+    b = black_map(raw)
+    return (raw.data.astype(np.float64) - b) / (raw.white_level - b)
+
+
+def model_of(raw) -> tuple[list[float], list[float]]:
+    span = raw.white_level - float(np.mean(raw.black_level))
+    return dng_noise_profile(raw).normalised(span)
+
+
+def psnr(a: np.ndarray, b: np.ndarray, peak: float = 1.0) -> float:
+    return 10 * math.log10(peak**2 / float(np.mean((a - b) ** 2)))
+
+
+def as_dn(raw, x: np.ndarray) -> np.ndarray:
+    """Normalised values back to the raw's uint16 DN."""
+    black = black_map(raw)
+    return np.clip(np.round(black + x * (raw.white_level - black)), 0, 65535).astype(np.uint16)
+
+
+def black_map(raw) -> np.ndarray:
+    """The black level of every site (DN)."""
+    black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
+    reps = (-(-raw.data.shape[0] // black.shape[0]), -(-raw.data.shape[1] // black.shape[1]))
+    return np.tile(black, reps)[: raw.data.shape[0], : raw.data.shape[1]]
+
+
+# ------------------------------------------------------------------ methods
+def profiled(raw, threshold: float = THRESHOLD) -> np.ndarray:
+    gain, offset = model_of(raw)
+    black = np.asarray(raw.black_level, np.float64)
+    return denoise_mosaic(raw.data, raw.cfa, black, raw.white_level, gain, offset, 1.0, threshold)
+
+
+def bm3d_planes(raw) -> np.ndarray:
+    import bm3d
+    import torch
+
+    from rawsim.denoise.profiled import forward_vst, inverse_vst
+
+    gain, offset = model_of(raw)
+    x = normalised(raw)
+    offsets, step, _ = plane_layout(raw.cfa)
+    out = x.copy()
+    for oy, ox in offsets:
+        plane = x[oy::step, ox::step]
+        c = raw.cfa.color_at(int(oy), int(ox))
+        v = forward_vst(torch.from_numpy(plane), gain[c], offset[c]).numpy()
+        d = bm3d.bm3d(v, 1.0)
+        out[oy::step, ox::step] = inverse_vst(torch.from_numpy(d), gain[c], offset[c]).numpy()
+    return as_dn(raw, out)
+
+
+def bilateral(raw, clean: np.ndarray) -> tuple[np.ndarray, float]:
+    import torch
+
+    from rawsim.isp.filters import denoise
+
+    gain, offset = model_of(raw)
+    sigma = math.sqrt(gain[1] * 0.18 + offset[1])
+    x = torch.from_numpy(normalised(raw)).float()[None, None]
+    best = None
+    for k in (1.0, 2.0, 3.0):
+        y = denoise(x, raw.cfa, "bilateral", 5, 1.0, k * sigma)[0, 0].double().numpy()
+        score = psnr(y, clean)
+        if best is None or score > best[1]:
+            best = (y, score)
+    return as_dn(raw, best[0]), best[1]
+
+
+def render(raw, data: np.ndarray | None = None) -> np.ndarray:
+    """rawsim's render (sRGB, 16 bits) of ``raw``, or of ``data`` as its mosaic."""
+    from dataclasses import replace
+
+    from rawsim.isp.config import IspConfig
+    from rawsim.pipelines.process import render_samples
+
+    if data is not None:
+        raw = replace(raw, data=data)
+    samples, _ = render_samples(raw, IspConfig.default(), "png", 16)
+    return samples.astype(np.float64) / 65535
+
+
+def libraw_render(path: Path, threshold: float) -> np.ndarray:
+    """LibRaw's render (``dcraw_emu``: camera white balance, sRGB, 16 bits, no
+    auto-brightening), with its wavelet denoise at ``threshold`` (0: none). A
+    separate process: rawpy's ``noise_thr`` corrupts the heap on these DNGs here."""
+    import tifffile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.tiff"
+        cmd = ["dcraw_emu", "-w", "-6", "-W", "-T", "-Z", str(out), str(path)]
+        if threshold:
+            cmd[1:1] = ["-n", f"{threshold:g}"]
+        subprocess.run(cmd, check=True, capture_output=True)
+        return tifffile.imread(out).astype(np.float64) / 65535
+
+
+# ------------------------------------------------------------------ the table
+def run(images: Path, profiles: list[str], isos: list[int], thresholds: list[float]) -> None:
+    try:
+        import bm3d  # noqa: F401
+
+        have_bm3d = True
+    except ImportError:
+        have_bm3d = False
+        print("bm3d is not installed (pip install bm3d): its column is left out")
+    rows = []
+    for profile in profiles:
+        for iso in isos:
+            with tempfile.TemporaryDirectory() as tmp:
+                pairs = unprocess(images, Path(tmp), profile, iso)
+                scores: dict[str, list[tuple[float, float, float]]] = {}
+
+                def add(name, raw_psnr, render_psnr, seconds, mp, scores=scores):
+                    scores.setdefault(name, []).append((raw_psnr, render_psnr, seconds / mp))
+
+                for noisy_path, clean_path in pairs:
+                    noisy, clean = read_raw(noisy_path), read_raw(clean_path)
+                    mp = noisy.data.size / 1e6
+                    truth, truth_render = normalised(clean), render(clean)
+                    add(
+                        "noisy",
+                        psnr(normalised(noisy), truth),
+                        psnr(render(noisy), truth_render),
+                        0.0,
+                        mp,
+                    )
+                    profiled(noisy)  # loads the kernel: not timed
+                    t = time.perf_counter()
+                    out = profiled(noisy)
+                    dt = time.perf_counter() - t
+                    add(
+                        "profiled",
+                        psnr(normalised_as(noisy, out), truth),
+                        psnr(render(noisy, out), truth_render),
+                        dt,
+                        mp,
+                    )
+                    if have_bm3d:
+                        t = time.perf_counter()
+                        out = bm3d_planes(noisy)
+                        dt = time.perf_counter() - t
+                        add(
+                            "bm3d",
+                            psnr(normalised_as(noisy, out), truth),
+                            psnr(render(noisy, out), truth_render),
+                            dt,
+                            mp,
+                        )
+                    t = time.perf_counter()
+                    out, score = bilateral(noisy, truth)
+                    dt = (time.perf_counter() - t) / 3  # one of the three sweeps
+                    add("bilateral", score, psnr(render(noisy, out), truth_render), dt, mp)
+                    lib_truth = libraw_render(clean_path, 0)
+                    add("libraw", math.nan, psnr(libraw_render(noisy_path, 0), lib_truth), 0, mp)
+                    best = (-math.inf, 0.0)
+                    for thr in thresholds:
+                        t = time.perf_counter()
+                        score = psnr(libraw_render(noisy_path, thr), lib_truth)
+                        dt = time.perf_counter() - t
+                        best = max(best, (score, dt))
+                    add("libraw -n", math.nan, best[0], best[1], mp)
+                for name, values in scores.items():
+                    raw_p = statistics.fmean(v[0] for v in values)
+                    ren_p = statistics.fmean(v[1] for v in values)
+                    sec = statistics.fmean(v[2] for v in values)
+                    rows.append((profile, iso, name, raw_p, ren_p, sec))
+                    print(
+                        f"{profile:14s} ISO {iso:6d}  {name:10s}  raw {raw_p:6.2f} dB  "
+                        f"render {ren_p:6.2f} dB  {sec:7.3f} s/MP",
+                        flush=True,
+                    )
+    print("\nMean over profiles and ISOs (raw PSNR / render PSNR, dB; s per MP):")
+    names = list(dict.fromkeys(r[2] for r in rows))
+    for name in names:
+        sel = [r for r in rows if r[2] == name]
+        print(
+            f"  {name:10s}  raw {statistics.fmean(r[3] for r in sel):6.2f}  "
+            f"render {statistics.fmean(r[4] for r in sel):6.2f}  "
+            f"{statistics.fmean(r[5] for r in sel):7.3f} s/MP"
+        )
+
+
+def normalised_as(raw, data: np.ndarray) -> np.ndarray:
+    from dataclasses import replace
+
+    return normalised(replace(raw, data=data))
+
+
+def tune(profiles: list[str], isos: list[int]) -> None:
+    """Mean raw PSNR of ``profiled`` per threshold, on the non-Kodak photos."""
+    grid = (2.2, 2.5, 2.7, 3.0, 3.3)
+    totals = {t: [] for t in grid}
+    for profile in profiles:
+        for iso in isos:
+            with tempfile.TemporaryDirectory() as tmp:
+                for noisy_path, clean_path in unprocess(OTHER, Path(tmp), profile, iso):
+                    noisy, truth = read_raw(noisy_path), normalised(read_raw(clean_path))
+                    for thr in grid:
+                        totals[thr].append(psnr(normalised_as(noisy, profiled(noisy, thr)), truth))
+    for thr in grid:
+        print(f"threshold {thr:.1f} σ: mean raw PSNR {statistics.fmean(totals[thr]):.3f} dB")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--images", type=Path, default=KODAK, help="folder of photos")
+    ap.add_argument("--profiles", default="nikon_d850,sony_a7s2")
+    ap.add_argument("--isos", default="1600,6400,25600")
+    ap.add_argument("--libraw-thresholds", default="50,100,200,400,800")
+    ap.add_argument("--tune", action="store_true", help="sweep the threshold on non-Kodak photos")
+    args = ap.parse_args(argv)
+    print("\n".join(describe()), flush=True)
+    profiles = args.profiles.split(",")
+    isos = [int(v) for v in args.isos.split(",")]
+    if args.tune:
+        tune(profiles, isos)
+        return
+    thresholds = [float(v) for v in args.libraw_thresholds.split(",")]
+    run(args.images, profiles, isos, thresholds)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
