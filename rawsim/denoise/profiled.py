@@ -24,10 +24,10 @@ The method, on a mosaic normalised so that black is 0 and white 1:
    and averages the patches back, each weighted by 1 / its kept coefficients.
    Pass two shrinks the noisy coefficients by the Wiener factor P² / (P² + σ²) of
    the first estimate's P, weighted by 1 / Σ factor². σ is 1 × ``strength``.
-5. **Back:** the inverse mix, then the closed-form unbiased inverse of the
-   transform (Mäkitalo & Foi, "Optimal inversion of the generalized Anscombe
-   transformation for Poisson-Gaussian noise", IEEE TIP 22(1), 2013), which
-   returns the mean, not the median, of the signal. Sites at or above white
+5. **Back:** the inverse mix, then the exact unbiased inverse of the transform
+   (:mod:`rawsim.denoise.vst`; Mäkitalo & Foi, "Optimal inversion of the
+   generalized Anscombe transformation for Poisson-Gaussian noise", IEEE TIP
+   22(1), 2013), which returns the mean, not the median, of the signal. Sites at or above white
    (clipped: no noise to remove) and sites outside the planes (an odd last row or
    column of a Bayer mosaic) keep their values.
 
@@ -50,6 +50,7 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.denoise.layout import CHUNK, PATCH, REACH, STEP, THRESHOLD, plane_layout, plane_shape
+from rawsim.denoise.vst import tables
 
 
 def forward_vst(x: torch.Tensor, gain, offset) -> torch.Tensor:
@@ -57,13 +58,20 @@ def forward_vst(x: torch.Tensor, gain, offset) -> torch.Tensor:
     return 2 * (x / gain + 0.375 + offset / (gain * gain)).clamp_min(0).sqrt()
 
 
-def inverse_vst(d: torch.Tensor, gain, offset) -> torch.Tensor:
-    """The closed-form approximation of the exact unbiased inverse of :func:`forward_vst`
-    (Mäkitalo & Foi 2013): the mean x whose transform's expectation is ``d``; ≥ 0."""
-    d = d.clamp_min(1.0)
+def inverse_vst(d: torch.Tensor, gain: float, offset: float) -> torch.Tensor:
+    """The exact unbiased inverse of :func:`forward_vst` (:mod:`rawsim.denoise.vst`):
+    the mean x whose transform's expectation is ``d``; ≥ 0. One colour's model."""
+    td, tx = (torch.as_tensor(t, dtype=d.dtype, device=d.device) for t in tables([gain], [offset]))
+    td, tx = td[0], tx[0]
+    i = torch.searchsorted(td, d.detach().contiguous()).clamp(1, td.numel() - 1)
+    lo, hi = td[i - 1], td[i]
+    w = ((d - lo) / (hi - lo)).clamp(0, 1)
+    table = tx[i - 1] + w * (tx[i] - tx[i - 1])
+    c = d.clamp_min(1.0)
     r = math.sqrt(1.5)
-    i = 0.25 * d * d + 0.25 * r / d - 1.375 / (d * d) + 0.625 * r / d**3 - 0.125
-    return (i - offset / (gain * gain)).clamp_min(0) * gain
+    closed = 0.25 * c * c + 0.25 * r / c - 1.375 / (c * c) + 0.625 * r / c**3 - 0.125
+    closed = (closed - offset / gain**2).clamp_min(0) * gain
+    return torch.where(d > td[-1], closed, table)
 
 
 def _basis(device, dtype) -> torch.Tensor:
@@ -165,7 +173,12 @@ def profiled_denoise(
             num, den = _pass(noisy, a - REACH, e1, a, r0, r1, hp, strength, threshold, basis)
             result.append(num / den)
         est = torch.einsum("dc,dhw->chw", mix_t, torch.cat(result, 1))
-        denoised = inverse_vst(est, g, o)
+        denoised = torch.zeros_like(est)
+        for c in range(3):
+            sel = col == c
+            denoised = torch.where(
+                sel, inverse_vst(est, float(gain[c]), float(offset[c])), denoised
+            )
         for k, (ys, xs, _) in enumerate(sites):
             old = planes[k]
             out[n, 0, ys[:, None], xs[None]] = torch.where(old >= 1, old, denoised[k])

@@ -19,6 +19,7 @@ from numba import njit
 
 from rawsim.cfa import CFA
 from rawsim.denoise.layout import CHUNK, PATCH, REACH, STEP, THRESHOLD, plane_layout, plane_shape
+from rawsim.denoise.vst import tables
 from rawsim.engine import configure
 from rawsim.engine.tiles import next_tile
 
@@ -48,19 +49,32 @@ def _forward_vst(x, gain, offset):
 
 
 @njit(inline="always", **_JIT)
-def _inverse_vst(d, gain, offset):
-    """The closed-form unbiased inverse of :func:`_forward_vst` (Mäkitalo & Foi, 2013)."""
-    d = max(d, np.float32(1.0))
-    r = np.float32(math.sqrt(1.5))
-    i = (
-        np.float32(0.25) * d * d
-        + np.float32(0.25) * r / d
-        - np.float32(1.375) / (d * d)
-        + np.float32(0.625) * r / (d * d * d)
-        - np.float32(0.125)
-        - offset / (gain * gain)
-    )
-    return max(i, np.float32(0.0)) * gain
+def _inverse_vst(d, gain, offset, td, tx):
+    """The exact unbiased inverse of :func:`_forward_vst` (:mod:`rawsim.denoise.vst`):
+    the table (``td`` → ``tx``, linear between points) up to its last point, the
+    closed form of Mäkitalo & Foi (2013) above."""
+    n = td.size
+    if d > td[n - 1]:
+        c = max(d, np.float32(1.0))
+        r = np.float32(math.sqrt(1.5))
+        i = (
+            np.float32(0.25) * c * c
+            + np.float32(0.25) * r / c
+            - np.float32(1.375) / (c * c)
+            + np.float32(0.625) * r / (c * c * c)
+            - np.float32(0.125)
+            - offset / (gain * gain)
+        )
+        return max(i, np.float32(0.0)) * gain
+    lo, hi = 1, n - 1
+    while lo < hi:  # the first point ≥ d, at least the second
+        mid = (lo + hi) // 2
+        if td[mid] < d:
+            lo = mid + 1
+        else:
+            hi = mid
+    w = min(max((d - td[lo - 1]) / (td[lo] - td[lo - 1]), np.float32(0.0)), np.float32(1.0))
+    return tx[lo - 1] + w * (tx[lo] - tx[lo - 1])
 
 
 @njit(**_JIT)
@@ -210,6 +224,8 @@ def _chunk(
     span,
     gain,
     offset,
+    td,
+    tx,
     sigma,
     threshold,
     even,
@@ -267,14 +283,28 @@ def _chunk(
                 if np.float32(dn) - black[sy, sx] >= span[sy, sx]:
                     continue  # clipped: kept as it is
                 col = colors[sy, sx]
-                v = _inverse_vst(acc, gain[col], offset[col])
+                v = _inverse_vst(acc, gain[col], offset[col], td[col], tx[col])
                 dnv = black[sy, sx] + v * span[sy, sx]
                 out[my, mx] = min(max(round(dnv), 0), 65535)
 
 
 @njit(nogil=True, **_JIT)
 def denoise_worker(
-    raw, out, counter, offsets, step, colors, matrix, black, span, gain, offset, sigma, threshold
+    raw,
+    out,
+    counter,
+    offsets,
+    step,
+    colors,
+    matrix,
+    black,
+    span,
+    gain,
+    offset,
+    td,
+    tx,
+    sigma,
+    threshold,
 ):
     """One thread's share of denoising the (H, W) uint16 mosaic ``raw`` into ``out``
     (DN, rounded, in [0, 65535]; ``out`` starts as a copy of ``raw``): chunks of
@@ -286,7 +316,8 @@ def denoise_worker(
     above white (``raw`` ≥ black + span) keep their value. ``colors``: (ph, pw) CFA
     colour index per site of a period; ``black``, ``span`` (ph, pw) DN per site;
     ``gain``, ``offset`` (3,) the noise model per colour (variance gain·x + offset,
-    x = (DN − black) / span); ``matrix`` (C, C) orthonormal, mixing the planes'
+    x = (DN − black) / span); ``td``, ``tx`` (3, N) its unbiased inverse's table
+    (:func:`rawsim.denoise.vst.tables`); ``matrix`` (C, C) orthonormal, mixing the planes'
     transformed values. ``sigma``: the noise σ the passes assume after the transform
     (1 × strength); ``threshold``: the first pass's hard threshold in σ.
     """
@@ -319,6 +350,8 @@ def denoise_worker(
             span,
             gain,
             offset,
+            td,
+            tx,
             sigma,
             threshold,
             even,
@@ -380,6 +413,7 @@ def denoise_mosaic(
     out = raw.copy()
     model = np.asarray(gain, np.float32), np.asarray(offset, np.float32)
     args = (raw, out, np.zeros(1, np.int64), offsets, step, colors, mix, black, span, *model)
+    args += tables(*model)
     args += (np.float32(strength), np.float32(threshold))
     threads = max(1, min(numba.get_num_threads(), -(-plane_shape(raw.shape, cfa)[0] // CHUNK)))
     if threads == 1:

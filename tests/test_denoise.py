@@ -1,0 +1,247 @@
+"""Raw denoising: the noise model's sources, the transform's unbiased inverse, the
+profiled method (chunks, engine against torch, quality), and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from rawsim.cfa import CFA
+from rawsim.denoise.noise_model import dng_noise_profile, noise_model_for
+from rawsim.denoise.profiled import forward_vst, inverse_vst, profiled_denoise
+from rawsim.engine.denoise import denoise_mosaic
+from rawsim.errors import ParameterError
+from rawsim.io.raw import read_raw
+from rawsim.io.task import Task
+from rawsim.isp.config import DenoiseStage, IspConfig, RawDenoiseStage
+from rawsim.isp.filters import denoise as filter_denoise
+from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
+from rawsim.profiles import load_profile
+from rawsim_cli.main import cli
+from tests.conftest import DATA, psnr
+
+KODAK = DATA / "kodak" / "kodim08_crop.png"
+MLV = DATA / "raw" / "canon_eos60d_mlv.dng"
+
+
+def _pair(tmp_path, profile, iso, src=KODAK, seed=1):
+    """(noisy, clean) RawImages of ``src`` unprocessed with ``profile`` at ``iso``."""
+    options = UnprocessOptions(profile, iso=iso, clean=True)
+    outputs = {k: tmp_path / f"{src.stem}{v}" for k, v in options.output_suffixes().items()}
+    unprocess_file(Task(src, src.name, outputs, seed), options)
+    return read_raw(outputs["dng"]), read_raw(outputs["clean_dng"])
+
+
+def _normalised(raw, data=None):
+    data = raw.data if data is None else data
+    black = float(np.mean(raw.black_level))
+    return (data.astype(np.float64) - black) / (raw.white_level - black)
+
+
+def _model(raw):
+    m = dng_noise_profile(raw)  # the DNG's own: the noise it was made with
+    return m.normalised(raw.white_level - float(np.mean(raw.black_level)))
+
+
+# ------------------------------------------------------------------ the noise model
+def test_the_noise_model_is_taken_in_order(tmp_path):
+    d850 = load_profile("nikon_d850")
+    noisy, _ = _pair(tmp_path, d850, 6400)
+    assert noise_model_for(noisy, "sony_a7s2").source == "profile"
+    camera = noise_model_for(noisy)
+    assert camera.source == "camera profile" and "nikon_d850" in camera.detail
+    other = replace(d850, make="Nobody", model="Prototype 1")
+    (tmp_path / "other").mkdir()
+    noisy, _ = _pair(tmp_path / "other", other, 6400)
+    tag = noise_model_for(noisy)
+    assert tag.source == "dng"
+    # the tag's figures are the profile's own at the ISO
+    a, b = d850.noise.levels("poisson-gaussian", 6400).affine_variance(
+        d850.white_level - d850.black_level
+    )
+    assert tag.a[1] == pytest.approx(a, rel=1e-9) and tag.b[1] == pytest.approx(b, rel=1e-9)
+    real = noise_model_for(read_raw(MLV))  # a Canon 60D: no profile, no tag
+    assert real.source == "estimate" and real.a[1] > 0 and real.b[1] > 0
+
+
+def test_a_profile_outside_its_iso_range_is_clamped_with_a_warning(tmp_path):
+    noisy, _ = _pair(tmp_path, load_profile("nikon_d850"), 6400)
+    model = noise_model_for(replace(noisy, iso=200000.0), "nikon_d850")
+    assert any("outside profile" in w for w in model.warnings)
+
+
+# ------------------------------------------------------------------ the transform
+@pytest.mark.parametrize("gain, offset", [(4e-4, 1.6e-7), (6.6e-3, 2.6e-6), (1e-2, 1e-4)])
+def test_the_transform_round_trip_is_unbiased_on_flat_fields(gain, offset):
+    """An ideal denoiser in the transform's domain returns E[f]; the inverse must turn
+    it into the mean: within 0.5 % of the noise σ at every level, photon-starved too."""
+    rng = np.random.default_rng(0)
+    n = 4_000_000
+    for mu in [0.0, *np.geomspace(1e-4, 0.9, 12)]:
+        x = gain * rng.poisson(mu / gain, n) + rng.normal(0, math.sqrt(offset), n)
+        d = forward_vst(torch.from_numpy(x), gain, offset).mean()
+        back = float(inverse_vst(d.reshape(1), gain, offset)[0])
+        assert abs(back - mu) < 0.005 * math.sqrt(gain * mu + offset), mu
+
+
+# ------------------------------------------------------------------ the method
+def _synthetic(shape, gain=2e-3, offset=2e-5, seed=1):
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
+    clean = 0.2 + 0.1 * np.sin(yy / 17.0) * np.cos(xx / 23.0)
+    noisy = clean + rng.normal(0, 1, shape) * np.sqrt(gain * clean + offset)
+    return clean, noisy
+
+
+@pytest.mark.parametrize(
+    "cfa, shape", [("RGGB", (301, 257)), ("GBRG", (96, 130)), ("XTRANS", (150, 216))]
+)
+def test_chunks_give_the_whole_images_result(cfa, shape):
+    _, noisy = _synthetic(shape)
+    x = torch.from_numpy(noisy).float()[None, None]
+    args = (CFA(cfa), [2e-3] * 3, [2e-5] * 3)
+    whole = profiled_denoise(x, *args, chunk=4096)
+    for chunk in (16, 40):
+        torch.testing.assert_close(
+            profiled_denoise(x, *args, chunk=chunk), whole, atol=2e-6, rtol=0
+        )
+
+
+@pytest.mark.parametrize(
+    "cfa, shape", [("RGGB", (301, 257)), ("BGGR", (200, 96)), ("XTRANS", (150, 216))]
+)
+def test_the_engine_equals_the_torch_reference(cfa, shape):
+    black, white = 512.0, 16383.0
+    clean, noisy = _synthetic(shape)
+    dn = np.clip(np.round(noisy * (white - black) + black), 0, 65535).astype(np.uint16)
+    dn[5:9, 20:30] = 16383  # clipped sites are kept
+    x = torch.from_numpy((dn.astype(np.float32) - black) / (white - black))[None, None]
+    ref = profiled_denoise(x, CFA(cfa), [2e-3] * 3, [2e-5] * 3)[0, 0].double().numpy()
+    out = denoise_mosaic(dn, CFA(cfa), black, white, [2e-3] * 3, [2e-5] * 3)
+    diff = np.abs(out.astype(np.float64) - (ref * (white - black) + black))
+    assert diff.max() <= 1.0 and diff.mean() < 0.3  # rounding to DN, float32 sums
+    assert (out[5:9, 20:30] == 16383).all()
+    keep = np.ones(shape, bool)
+    keep[:10] = False  # the clipped rows
+    before = psnr(noisy[keep], clean[keep])
+    assert psnr(_normalised_dn(out, black, white)[keep], clean[keep]) > before + 10
+
+
+def _normalised_dn(dn, black, white):
+    return (dn.astype(np.float64) - black) / (white - black)
+
+
+def test_profiled_beats_bilateral_on_a_kodak_photo(tmp_path):
+    noisy, clean = _pair(tmp_path, load_profile("nikon_d850"), 25600)
+    truth = _normalised(clean)
+    gain, offset = _model(noisy)
+    ours = denoise_mosaic(noisy.data, noisy.cfa, noisy.black_level, noisy.white_level, gain, offset)
+    x = torch.from_numpy(_normalised(noisy)).float()[None, None]
+    sigma = math.sqrt(gain[1] * 0.18 + offset[1])
+    bilateral = max(
+        psnr(
+            filter_denoise(x, noisy.cfa, "bilateral", 5, 1.0, k * sigma)[0, 0].double().numpy(),
+            truth,
+        )
+        for k in (1.0, 2.0, 3.0)
+    )
+    before = psnr(_normalised(noisy), truth)
+    after = psnr(_normalised(noisy, ours), truth)
+    assert after > bilateral + 0.3 and after > before + 2.5, (before, bilateral, after)
+
+
+def test_strength_scales_what_is_removed():
+    _, noisy = _synthetic((128, 128))
+    x = torch.from_numpy(noisy).float()[None, None]
+    args = (CFA("RGGB"), [2e-3] * 3, [2e-5] * 3)
+    weak, strong = profiled_denoise(x, *args, 0.5), profiled_denoise(x, *args, 2.0)
+    assert float((x - weak).std()) < float((x - strong).std())
+
+
+# ------------------------------------------------------------------ the ISP and the CLI
+def test_the_stage_must_follow_the_black_level():
+    tables = IspConfig.default().override(denoise="profiled").to_tables()
+    assert [t["name"] for t in tables][:2] == ["black_level", "raw_denoise"]
+    moved = [tables[0], *tables[2:6], tables[1], *tables[6:]]
+    with pytest.raises(ParameterError, match="right after 'black_level'"):
+        IspConfig.from_tables(moved)
+    with pytest.raises(ParameterError, match="--noise-profile sets --denoise profiled"):
+        IspConfig.default().override(denoise="bilateral", noise_profile="sony_a7s2")
+    rgb = IspConfig.default().override(denoise="bilateral")
+    assert not rgb.enabled_stage(RawDenoiseStage) and rgb.enabled_stage(DenoiseStage)
+
+
+def test_process_denoises_and_records_the_model(tmp_path, monkeypatch):
+    out = {}
+    for engine in ("1", "0"):
+        monkeypatch.setenv("RAWSIM_ENGINE", engine)
+        folder = tmp_path / engine
+        r = CliRunner().invoke(
+            cli,
+            [
+                "process",
+                str(MLV),
+                "-o",
+                str(folder),
+                "--denoise",
+                "profiled",
+                "--format",
+                "tiff",
+                "--bits",
+                "16",
+                "-q",
+            ],
+        )
+        assert r.exit_code == 0, r.output
+        side = json.loads((folder / "canon_eos60d_mlv.process.json").read_text())
+        assert side["noise_model"]["source"] == "estimate"
+        import tifffile
+
+        out[engine] = tifffile.imread(folder / "canon_eos60d_mlv.tif").astype(np.float64)
+    assert np.abs(out["1"] - out["0"]).mean() < 40  # of 65535: DN rounding, float32 sums
+    bad = CliRunner().invoke(
+        cli,
+        [
+            "process",
+            str(MLV),
+            "-o",
+            str(tmp_path / "x"),
+            "--denoise",
+            "profiled",
+            "--noise-profile",
+            "nope",
+        ],
+    )
+    assert bad.exit_code == 2 and "unknown sensor profile 'nope'" in bad.output
+
+
+@pytest.mark.slow
+def test_memory_stays_flat_from_2_to_24_megapixels():
+    """Peak memory over the input and output mosaics: a few chunk buffers per thread."""
+    code = """
+import resource, sys, numpy as np
+from rawsim.cfa import CFA
+from rawsim.engine.denoise import denoise_mosaic
+h, w = map(int, sys.argv[1:3])
+data = np.full((h, w), 3000, np.uint16)
+data[::7] += 40
+denoise_mosaic(data[:64, :64].copy(), CFA("RGGB"), 512, 16383, [2e-3] * 3, [2e-5] * 3)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+out = denoise_mosaic(data, CFA("RGGB"), 512, 16383, [2e-3] * 3, [2e-5] * 3)
+print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) * 1024 - out.nbytes)
+"""
+    extra = {}
+    for h, w in ((1200, 1800), (4000, 6000)):
+        run = subprocess.run(
+            [sys.executable, "-c", code, str(h), str(w)], capture_output=True, text=True, check=True
+        )
+        extra[h * w] = int(run.stdout.split()[-1])
+    assert max(extra.values()) < 64 * 2**20, extra
