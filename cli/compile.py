@@ -47,6 +47,11 @@ TASKS: tuple[tuple[str, str | None, str], ...] = (
     (RENDER, BAYER, "process {out}/bayer/photo.dng -o {out}/png"),
     ("process: float output", RENDER, "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
     ("process: half size", RENDER, "process {out}/bayer/photo.dng -o {out}/half --half-size"),
+    (
+        "process: profiled denoise",
+        RENDER,
+        "process {out}/bayer/photo.dng -o {out}/denoised --denoise profiled",
+    ),
     (XTRANS, BAYER, "unprocess {in}/photo.png -o {out}/xtrans -p fujifilm_xt3 --iso 800"),
     ("process: X-Trans", XTRANS, "process {out}/xtrans/photo.dng -o {out}/xtrans_png"),
     (

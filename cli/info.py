@@ -28,7 +28,9 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     camera, whether it can render it, CFA, black and white levels, the camera's
     and daylight multipliers, the white balance it applies and why, the colour
     matrix and its source, orientation, ISO, the DNG BaselineExposure and
-    whether process applies it, and the photo metadata renders carry (camera,
+    whether process applies it, the noise model '--denoise profiled' takes (and
+    where from: a bundled profile, the DNG NoiseProfile tag, or an estimate from
+    the raw), and the photo metadata renders carry (camera,
     lens, exposure, aperture, focal length, time, GPS, artist, …). For a raw
     it cannot render (a four-colour CFA, a full image of four samples, …) it
     prints what LibRaw read and 'renderable: no — the reason; the way out'.
@@ -84,6 +86,8 @@ def _lines(facts: dict) -> list[str]:
             continue
         if key == "renderable":
             value = "yes" if value else f"no — {facts['reason']}"
+        elif key == "noise_model":
+            value = f"{value['source']}: {value['detail']}"
         elif key == "iso":
             value = f"{value:g}"
             if "ISOSpeedRatings" not in metadata:  # e.g. a Kodak DC50's, from LibRaw's table

@@ -158,6 +158,62 @@ def test_profiled_beats_bilateral_on_a_kodak_photo(tmp_path):
     assert after > bilateral + 0.3 and after > before + 2.5, (before, bilateral, after)
 
 
+def test_real_noise_is_removed_and_nothing_else():
+    """On the real raw (noise model estimated from it), the residual input − output
+    follows the model: its variance within ±25 % of the model's at every level (eight
+    bins of the denoised level), and it holds no image structure: its correlation with
+    the output's 4th-order detail (calibrate's high-pass, which scene texture reaches)
+    is below 0.05."""
+    from rawsim.calibrate import high_pass
+
+    raw = read_raw(MLV)
+    model = noise_model_for(raw)
+    assert model.source == "estimate"
+    gain, offset = model.normalised(raw.white_level - float(np.mean(raw.black_level)))
+    out = denoise_mosaic(raw.data, raw.cfa, raw.black_level, raw.white_level, gain, offset)
+    x, y = _normalised(raw), _normalised(raw, out)
+    residual = x - y
+    edges = np.quantile(y, np.linspace(0.02, 0.98, 9))
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (y >= lo) & (y < hi)
+        ratio = residual[sel].var() / (gain[1] * y[sel].mean() + offset[1])
+        assert 0.75 <= ratio <= 1.25, (lo, ratio)
+    detail = high_pass(y[None])[0]
+    assert abs(np.corrcoef(residual[2:-2, 2:-2].ravel(), detail.ravel())[0, 1]) < 0.05
+
+
+def test_a_noisy_charts_patches_flatten_and_keep_their_means():
+    """The colour chart in the tests (synthetic, noise-free) with a D850's noise at ISO
+    6400 added: inside every patch, each CFA plane's spread falls at least 3×, and each
+    colour's mean moves by less than 1 % (patches above 5 % of white, where 1 % is
+    more than the noise of a patch's mean)."""
+    raw = read_raw(DATA / "raw" / "synthetic_colorchecker_bggr.dng")
+    black, white = float(np.mean(raw.black_level)), raw.white_level
+    truth = _normalised(raw)
+    gain, offset = 1.66e-3, 6.9e-7
+    rng = np.random.default_rng(3)
+    noisy = gain * rng.poisson(np.clip(truth, 0, None) / gain)
+    noisy += rng.normal(0, math.sqrt(offset), truth.shape)
+    dn = np.clip(np.round(noisy * (white - black) + black), 0, 65535).astype(np.uint16)
+    out = denoise_mosaic(dn, raw.cfa, black, white, [gain] * 3, [offset] * 3)
+    before, after = _normalised(raw, dn), _normalised(raw, out)
+    h, w = truth.shape
+    colours = np.array([[raw.cfa.color_at(i, j) for j in range(w)] for i in range(h)])
+    for row in range(4):
+        for col in range(6):
+            y0, x0 = int((row + 0.5) * h / 4) // 2 * 2, int((col + 0.5) * w / 6) // 2 * 2
+            cut = (slice(y0 - 16, y0 + 16), slice(x0 - 16, x0 + 16))  # 32 × 32 inside
+            for oy in (0, 1):
+                for ox in (0, 1):
+                    plane = (slice(y0 - 16 + oy, y0 + 16, 2), slice(x0 - 16 + ox, x0 + 16, 2))
+                    assert before[plane].std() > 3 * after[plane].std(), (row, col)
+            for c in range(3):
+                sites = colours[cut] == c
+                if truth[cut][sites].mean() > 0.05:
+                    mean = before[cut][sites].mean()
+                    assert abs(after[cut][sites].mean() - mean) < 0.01 * mean, (row, col, c)
+
+
 def test_strength_scales_what_is_removed():
     _, noisy = _synthetic((128, 128))
     x = torch.from_numpy(noisy).float()[None, None]

@@ -20,10 +20,11 @@ The method, on a mosaic normalised so that black is 0 and white 1:
    denoising: a simple and effective image denoising algorithm", IPOL 2011; the
    second, Wiener pass as in BM3D's, without block matching): patches start every
    ``STEP`` plane pixels (on the grid −7 + 2k) over the planes mirrored at
-   their edges. Pass one keeps the coefficients above ``threshold``·σ (and the DC)
-   and averages the patches back, each weighted by 1 / its kept coefficients.
-   Pass two shrinks the noisy coefficients by the Wiener factor P² / (P² + σ²) of
-   the first estimate's P, weighted by 1 / Σ factor². σ is 1 × ``strength``.
+   their edges. Pass one keeps the coefficients above ``threshold``·σ and averages
+   the patches back, each weighted by 1 / its kept coefficients. Pass two shrinks
+   the noisy coefficients by the Wiener factor P² / (P² + σ²) of the first
+   estimate's P, weighted by 1 / Σ factor². Both keep the DC coefficient whole:
+   shrinking it would pull a patch's weak colour towards grey. σ is 1 × ``strength``.
 5. **Back:** the inverse mix, then the exact unbiased inverse of the transform
    (:mod:`rawsim.denoise.vst`; Mäkitalo & Foi, "Optimal inversion of the
    generalized Anscombe transformation for Poisson-Gaussian noise", IEEE TIP
@@ -118,8 +119,9 @@ def _pass(noisy, n0, pilot, a, lo, hi, hp, sigma, threshold, basis):
         pcol = _reflect(torch.arange(-REACH, wp + REACH), wp)
         q = basis @ _patches(pilot[:, prow][:, :, pcol]) @ basis.T
         f = q * q / (q * q + sigma * sigma)
+        f[..., 0, 0] = 1  # the DC kept whole
         t = t * f
-        weight = 1 / (f * f).sum((-2, -1)).clamp_min(1e-3)
+        weight = 1 / (f * f).sum((-2, -1))
     back = basis.T @ t @ basis * weight[..., None, None]
     ones = weight[..., None, None].expand_as(back)
     cut = (slice(None), slice(lo - first, hi - first), slice(REACH, REACH + wp))

@@ -136,10 +136,10 @@ def _transform(src, even, odd, tmp, dst, count, inverse):
 @njit(**_JIT)
 def _pass(noisy, n0, pilot, a, wiener, lo, hi, hp, sigma, threshold, even, odd, num, den, s):
     """One pass over the patches that touch plane rows [lo, hi), summed into ``num`` and
-    ``den`` (C, hi − lo, wp): hard thresholding at ``threshold``·``sigma`` (the DC
-    coefficient kept), each patch weighted by 1 / its kept coefficients; or, when
-    ``wiener``, Wiener shrinkage by the ``pilot`` patch's coefficients, weighted by
-    1 / Σ shrink².
+    ``den`` (C, hi − lo, wp): hard thresholding at ``threshold``·``sigma``, each patch
+    weighted by 1 / its kept coefficients; or, when ``wiener``, Wiener shrinkage by
+    the ``pilot`` patch's coefficients, weighted by 1 / Σ shrink². The DC coefficient
+    is kept whole by both (shrinking it would pull a weak colour towards grey).
 
     ``noisy``: (C, rows, wp + 2·REACH), row 0 plane row ``n0``, column 0 plane column
     −REACH (mirrored values past the edges). ``pilot``: the same columns, row 0 plane
@@ -174,16 +174,18 @@ def _pass(noisy, n0, pilot, a, wiener, lo, hi, hp, sigma, threshold, even, odd, 
                                 p[i, j, n] = row[STEP * (n0c + n) + j]
                     _transform(p, even, odd, tmp, q, count, False)
                     for n in range(count):
-                        weight[n] = 0
+                        weight[n] = 1  # the DC, kept whole
                     for i in range(PATCH):
                         for j in range(PATCH):
+                            if i == 0 and j == 0:
+                                continue
                             for n in range(count):
                                 g = q[i, j, n] * q[i, j, n]
                                 shrink = g / (g + s2)
                                 t[i, j, n] *= shrink
                                 weight[n] += shrink * shrink
                     for n in range(count):
-                        weight[n] = np.float32(1.0) / max(weight[n], np.float32(1e-3))
+                        weight[n] = np.float32(1.0) / weight[n]
                 else:
                     for n in range(count):
                         weight[n] = 1  # the DC, always kept

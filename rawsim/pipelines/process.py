@@ -576,7 +576,8 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
     """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
     camera, ``renderable`` (true), CFA, levels, the camera's and daylight multipliers,
     the white balance and matrix it will apply with where they come from,
-    orientation, ISO, the DNG BaselineExposure and whether it is applied, and the
+    orientation, ISO, the DNG BaselineExposure and whether it is applied, the noise
+    model ``--denoise profiled`` takes (:mod:`rawsim.denoise.noise_model`), and the
     photo metadata (lens, exposure, time, GPS, …) that renders carry.
 
     For a raw rawsim cannot render (the :class:`~rawsim.io.raw.RawFacts` of an
@@ -616,9 +617,23 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
         if "color_matrix" in info:
             out["color_matrix"] = np.round(resolved.color_matrix, 6).tolist()
             out["matrix_source"] = raw.matrix_source
+    if raw.cfa is not None:
+        out["noise_model"] = info.get("noise_model") or _noise_model_record(raw)
     out["metadata"] = read_metadata(raw.path).summary()
     out["warnings"] = info["warnings"]
     return out
+
+
+def _noise_model_record(raw: RawImage) -> dict:
+    """The noise model ``--denoise profiled`` would take by default (its record), or why
+    there is none."""
+    from rawsim.denoise.noise_model import noise_model_for
+    from rawsim.errors import RawsimError
+
+    try:
+        return noise_model_for(raw).to_dict()
+    except RawsimError as err:
+        return {"source": "none", "detail": str(err)}
 
 
 #: A render whose 99th percentile is below this share of full scale (linear) is dark.
