@@ -10,6 +10,8 @@ clean render:
 
 * ``profiled``: rawsim's engine (:func:`rawsim.engine.denoise.denoise_mosaic`),
   with the noise model of the DNG's NoiseProfile tag (the true parameters);
+* ``learned``: that, refined by the network (:func:`rawsim.denoise.learned.
+  refine_mosaic`), trained on photos outside the Kodak set;
 * ``bm3d``: the ``bm3d`` package (PyPI; a benchmark anchor only, not a dependency
   of rawsim, whose licence is not for shipping: ``pip install bm3d``) on each CFA
   plane after the same generalised Anscombe transform, with the same true
@@ -20,13 +22,18 @@ clean render:
   ``--libraw-thresholds`` and the best kept per image. It works inside LibRaw's
   own render, so it is scored on renders only: LibRaw's render of the noisy DNG
   with ``-n T`` against its render of the clean DNG.
+* ``darktable dn``: darktable's "denoise (profiled)" through ``darktable-cli``
+  (:class:`Darktable`: its non-local means and wavelets, the better kept per
+  image), scored like LibRaw's: darktable's render of the noisy DNG with the
+  module on against its render of the clean DNG with it off. darktable exports
+  no image under ~300 px, so it is measured on full-size photos only (``--images``).
 
 Renders: rawsim's (engine, its default ISP: camera white balance, ``wcd``, sRGB,
 16 bits) of the denoised mosaic against rawsim's render of the clean DNG;
 LibRaw's (``dcraw_emu -w -6 -W -T``: AHD, sRGB, 16 bits, no auto-brightening)
-likewise; its times include starting the process. Times are per
-megapixel of mosaic, on this machine (printed first). darktable's profiled
-denoise is not measured: ``darktable-cli`` is not installed here.
+likewise; its times include starting the process (darktable's: the render's
+time less the same render without the module). Times are per megapixel of
+mosaic, on this machine (printed first).
 
     python benchmarks/bench_denoise.py                       # the vendored crops
     python benchmarks/bench_denoise.py --images /path/to/kodak
@@ -107,6 +114,15 @@ def profiled(raw, threshold: float = THRESHOLD) -> np.ndarray:
     return denoise_mosaic(raw.data, raw.cfa, black, raw.white_level, gain, offset, 1.0, threshold)
 
 
+def learned(raw) -> np.ndarray:
+    from rawsim.denoise.learned import refine_mosaic
+
+    gain, offset = model_of(raw)
+    black = np.asarray(raw.black_level, np.float64)
+    estimate = profiled(raw)
+    return refine_mosaic(raw.data, estimate, raw.cfa, black, raw.white_level, gain, offset)
+
+
 def bm3d_planes(raw) -> np.ndarray:
     import bm3d
     import torch
@@ -171,8 +187,95 @@ def libraw_render(path: Path, threshold: float) -> np.ndarray:
         return tifffile.imread(out).astype(np.float64) / 65535
 
 
+class Darktable:
+    """darktable's "denoise (profiled)" through ``darktable-cli`` (Debian's darktable),
+    headless. The module's parameters (version 11: 8 floats, a[3], b[3], mode, the
+    wavelet curves x[7][6], y[7][6], three flags, the colour mode; 412 bytes) start
+    from darktable's own preset, read from the library darktable creates, with its
+    curves set to their default 0.5, the strength 1 and the noise fit left to
+    darktable (a[0] = −1: its profile for the camera and ISO, else its generic
+    one). A render's XMP history holds only that module, enabled or not, so the
+    reference (the clean DNG, the module off) goes through the same pipeline.
+    Modes: 3 non-local means auto, 4 wavelets auto; the better is kept per image."""
+
+    MODES = (3, 4)
+
+    def __init__(self, work: Path) -> None:
+        import sqlite3
+
+        self.work, self.config = work, work / "config"
+        self.work.mkdir(parents=True, exist_ok=True)
+        self._run(HERE / "tests" / "data" / "raw" / "synthetic_colorchecker_bggr.dng", None)
+        with sqlite3.connect(self.config / "data.db") as db:
+            params, self.blend_version, blend = db.execute(
+                "select op_params, blendop_version, blendop_params from presets "
+                "where operation = 'denoiseprofile' and op_version = 11"
+            ).fetchone()
+        self.params, self.blend = bytearray(params), blend.hex()
+
+    def _params(self, mode: int) -> str:
+        import struct
+
+        p = bytearray(self.params)
+        floats = list(struct.unpack("<8f", p[:32]))
+        floats[2] = 1.0  # strength
+        p[:32] = struct.pack("<8f", *floats)
+        p[32:56] = struct.pack("<6f", -1.0, 0, 0, 0, 0, 0)  # darktable's own noise fit
+        p[56:60] = struct.pack("<i", mode)
+        p[228:396] = struct.pack("<42f", *([0.5] * 42))  # every curve at its default
+        return p.hex()
+
+    def _xmp(self, mode: int | None) -> str:
+        enabled, params = (0, self._params(3)) if mode is None else (1, self._params(mode))
+        return f"""<?xml version="1.0" encoding="UTF-8"?>
+<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">
+<rdf:Description rdf:about="" xmlns:darktable="http://darktable.sf.net/"
+ darktable:xmp_version="4" darktable:history_end="1"><darktable:history><rdf:Seq>
+<rdf:li darktable:num="0" darktable:operation="denoiseprofile" darktable:enabled="{enabled}"
+ darktable:modversion="11" darktable:params="{params}" darktable:multi_name=""
+ darktable:multi_priority="0" darktable:blendop_version="{self.blend_version}"
+ darktable:blendop_params="{self.blend}"/>
+</rdf:Seq></darktable:history></rdf:Description></rdf:RDF></x:xmpmeta>
+"""
+
+    def _run(self, dng: Path, mode: int | None, xmp: bool = False) -> np.ndarray | None:
+        import shutil
+
+        import tifffile
+
+        src, out = self.work / "in.dng", self.work / "out.tif"
+        shutil.copy(dng, src)
+        out.unlink(missing_ok=True)
+        cmd = ["darktable-cli", str(src)]
+        if xmp:
+            (self.work / "in.dng.xmp").write_text(self._xmp(mode))
+            cmd.append(str(self.work / "in.dng.xmp"))
+        cmd += [
+            str(out),
+            "--core",
+            "--configdir",
+            str(self.config),
+            "--library",
+            ":memory:",
+            "--conf",
+            "plugins/imageio/format/tiff/bpp=16",
+        ]
+        subprocess.run(cmd, capture_output=True, check=False)
+        return tifffile.imread(out).astype(np.float64) / 65535 if out.exists() else None
+
+    def render(self, dng: Path, mode: int | None) -> np.ndarray | None:
+        """darktable's 16-bit render of ``dng`` with the module in ``mode`` (None: off),
+        or None where darktable cannot export it (it fails on images under ~300 px)."""
+        return self._run(dng, mode, xmp=True)
+
+
 # ------------------------------------------------------------------ the table
 def run(images: Path, profiles: list[str], isos: list[int], thresholds: list[float]) -> None:
+    import shutil
+
+    darktable = Darktable(Path(tempfile.mkdtemp())) if shutil.which("darktable-cli") else None
+    if darktable is None:
+        print("darktable-cli is not installed (apt-get install darktable): its column is left out")
     try:
         import bm3d  # noqa: F401
 
@@ -201,28 +304,16 @@ def run(images: Path, profiles: list[str], isos: list[int], thresholds: list[flo
                         0.0,
                         mp,
                     )
-                    profiled(noisy)  # loads the kernel: not timed
-                    t = time.perf_counter()
-                    out = profiled(noisy)
-                    dt = time.perf_counter() - t
-                    add(
-                        "profiled",
-                        psnr(normalised_as(noisy, out), truth),
-                        psnr(render(noisy, out), truth_render),
-                        dt,
-                        mp,
-                    )
-                    if have_bm3d:
+                    methods = [("profiled", profiled), ("learned", learned)]
+                    methods += [("bm3d", bm3d_planes)] if have_bm3d else []
+                    for name, method in methods:
+                        if name != "bm3d":
+                            method(noisy)  # loads the kernel or the weights: not timed
                         t = time.perf_counter()
-                        out = bm3d_planes(noisy)
+                        out = method(noisy)
                         dt = time.perf_counter() - t
-                        add(
-                            "bm3d",
-                            psnr(normalised_as(noisy, out), truth),
-                            psnr(render(noisy, out), truth_render),
-                            dt,
-                            mp,
-                        )
+                        raw_psnr = psnr(normalised_as(noisy, out), truth)
+                        add(name, raw_psnr, psnr(render(noisy, out), truth_render), dt, mp)
                     t = time.perf_counter()
                     out, score = bilateral(noisy, truth)
                     dt = (time.perf_counter() - t) / 3  # one of the three sweeps
@@ -236,25 +327,45 @@ def run(images: Path, profiles: list[str], isos: list[int], thresholds: list[flo
                         dt = time.perf_counter() - t
                         best = max(best, (score, dt))
                     add("libraw -n", math.nan, best[0], best[1], mp)
+                    dt_truth = darktable and darktable.render(clean_path, None)
+                    if dt_truth is not None:
+                        start = time.perf_counter()
+                        plain = darktable.render(noisy_path, None)
+                        base_time = time.perf_counter() - start
+                        add("darktable", math.nan, psnr(plain, dt_truth), 0.0, mp)
+                        best = (-math.inf, 0.0)
+                        for mode in darktable.MODES:
+                            t = time.perf_counter()
+                            score = psnr(darktable.render(noisy_path, mode), dt_truth)
+                            best = max(best, (score, time.perf_counter() - t - base_time))
+                        add("darktable dn", math.nan, best[0], best[1], mp)
                 for name, values in scores.items():
                     raw_p = statistics.fmean(v[0] for v in values)
                     ren_p = statistics.fmean(v[1] for v in values)
                     sec = statistics.fmean(v[2] for v in values)
                     rows.append((profile, iso, name, raw_p, ren_p, sec))
                     print(
-                        f"{profile:14s} ISO {iso:6d}  {name:10s}  raw {raw_p:6.2f} dB  "
+                        f"{profile:14s} ISO {iso:6d}  {name:12s}  raw {raw_p:6.2f} dB  "
                         f"render {ren_p:6.2f} dB  {sec:7.3f} s/MP",
                         flush=True,
                     )
-    print("\nMean over profiles and ISOs (raw PSNR / render PSNR, dB; s per MP):")
-    names = list(dict.fromkeys(r[2] for r in rows))
-    for name in names:
-        sel = [r for r in rows if r[2] == name]
-        print(
-            f"  {name:10s}  raw {statistics.fmean(r[3] for r in sel):6.2f}  "
-            f"render {statistics.fmean(r[4] for r in sel):6.2f}  "
-            f"{statistics.fmean(r[5] for r in sel):7.3f} s/MP"
-        )
+    # each method's render beside the same renderer's render of the noisy raw
+    base = {"libraw -n": "libraw", "darktable dn": "darktable"}
+    print("\nMean over profiles and ISOs: raw PSNR, render PSNR and its gain over the same")
+    print("renderer's noisy render (dB), seconds per MP; then ISO ≥ 3200 alone:")
+    for high in (False, True):
+        chosen = [r for r in rows if r[1] >= 3200] if high else rows
+        mean = {
+            name: [statistics.fmean(r[k] for r in chosen if r[2] == name) for k in (3, 4, 5)]
+            for name in dict.fromkeys(r[2] for r in chosen)
+        }
+        print("  ISO ≥ 3200:" if high else "  all ISOs:")
+        for name, (raw_p, ren_p, sec) in mean.items():
+            gain = ren_p - mean[base.get(name, "noisy")][1]
+            print(
+                f"    {name:12s}  raw {raw_p:6.2f}  render {ren_p:6.2f}  gain {gain:+5.2f}  "
+                f"{sec:7.3f} s/MP"
+            )
 
 
 def normalised_as(raw, data: np.ndarray) -> np.ndarray:
@@ -344,6 +455,52 @@ def figures(out: Path) -> None:
     print(f"wrote {out / 'denoise_kodak.png'} and {out / 'denoise_real.png'}")
 
 
+def speed(repeats: int = 3) -> None:
+    """Seconds per 24 MP raw (6000 × 4000, a noisy Kodak capture tiled): ``profiled``,
+    ``learned`` (both on the mosaic only), and in the same run LibRaw's whole render
+    of that raw with and without its wavelet denoise (``dcraw_emu -n 200``)."""
+    from dataclasses import replace
+
+    from rawsim.io.dng import DngInfo, write_dng
+
+    with tempfile.TemporaryDirectory() as tmp:
+        noisy_path, _ = unprocess(KODAK, Path(tmp), "nikon_d850", 6400)[0]
+        small = read_raw(noisy_path)
+        reps = (-(-4000 // small.data.shape[0]), -(-6000 // small.data.shape[1]))
+        raw = replace(small, data=np.ascontiguousarray(np.tile(small.data, reps)[:4000, :6000]))
+        profiled(raw), learned(replace(raw, data=raw.data[:512, :512]))  # loads: not timed
+        times = {"profiled": [], "learned": [], "libraw": [], "libraw -n 200": []}
+        big = Path(tmp) / "big.dng"
+        gain, offset = model_of(raw)
+        info = DngInfo(
+            raw.cfa,
+            float(np.mean(raw.black_level)),
+            raw.white_level,
+            ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+            (1, 1, 1),
+            "rawsim",
+            "bench",
+            "bench",
+            6400,
+            noise_profile=(gain[1], offset[1]),
+        )
+        write_dng(big, raw.data, info)
+        for _ in range(repeats):
+            for name, fn in (("profiled", profiled), ("learned", learned)):
+                t = time.perf_counter()
+                fn(raw)
+                times[name].append(time.perf_counter() - t)
+            for name, thr in (("libraw", 0), ("libraw -n 200", 200)):
+                t = time.perf_counter()
+                libraw_render(big, thr)
+                times[name].append(time.perf_counter() - t)
+    for name, values in times.items():
+        print(
+            f"24 MP: {name:14s} median {statistics.median(values):6.2f} s "
+            f"(of {', '.join(f'{v:.2f}' for v in values)})"
+        )
+
+
 def _estimated(raw) -> tuple[list[float], list[float]]:
     from rawsim.denoise.noise_model import noise_model_for
 
@@ -358,6 +515,7 @@ def main(argv=None) -> None:
     ap.add_argument("--libraw-thresholds", default="50,100,200,400,800")
     ap.add_argument("--tune", action="store_true", help="sweep the threshold on non-Kodak photos")
     ap.add_argument("--figures", type=Path, help="write the docs' before-and-after crops here")
+    ap.add_argument("--speed", action="store_true", help="seconds per 24 MP raw")
     args = ap.parse_args(argv)
     print("\n".join(describe()), flush=True)
     profiles = args.profiles.split(",")
@@ -367,6 +525,9 @@ def main(argv=None) -> None:
         return
     if args.figures:
         figures(args.figures)
+        return
+    if args.speed:
+        speed()
         return
     thresholds = [float(v) for v in args.libraw_thresholds.split(",")]
     run(args.images, profiles, isos, thresholds)

@@ -17,7 +17,7 @@ from rawsim_cli.report import check_inputs, run_files
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend")
-DENOISES = ("none", "gaussian", "bilateral", "profiled")
+DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
 #: Other usual spellings of the formats.
@@ -62,17 +62,18 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "--denoise",
     type=click.Choice(DENOISES),
     help="profiled: remove the sensor's noise on the mosaic, as its noise model "
-    "predicts it (see --noise-profile); gaussian or bilateral: smoothing filters of "
-    "the RGB image; none.",
+    "predicts it (see --noise-profile); learned: a network trained on rawsim's own "
+    "data refines that (Bayer; others fall back to profiled); gaussian or bilateral: "
+    "smoothing filters of the RGB image; none.",
 )
 @click.option(
     "--denoise-strength",
     type=float,
-    help="Scales the noise σ --denoise profiled removes (default 1: the model's).",
+    help="Scales the noise σ --denoise profiled or learned removes (default 1: the model's).",
 )
 @click.option(
     "--noise-profile",
-    help="The noise model for --denoise profiled: a bundled profile or a profile file "
+    help="The noise model for --denoise profiled or learned: a bundled profile or a profile file "
     "('rawsim calibrate' output). Default: the camera's bundled profile, else the DNG "
     "NoiseProfile tag, else an estimate from the raw.",
 )

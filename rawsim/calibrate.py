@@ -50,7 +50,7 @@ import numpy as np
 
 from rawsim.errors import ParameterError, RawsimError
 from rawsim.io.raw import RawImage
-from rawsim.noise.models import QUANTIZATION_VARIANCE, tukey_lambda_variance
+from rawsim.noise.spec import QUANTIZATION_VARIANCE, tukey_lambda_variance
 
 METHODS = ("flat", "patches")
 #: The channels of a profile's ``noise.channel_bias`` (a Bayer CFA's; see :func:`_bias`).

@@ -301,3 +301,87 @@ print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) * 1024 - out
         )
         extra[h * w] = int(run.stdout.split()[-1])
     assert max(extra.values()) < 64 * 2**20, extra
+
+
+# ------------------------------------------------------------------ learned
+def test_the_weights_load_from_the_package_and_are_not_pickle():
+    from importlib import resources
+
+    from rawsim.denoise.learned import WEIGHTS, RefineNet, load_network
+
+    path = resources.files("rawsim.denoise") / "weights" / WEIGHTS
+    data = path.read_bytes()
+    assert len(data) < 10 * 2**20
+    header = json.loads(data[8 : 8 + int.from_bytes(data[:8], "little")])  # safetensors
+    net = load_network()
+    assert set(header) - {"__metadata__"} == set(net.state_dict())
+    assert sum(p.numel() for p in net.parameters()) == sum(
+        p.numel() for p in RefineNet().parameters()
+    )
+
+
+def test_learned_tiles_give_the_whole_images_result(monkeypatch):
+    import rawsim.denoise.learned as learned
+
+    rng = np.random.default_rng(2)
+    noisy = torch.from_numpy(rng.random((1, 4, 300, 270), dtype=np.float32) * 0.3)
+    estimate = noisy + 0.01
+    with torch.no_grad():
+        tiled = learned.refine(noisy, estimate, [2e-3] * 4, [2e-5] * 4)
+        monkeypatch.setattr(learned, "TILE", 4096)
+        whole = learned.refine(noisy, estimate, [2e-3] * 4, [2e-5] * 4)
+    assert float((tiled - estimate).abs().max()) > 1e-3  # the network does something
+    torch.testing.assert_close(tiled, whole, atol=1e-5, rtol=0)
+
+
+def test_learned_engine_equals_torch_and_beats_profiled(tmp_path):
+    from rawsim.denoise.learned import learned_denoise, refine_mosaic
+
+    noisy, clean = _pair(tmp_path, load_profile("nikon_d850"), 25600)
+    gain, offset = _model(noisy)
+    black = float(np.mean(noisy.black_level))
+    estimate = denoise_mosaic(noisy.data, noisy.cfa, black, noisy.white_level, gain, offset)
+    ours = refine_mosaic(noisy.data, estimate, noisy.cfa, black, noisy.white_level, gain, offset)
+    x = torch.from_numpy(_normalised(noisy)).float()[None, None]
+    with torch.no_grad():
+        ref = learned_denoise(x, noisy.cfa, gain, offset)[0, 0].double().numpy()
+    diff = np.abs(_normalised(noisy, ours) - ref) * (noisy.white_level - black)
+    assert diff.mean() < 0.5 and diff.max() <= 8  # DN: rounding, float32 sums
+    truth = _normalised(clean)
+    gained = psnr(_normalised(noisy, ours), truth) - psnr(_normalised(noisy, estimate), truth)
+    assert gained > 0.2, gained
+
+
+def test_learned_on_x_trans_falls_back_to_profiled_with_a_warning(tmp_path):
+    from rawsim.pipelines.process import describe
+
+    noisy, _ = _pair(tmp_path, load_profile("fujifilm_xt3"), 3200)
+    config = IspConfig.default().override(denoise="learned")
+    assert any("--denoise profiled" in w for w in describe(noisy, config)["warnings"])
+
+
+def test_training_runs_a_few_steps(tmp_path):
+    from rawsim.denoise.training.train import main
+
+    out = tmp_path / "w.safetensors"
+    main(
+        [
+            "--images",
+            str(DATA / "srgb"),
+            "--work",
+            str(tmp_path),
+            "--steps",
+            "3",
+            "--profiles",
+            "sony_a7s2",
+            "--seeds",
+            "1",
+            "--out",
+            str(out),
+        ]
+    )
+    from safetensors.torch import load_file
+
+    from rawsim.denoise.learned import RefineNet
+
+    RefineNet().load_state_dict(load_file(str(out)))

@@ -60,7 +60,7 @@ TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
 DENOISE_METHODS = ("none", "gaussian", "bilateral")
 #: Denoising of the raw mosaic driven by its noise model (:mod:`rawsim.denoise`).
-RAW_DENOISE_METHODS = ("profiled",)
+RAW_DENOISE_METHODS = ("profiled", "learned")
 #: ``rawsim process --denoise``: the filters of the denoise stage, or a raw method.
 DENOISE_CHOICES = (*DENOISE_METHODS, *RAW_DENOISE_METHODS)
 #: dcraw's lightness/chroma transform of the highlight blend (rows: L, C1, C2).
@@ -284,7 +284,8 @@ class RawDenoiseStage(Stage):
     method: str = _param(
         "profiled",
         _choice(RAW_DENOISE_METHODS),
-        "profiled: variance-stabilised two-pass DCT shrinkage (rawsim.denoise.profiled)",
+        "profiled: variance-stabilised two-pass DCT shrinkage (rawsim.denoise.profiled); "
+        "learned: a network refines that (rawsim.denoise.learned; Bayer only)",
     )
     strength: float = _param(
         1.0, _number(0.05, 10.0), "scales the noise σ the method removes (1 = the model's)"
@@ -305,6 +306,11 @@ class RawDenoiseStage(Stage):
         model = noise_model_for(raw, given)
         info["noise_model"] = model.to_dict()
         info["warnings"].extend(model.warnings)
+        if self.method == "learned" and not raw.cfa.is_bayer:
+            info["warnings"].append(
+                f"--denoise learned has weights for Bayer mosaics only; this {raw.cfa.name} "
+                "mosaic is denoised with --denoise profiled"
+            )
 
 
 @dataclass(frozen=True)
@@ -763,7 +769,9 @@ class IspConfig:
             given = [f for f in ("denoise_strength", "noise_profile") if flags.get(f) is not None]
             if denoise not in RAW_DENOISE_METHODS and given:
                 flag = "--" + given[0].replace("_", "-")
-                raise ParameterError(f"{flag} sets --denoise profiled, not {denoise}; drop one")
+                raise ParameterError(
+                    f"{flag} sets --denoise profiled or learned, not {denoise}; drop one"
+                )
             raw_table = _table_of(tables, RawDenoiseStage)
             raw_table["enabled"] = denoise in RAW_DENOISE_METHODS
             rgb_table = _table_of(tables, DenoiseStage)

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from rawsim.cfa import CFA
+from rawsim.denoise.learned import LearnedDenoise
 from rawsim.denoise.noise_model import stage_model
 from rawsim.denoise.profiled import ProfiledDenoise
 from rawsim.isp.color_matrix import ColorMatrix
@@ -141,7 +142,7 @@ class Isp(nn.Module):
 STRIP_ROWS = 256
 #: Stages that run once on the whole image (they move pixels across strips, or, as
 #: raw denoising, work through the image in chunks of their own).
-WHOLE_IMAGE = (ProfiledDenoise, LensCorrection, Orientation)
+WHOLE_IMAGE = (ProfiledDenoise, LearnedDenoise, LensCorrection, Orientation)
 
 
 def build_isp(config: IspConfig | list[dict], raw) -> Isp:
@@ -162,7 +163,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     BlackLevelStage: lambda s, r: Levels(
         _black_map(r.raw), r.white_level, r.raw.cfa.period if r.raw.cfa else (2, 2)
     ),
-    RawDenoiseStage: lambda s, r: ProfiledDenoise(r.raw.cfa, *stage_model(r), s.strength),
+    RawDenoiseStage: lambda s, r: _raw_denoise(s, r),
     DeadPixelStage: lambda s, r: DeadPixelCorrection(
         r.raw.cfa, s.threshold, s.kernel, s.temperature
     ),
@@ -188,6 +189,13 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     YCbCrStage: lambda s, r: ColorSpaceConversion(),
     OrientationStage: lambda s, r: Orientation(r.raw.orientation),
 }
+
+
+def _raw_denoise(stage: RawDenoiseStage, r: ResolvedIsp) -> nn.Module:
+    """The raw denoise stage's module: learned on Bayer mosaics, else profiled."""
+    if stage.method == "learned" and r.raw.cfa.is_bayer:
+        return LearnedDenoise(r.raw.cfa, *stage_model(r), stage.strength)
+    return ProfiledDenoise(r.raw.cfa, *stage_model(r), stage.strength)
 
 
 def _demosaic(cfa: CFA, method: str) -> nn.Module:

@@ -156,9 +156,10 @@ class EnginePlan:
     #: then the kernel renders in two passes, the post ops before ``lens_at`` first.
     lens: dict | None = None
     lens_at: int = 0
-    #: The raw denoise stage's (gain, offset, strength) (see
-    #: :func:`rawsim.engine.denoise.denoise_mosaic`), or None: then the kernels render
-    #: the mosaic it gives.
+    #: The raw denoise stage's (gain, offset, strength, learned) (see
+    #: :func:`rawsim.engine.denoise.denoise_mosaic`; learned: then refined by
+    #: :func:`rawsim.denoise.learned.refine_mosaic`), or None: the kernels render the
+    #: mosaic it gives.
     denoise: tuple | None = None
 
 
@@ -243,7 +244,8 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     denoise = None
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
-            denoise = (*stage_model(resolved), stage.strength)
+            learned = stage.method == "learned" and raw.cfa.is_bayer
+            denoise = (*stage_model(resolved), stage.strength, learned)
             continue
         if isinstance(stage, LensCorrectionStage):
             if tail:
@@ -380,7 +382,13 @@ def engine_render(
         from rawsim.engine.denoise import denoise_mosaic
 
         black = np.asarray(raw.black_level, np.float64)
-        data = denoise_mosaic(raw.data, raw.cfa, black, plan.info["white_level"], *plan.denoise)
+        *model, strength, learned = plan.denoise
+        white = plan.info["white_level"]
+        data = denoise_mosaic(raw.data, raw.cfa, black, white, *model, strength)
+        if learned:
+            from rawsim.denoise.learned import refine_mosaic
+
+            data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
         raw, plan = replace(raw, data=data), replace(plan, denoise=None)
     transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
     h, w = raw.data.shape
