@@ -33,19 +33,12 @@ TAILS = 7.0
 NODES = 281
 
 
-def closed_form(d: np.ndarray | float, sigma2: float):
-    """Mäkitalo & Foi's closed-form approximation of the exact unbiased inverse (counts)."""
-    d = np.maximum(d, 1.0)
-    r = math.sqrt(1.5)
-    i = 0.25 * d * d + 0.25 * r / d - 1.375 / (d * d) + 0.625 * r / d**3 - 0.125 - sigma2
-    return np.maximum(i, 0.0)
-
-
 @functools.lru_cache(maxsize=16)
 def inverse_table(gain: float, offset: float) -> tuple[np.ndarray, np.ndarray]:
     """(E[f], x): the transform's expectation at :data:`POINTS` means x (white = 1;
-    x = λ · gain), both increasing, float64 (POINTS,). Above the last point the
-    closed form takes over (:func:`closed_form`, times ``gain``)."""
+    x = λ · gain), both increasing, float64 (POINTS,). Above the last point
+    Mäkitalo & Foi's closed form takes over (in :func:`rawsim.denoise.profiled.
+    inverse_vst` and the engine's ``_inverse_vst``)."""
     sigma2 = offset / gain**2
     sigma = math.sqrt(sigma2)
     lam = EXACT_COUNTS * (np.arange(POINTS) / (POINTS - 1)) ** 2

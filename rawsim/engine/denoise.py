@@ -1,10 +1,12 @@
 """Profiled denoising of a raw mosaic, compiled: the engine's form of
 :mod:`rawsim.denoise.profiled` (the torch reference, which defines the method).
 
-:func:`denoise_kernel` turns a uint16 mosaic (DN) into a denoised uint16 mosaic
+:func:`denoise_mosaic` turns a uint16 mosaic (DN) into a denoised uint16 mosaic
 (DN, rounded) that the render kernels of :mod:`rawsim.engine.process` then take
 as they take any raw. Work is split in chunks of ``CHUNK`` plane rows, handed
-to the threads on demand (:func:`rawsim.engine.tiles.next_tile`); a chunk reads
+to the threads on demand (:func:`rawsim.engine.tiles.next_tile`; the threads
+are Python's, running :func:`denoise_worker`, which releases the GIL: a
+``parallel=True`` kernel took twice as long to compile); a chunk reads
 the rows it needs around it (``REACH`` plane rows each side for each of the
 two passes) and writes only its own, so chunks and threads never change a value
 and memory stays a few megabytes per thread at any image size.
