@@ -72,6 +72,21 @@ def test_the_noise_model_is_taken_in_order(tmp_path):
     assert real.source == "estimate" and real.a[1] > 0 and real.b[1] > 0
 
 
+def test_large_raws_are_estimated_on_a_centred_crop_of_whole_periods():
+    from rawsim.denoise.noise_model import ESTIMATE_SITES, _central
+
+    raw = read_raw(MLV)
+    big = replace(raw, data=np.tile(raw.data, (8, 7))[:4001, :6003])
+    crop = _central(big)
+    h, w = crop.data.shape
+    assert h * w <= ESTIMATE_SITES and h % 2 == 0 and w % 2 == 0
+    start = crop.data.__array_interface__["data"][0] - big.data.__array_interface__["data"][0]
+    y0, x0 = divmod(start // crop.data.itemsize, big.data.strides[0] // big.data.itemsize)
+    assert np.shares_memory(crop.data, big.data) and y0 % 2 == 0 and x0 % 2 == 0
+    assert y0 > 0 and x0 > 0 and abs((y0 + h / 2) - 4001 / 2) < 2  # centred
+    assert _central(raw) is raw
+
+
 def test_a_profile_outside_its_iso_range_is_clamped_with_a_warning(tmp_path):
     noisy, _ = _pair(tmp_path, load_profile("nikon_d850"), 6400)
     model = noise_model_for(replace(noisy, iso=200000.0), "nikon_d850")

@@ -9,7 +9,8 @@
    (S, O) pair for every colour or one per colour plane, in units of the DNG's
    own black-to-white range;
 4. ``estimate``: a fit to the raw itself, by the patch method of ``rawsim
-   calibrate`` (the flattest blocks of each signal level, after Foi et al. 2008).
+   calibrate`` (the flattest blocks of each signal level, after Foi et al. 2008),
+   on at most :data:`ESTIMATE_SITES` sites (a centred crop of larger raws).
    Where that fit is unsure, it is still used and the reason is warned; where it
    gives no line, the read noise alone is taken from the flattest blocks (the
    model is then signal-independent, and said so).
@@ -32,6 +33,9 @@ from rawsim.errors import ParameterError
 from rawsim.io.raw import RawImage
 
 SOURCES = ("profile", "camera profile", "dng", "estimate")
+#: Sites the estimate reads at most: larger raws give a centred crop of this many
+#: (whole CFA periods), where the noise is the same and the fit takes a second, not five.
+ESTIMATE_SITES = 6_000_000
 #: The smallest variance gain a (DN²/DN) the transform is given: a signal-independent
 #: model gets this much shot noise, far below any sensor's, so the transform stays finite.
 MIN_GAIN = 1e-6
@@ -162,13 +166,28 @@ def dng_noise_profile(raw: RawImage) -> NoiseModel | None:
     )
 
 
+def _central(raw: RawImage) -> RawImage:
+    """``raw``, or for one of more than :data:`ESTIMATE_SITES` sites its centred crop of
+    about that many, starting on a whole CFA period."""
+    from dataclasses import replace
+
+    h, w = raw.data.shape[:2]
+    if h * w <= ESTIMATE_SITES:
+        return raw
+    scale = math.sqrt(ESTIMATE_SITES / (h * w))
+    ph, pw = raw.cfa.period
+    ch, cw = int(h * scale) // ph * ph, int(w * scale) // pw * pw
+    y0, x0 = (h - ch) // 2 // ph * ph, (w - cw) // 2 // pw * pw
+    return replace(raw, data=raw.data[y0 : y0 + ch, x0 : x0 + cw])
+
+
 def estimate(raw: RawImage) -> NoiseModel:
     """A fit of the raw's own flattest blocks (``rawsim calibrate``'s patch method)."""
     from rawsim.calibrate import CalibrationRefused, calibrate_iso, frame_stats
 
     if raw.cfa is None:
         raise ParameterError(f"{raw.path}: no CFA mosaic, so no noise to estimate on it")
-    stats = frame_stats(raw, "patches")
+    stats = frame_stats(_central(raw), "patches")
     try:
         fit = calibrate_iso(raw.iso or 1.0, [stats], [], "patches")
     except CalibrationRefused as err:

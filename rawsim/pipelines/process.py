@@ -5,9 +5,10 @@ on the CPU whenever it covers the config (every stage but dead-pixel
 correction, anti-aliasing, the denoise stage's filters and YCbCr, for Bayer
 raws; raw denoising first denoises the mosaic, :mod:`rawsim.engine.denoise`);
 otherwise, and on CUDA, the torch reference (:mod:`rawsim.isp.pipeline`) does.
-The engine path imports no torch (``--denoise learned``'s network aside). Both build from one :func:`~rawsim.isp.config.resolve` of the
-typed config for the raw (white level, white balance, matrix, exposure), so
-their sidecars are identical and their pixels agree to rounding
+The engine path imports no torch (``--denoise learned``'s network aside). Both
+build from one :func:`~rawsim.isp.config.resolve` of the typed config for the
+raw (white level, white balance, matrix, exposure), so their sidecars are
+identical and their pixels agree to rounding
 (``tests/test_engine_process.py``).
 """
 
