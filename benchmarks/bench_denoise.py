@@ -58,7 +58,7 @@ import numpy as np
 from machine import describe
 
 from rawsim.denoise.layout import THRESHOLD, plane_layout
-from rawsim.denoise.noise_model import dng_noise_profile
+from rawsim.denoise.noise_model import dng_noise_profile, noise_model_for
 from rawsim.engine.denoise import denoise_mosaic
 from rawsim.io.raw import read_raw
 
@@ -85,9 +85,11 @@ def normalised(raw) -> np.ndarray:
     return (raw.data.astype(np.float64) - b) / (raw.white_level - b)
 
 
-def model_of(raw) -> tuple[list[float], list[float]]:
-    span = raw.white_level - float(np.mean(raw.black_level))
-    return dng_noise_profile(raw).normalised(span)
+def model_of(raw, estimated: bool = False) -> tuple[list[float], list[float]]:
+    """(gain, offset) per colour, white = 1: the DNG NoiseProfile's (the true noise),
+    or with ``estimated`` the model ``process`` would take (:func:`noise_model_for`)."""
+    model = noise_model_for(raw) if estimated else dng_noise_profile(raw)
+    return model.normalised(raw.white_level - float(np.mean(raw.black_level)))
 
 
 def psnr(a: np.ndarray, b: np.ndarray, peak: float = 1.0) -> float:
@@ -430,7 +432,7 @@ def figures(out: Path) -> None:
         save([*panels, render(clean)[crop]], "denoise_kodak.png")
     real = read_raw(HERE / "tests" / "data" / "raw" / "canon_eos60d_mlv.dng")
     config = IspConfig.default().override(exposure=2.0)
-    gain, offset = _estimated(real)
+    gain, offset = model_of(real, estimated=True)
     black = np.asarray(real.black_level, np.float64)
     ours = denoise_mosaic(real.data, real.cfa, black, real.white_level, gain, offset)
     x = normalised(real)
@@ -499,12 +501,6 @@ def speed(repeats: int = 3) -> None:
             f"24 MP: {name:14s} median {statistics.median(values):6.2f} s "
             f"(of {', '.join(f'{v:.2f}' for v in values)})"
         )
-
-
-def _estimated(raw) -> tuple[list[float], list[float]]:
-    from rawsim.denoise.noise_model import noise_model_for
-
-    return noise_model_for(raw).normalised(raw.white_level - float(np.mean(raw.black_level)))
 
 
 def main(argv=None) -> None:

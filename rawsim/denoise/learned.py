@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 from importlib import resources
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -127,21 +128,23 @@ def refine(noisy, estimate, gain, offset, net: RefineNet | None = None) -> torch
     return out
 
 
+def _per_plane(cfa: CFA, values) -> list[float]:
+    """Per-colour ``values`` (R, G, B) for each packed plane of a Bayer ``cfa``."""
+    return [values[cfa.color_at(*site)] for site in cfa.packed_sites]
+
+
 def refine_mosaic(noisy, estimate, cfa: CFA, black, white: float, gain, offset):
     """The engine's form of :func:`learned_denoise`: the (H, W) uint16 mosaics ``noisy``
     and ``estimate`` (the profiled one, :func:`rawsim.engine.denoise.denoise_mosaic`)
     → the refined uint16 mosaic (DN, rounded), tile by tile, so memory stays flat.
     ``black``: per site of a period or one number; ``gain``/``offset`` per colour."""
-    import numpy as np
-
     net = load_network("cpu")
     ph, pw = cfa.period
     black = np.broadcast_to(np.asarray(black, np.float32), (ph, pw))
     sites = cfa.packed_sites
     plane_black = np.array([black[r, c] for r, c in sites], np.float32).reshape(4, 1, 1)
     span = np.float32(white) - plane_black
-    plane_gain = [gain[cfa.color_at(*s)] for s in sites]
-    plane_offset = [offset[cfa.color_at(*s)] for s in sites]
+    plane_gain, plane_offset = _per_plane(cfa, gain), _per_plane(cfa, offset)
     h, w = noisy.shape[0] // 2, noisy.shape[1] // 2
     out = estimate.copy()
     with torch.inference_mode():
@@ -173,8 +176,7 @@ def learned_denoise(x: torch.Tensor, cfa: CFA, gain, offset, strength: float = 1
     estimate = profiled_denoise(x, cfa, gain, offset, strength)
     h, w = x.shape[-2] // 2 * 2, x.shape[-1] // 2 * 2
     sites = cfa.packed_sites
-    plane_gain = [gain[cfa.color_at(*s)] for s in sites]
-    plane_offset = [offset[cfa.color_at(*s)] for s in sites]
+    plane_gain, plane_offset = _per_plane(cfa, gain), _per_plane(cfa, offset)
     packed = [torch.stack([t[:, 0, r:h:2, c:w:2] for r, c in sites], 1) for t in (x, estimate)]
     with torch.inference_mode(not torch.is_grad_enabled()):
         planes = refine(*packed, plane_gain, plane_offset)
@@ -183,17 +185,3 @@ def learned_denoise(x: torch.Tensor, cfa: CFA, gain, offset, strength: float = 1
         old = x[:, 0, r:h:2, c:w:2]
         out[:, 0, r:h:2, c:w:2] = torch.where(old >= 1, old, planes[:, k])
     return out
-
-
-class LearnedDenoise(nn.Module):
-    """The learned denoise stage on a normalised Bayer mosaic (identity reverse)."""
-
-    def __init__(self, cfa: CFA, gain, offset, strength: float = 1.0) -> None:
-        super().__init__()
-        self.cfa, self.gain, self.offset, self.strength = cfa, gain, offset, strength
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return learned_denoise(x, self.cfa, self.gain, self.offset, self.strength)
-
-    def reverse(self, x: torch.Tensor) -> torch.Tensor:
-        return x

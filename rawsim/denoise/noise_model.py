@@ -23,6 +23,7 @@ same DN. An ISO outside the profile's range is clamped to it, with a warning.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,14 +98,19 @@ def noise_model_for(raw: RawImage, profile: str | Path | None = None) -> NoiseMo
 
 def camera_profile(raw: RawImage) -> str | None:
     """The bundled profile made for ``raw``'s camera (make and model), or None."""
+    return _bundled_cameras().get(_folded(raw.make, raw.model))
+
+
+@functools.cache
+def _bundled_cameras() -> dict[str, str]:
+    """Each bundled profile's camera (:func:`_folded`) → its name, read once a process."""
     from rawsim.profiles import list_profiles, load_profile
 
-    camera = _folded(raw.make, raw.model)
+    cameras = {}
     for name in list_profiles():
         p = load_profile(name)
-        if _folded(p.make, p.model) == camera:
-            return name
-    return None
+        cameras.setdefault(_folded(p.make, p.model), name)
+    return cameras
 
 
 def _folded(make: str, model: str) -> str:

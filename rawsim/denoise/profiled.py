@@ -47,10 +47,18 @@ import math
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from rawsim.cfa import CFA
-from rawsim.denoise.layout import CHUNK, PATCH, REACH, STEP, THRESHOLD, plane_layout, plane_shape
+from rawsim.denoise.layout import (
+    CHUNK,
+    PATCH,
+    REACH,
+    STEP,
+    THRESHOLD,
+    large_enough,
+    plane_layout,
+    plane_shape,
+)
 from rawsim.denoise.vst import tables
 
 
@@ -142,26 +150,26 @@ def profiled_denoise(
     noise variance is ``gain[c]·x + offset[c]`` for colour c (R, G, B; 3 numbers
     each). Returns the same shape (see the module doc). Planes smaller than
     ``PATCH`` a side are returned as they are."""
+    if not large_enough(tuple(x.shape[-2:]), cfa):
+        return x
     offsets, step, mix = plane_layout(cfa)
     hp, wp = plane_shape(tuple(x.shape[-2:]), cfa)
-    if min(hp, wp) < PATCH:
-        return x
     dev, dt = x.device, x.dtype
     colors = torch.as_tensor(cfa.colors, device=dev).reshape(cfa.period)
     gains = torch.as_tensor(gain, dtype=dt, device=dev)
     offs = torch.as_tensor(offset, dtype=dt, device=dev)
     mix_t, basis = torch.as_tensor(mix, device=dev, dtype=dt), _basis(dev, dt)
     ph, pw = cfa.period
+    sites = []  # each plane's rows and columns in the mosaic
+    for oy, ox in offsets:
+        sites.append(
+            (oy + step * torch.arange(hp, device=dev), ox + step * torch.arange(wp, device=dev))
+        )
+    col = torch.stack([colors[ys % ph][:, xs % pw] for ys, xs in sites])  # (C, hp, wp)
+    g, o = gains[col], offs[col]
     out = x.clone()
     for n in range(x.shape[0]):
-        sites = []
-        for oy, ox in offsets:
-            ys = oy + step * torch.arange(hp, device=dev)
-            xs = ox + step * torch.arange(wp, device=dev)
-            sites.append((ys, xs, colors[ys % ph][:, xs % pw]))
-        planes = torch.stack([x[n, 0][ys][:, xs] for ys, xs, _ in sites])
-        col = torch.stack([c for _, _, c in sites])
-        g, o = gains[col], offs[col]
+        planes = torch.stack([x[n, 0][ys][:, xs] for ys, xs in sites])
         y = torch.einsum("cd,dhw->chw", mix_t, forward_vst(planes, g, o))
         result = []
         for r0 in range(0, hp, chunk):
@@ -175,28 +183,11 @@ def profiled_denoise(
             num, den = _pass(noisy, a - REACH, e1, a, r0, r1, hp, strength, threshold, basis)
             result.append(num / den)
         est = torch.einsum("dc,dhw->chw", mix_t, torch.cat(result, 1))
-        denoised = torch.zeros_like(est)
-        for c in range(3):
+        denoised = torch.empty_like(est)
+        for c in col.unique().tolist():  # each colour's sites, through its own inverse
             sel = col == c
-            denoised = torch.where(
-                sel, inverse_vst(est, float(gain[c]), float(offset[c])), denoised
-            )
-        for k, (ys, xs, _) in enumerate(sites):
+            denoised[sel] = inverse_vst(est[sel], float(gain[c]), float(offset[c]))
+        for k, (ys, xs) in enumerate(sites):
             old = planes[k]
             out[n, 0, ys[:, None], xs[None]] = torch.where(old >= 1, old, denoised[k])
     return out
-
-
-class ProfiledDenoise(nn.Module):
-    """The profiled denoise stage on a normalised mosaic (identity reverse). ``model``:
-    the noise model's per-colour ``gain`` and ``offset`` (normalised units)."""
-
-    def __init__(self, cfa: CFA, gain, offset, strength: float = 1.0) -> None:
-        super().__init__()
-        self.cfa, self.gain, self.offset, self.strength = cfa, gain, offset, strength
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return profiled_denoise(x, self.cfa, self.gain, self.offset, self.strength)
-
-    def reverse(self, x: torch.Tensor) -> torch.Tensor:
-        return x

@@ -20,7 +20,16 @@ import numpy as np
 from numba import njit
 
 from rawsim.cfa import CFA
-from rawsim.denoise.layout import CHUNK, PATCH, REACH, STEP, THRESHOLD, plane_layout, plane_shape
+from rawsim.denoise.layout import (
+    CHUNK,
+    PATCH,
+    REACH,
+    STEP,
+    THRESHOLD,
+    large_enough,
+    plane_layout,
+    plane_shape,
+)
 from rawsim.denoise.vst import tables
 from rawsim.engine import configure
 from rawsim.engine.tiles import next_tile
@@ -297,6 +306,8 @@ def denoise_worker(
     raw,
     out,
     counter,
+    hp,
+    wp,
     offsets,
     step,
     colors,
@@ -316,7 +327,8 @@ def denoise_worker(
     Threads running it on the same arguments share the work.
 
     The mosaic is read as C planes: plane c holds the sites (offsets[c] + step·(i, j)),
-    (hp, wp) = the smallest plane's size; sites outside the planes and sites at or
+    (``hp``, ``wp``) the smallest plane's size (:func:`~rawsim.denoise.layout.
+    plane_shape`); sites outside the planes and sites at or
     above white (``raw`` ≥ black + span) keep their value. ``colors``: (ph, pw) CFA
     colour index per site of a period; ``black``, ``span`` (ph, pw) DN per site;
     ``gain``, ``offset`` (3,) the noise model per colour (variance gain·x + offset,
@@ -325,10 +337,7 @@ def denoise_worker(
     transformed values. ``sigma``: the noise σ the passes assume after the transform
     (1 × strength); ``threshold``: the first pass's hard threshold in σ.
     """
-    h, w = raw.shape
     channels = offsets.shape[0]
-    hp = (h - offsets[:, 0].max() + step - 1) // step
-    wp = (w - offsets[:, 1].max() + step - 1) // step
     even, odd = _basis()
     chunks = (hp + CHUNK - 1) // CHUNK
     noisy = np.empty((channels, CHUNK + 4 * REACH, wp + 2 * REACH), np.float32)
@@ -402,7 +411,8 @@ def denoise_mosaic(
     ``white``: the white level (DN); ``gain``, ``offset``: the noise model per colour
     (R, G, B) for values normalised to white = 1, as :func:`rawsim.denoise.profiled.
     profiled_denoise` takes them; ``strength`` scales the σ removed; ``threshold``:
-    the first pass's, in σ.
+    the first pass's, in σ. A mosaic whose planes are under ``PATCH`` a side comes
+    back as it is.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -415,11 +425,15 @@ def denoise_mosaic(
     span = (np.float32(white) - black).astype(np.float32)
     raw = np.ascontiguousarray(data)
     out = raw.copy()
+    if not large_enough(raw.shape, cfa):
+        return out  # as the torch reference: too small for a patch
     model = np.asarray(gain, np.float32), np.asarray(offset, np.float32)
-    args = (raw, out, np.zeros(1, np.int64), offsets, step, colors, mix, black, span, *model)
+    hp, wp = plane_shape(raw.shape, cfa)
+    args = (raw, out, np.zeros(1, np.int64), hp, wp, offsets, step, colors, mix, black, span)
+    args += model
     args += tables(*model)
     args += (np.float32(strength), np.float32(threshold))
-    threads = max(1, min(numba.get_num_threads(), -(-plane_shape(raw.shape, cfa)[0] // CHUNK)))
+    threads = max(1, min(numba.get_num_threads(), -(-hp // CHUNK)))
     if threads == 1:
         denoise_worker(*args)
     else:  # the worker releases the GIL: threads of this process share the chunks

@@ -299,14 +299,18 @@ class RawDenoiseStage(Stage):
 
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
         """``info["noise_model"]``: the raw's noise model (:mod:`rawsim.denoise.noise_model`),
-        its source said, and its warnings in ``info["warnings"]``."""
+        its source said, and its warnings in ``info["warnings"]``; ``info["raw_denoise"]``:
+        the method both backends run (``learned`` has weights for Bayer mosaics only:
+        other CFAs get ``profiled``, warned)."""
         from rawsim.denoise.noise_model import noise_model_for
 
         given = None if self.noise_profile == "auto" else self.noise_profile
         model = noise_model_for(raw, given)
         info["noise_model"] = model.to_dict()
         info["warnings"].extend(model.warnings)
+        info["raw_denoise"] = self.method
         if self.method == "learned" and not raw.cfa.is_bayer:
+            info["raw_denoise"] = "profiled"
             info["warnings"].append(
                 f"--denoise learned has weights for Bayer mosaics only; this {raw.cfa.name} "
                 "mosaic is denoised with --denoise profiled"

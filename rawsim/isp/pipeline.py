@@ -20,9 +20,7 @@ import torch
 from torch import nn
 
 from rawsim.cfa import CFA
-from rawsim.denoise.learned import LearnedDenoise
 from rawsim.denoise.noise_model import stage_model
-from rawsim.denoise.profiled import ProfiledDenoise
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
     HALF_SIZE,
@@ -58,6 +56,7 @@ from rawsim.isp.lens import LensCorrection
 from rawsim.isp.lens_shading import LensShading
 from rawsim.isp.levels import Levels
 from rawsim.isp.orientation import Orientation
+from rawsim.isp.raw_denoise import RawDenoise
 from rawsim.isp.tone import ToneCurve
 from rawsim.isp.transfer import Transfer
 from rawsim.isp.white_balance import WhiteBalance
@@ -142,7 +141,7 @@ class Isp(nn.Module):
 STRIP_ROWS = 256
 #: Stages that run once on the whole image (they move pixels across strips, or, as
 #: raw denoising, work through the image in chunks of their own).
-WHOLE_IMAGE = (ProfiledDenoise, LearnedDenoise, LensCorrection, Orientation)
+WHOLE_IMAGE = (RawDenoise, LensCorrection, Orientation)
 
 
 def build_isp(config: IspConfig | list[dict], raw) -> Isp:
@@ -163,7 +162,9 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     BlackLevelStage: lambda s, r: Levels(
         _black_map(r.raw), r.white_level, r.raw.cfa.period if r.raw.cfa else (2, 2)
     ),
-    RawDenoiseStage: lambda s, r: _raw_denoise(s, r),
+    RawDenoiseStage: lambda s, r: RawDenoise(
+        r.raw.cfa, r.info["raw_denoise"], *stage_model(r), s.strength
+    ),
     DeadPixelStage: lambda s, r: DeadPixelCorrection(
         r.raw.cfa, s.threshold, s.kernel, s.temperature
     ),
@@ -189,13 +190,6 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     YCbCrStage: lambda s, r: ColorSpaceConversion(),
     OrientationStage: lambda s, r: Orientation(r.raw.orientation),
 }
-
-
-def _raw_denoise(stage: RawDenoiseStage, r: ResolvedIsp) -> nn.Module:
-    """The raw denoise stage's module: learned on Bayer mosaics, else profiled."""
-    if stage.method == "learned" and r.raw.cfa.is_bayer:
-        return LearnedDenoise(r.raw.cfa, *stage_model(r), stage.strength)
-    return ProfiledDenoise(r.raw.cfa, *stage_model(r), stage.strength)
 
 
 def _demosaic(cfa: CFA, method: str) -> nn.Module:

@@ -246,7 +246,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     denoise = None
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
-            learned = stage.method == "learned" and raw.cfa.is_bayer
+            learned = resolved.info["raw_denoise"] == "learned"
             denoise = (*stage_model(resolved), stage.strength, learned)
             continue
         if isinstance(stage, LensCorrectionStage):

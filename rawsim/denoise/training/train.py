@@ -184,7 +184,6 @@ def main(argv=None) -> None:
     ap.add_argument("--profiles", default=",".join(PROFILES), help="the profile mix")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="unprocess seeds")
     args = ap.parse_args(argv)
-    torch.set_num_threads(torch.get_num_threads())
     began = time.monotonic()
     seeds = [int(v) for v in args.seeds.split(",")]
     make_pairs(args.images or default_images(), args.work, args.profiles.split(","), seeds)
