@@ -11,50 +11,83 @@ from rawsim_cli.options import PathType, bad_option, output_options, usage_error
 
 @click.group("profiles")
 def command():
-    """List the bundled sensor profiles, or show one.
+    """List sensor profiles (bundled, and every camera LibRaw knows), or show one.
+
+    A profile is named by its file name (sony_a7s2), or a camera by its own
+    name in any case, with or without the maker ("Sony ILCE-7M3",
+    "sony a7 iii"); --profile in unprocess takes the same names.
 
     \b
     Example:
-      rawsim profiles list
-      rawsim profiles show sony_a7s2 --iso 3200
+      rawsim profiles list --search "eos r"
+      rawsim profiles show "sony a7 iii" --iso 3200
     """
 
 
 @command.command("list")
 @output_options
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON list.")
+@click.option(
+    "--search",
+    "text",
+    metavar="TEXT",
+    help="Only cameras whose name, maker, model or an alias contains TEXT (any case).",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON list with every field.")
 @usage_errors
-def list_cmd(as_json):
-    """List bundled profiles: name, camera, CFA, bit depth, ISO range."""
-    from rawsim.profiles import list_profiles, load_profile
+def list_cmd(text, as_json):
+    """List every profile: the bundled ones, then each camera LibRaw knows.
 
-    rows = []
+    Each row says whether the camera's noise is measured (a published
+    calibration) or estimated from its sensor's physics. --json prints each
+    profile whole (levels, matrix, noise, sources), as 'profiles show --json'.
+
+    \b
+    Example:
+      rawsim profiles list --search "a7 iii"
+      rawsim profiles list --json > cameras.json
+    """
+    from rawsim import cameras
+    from rawsim.profiles import list_profiles, load_profile, profile_from_dict
+
+    hits = None if text is None else {c.name for c in cameras.search(text)}
+    profiles = []
     for name in list_profiles():
         p = load_profile(name)
-        lo, hi = p.iso_range
-        rows.append(
-            {
-                "name": name,
-                "camera": f"{p.make} {p.model}",
-                "cfa": p.cfa.name,
-                "bits": p.bit_depth,
-                "iso_min": lo,
-                "iso_max": hi,
-            }
-        )
+        if hits is None or _plain(text) in _plain(f"{name} {p.make} {p.model}"):
+            profiles.append(p)
+    held = {p.name for p in profiles}
+    for cam in cameras.cameras():
+        if (hits is None or cam.name in hits) and cam.bundled not in held and not cam.bundled:
+            profiles.append(
+                profile_from_dict(cam.profile_data(), f"<camera database: {cam.label}>")
+            )
     if as_json:
-        click.echo(json.dumps(rows, indent=2))
+        click.echo(json.dumps([p.to_dict() for p in profiles], indent=1, ensure_ascii=False))
         return
-    name_w = max(len("name"), *(len(r["name"]) for r in rows))
-    camera_w = max(len("camera"), *(len(r["camera"]) for r in rows))
-    cfa_w = max(len("cfa"), *(len(r["cfa"]) for r in rows))
-    click.echo(f"{'name':<{name_w}}  {'camera':<{camera_w}}  {'cfa':<{cfa_w}}  {'bits':>4}  iso")
-    for r in rows:
+    if not profiles:
         click.echo(
-            f"{r['name']:<{name_w}}  {r['camera']:<{camera_w}}  {r['cfa']:<{cfa_w}}  "
-            f"{r['bits']:>4}  "
-            f"{_iso_range(r['iso_min'], r['iso_max'])}"
+            f"no camera matches {text!r}; try part of the model, e.g. 'a7' or 'eos r'", err=True
         )
+        return
+    rows = [
+        {
+            "name": p.name,
+            "camera": f"{p.make} {p.model}",
+            "cfa": p.cfa.name,
+            "bits": p.bit_depth,
+            "noise": p.noise_kind or "unstated",
+            "iso": _iso_range(*p.iso_range),
+        }
+        for p in profiles
+    ]
+    widths = {k: max(len(k), *(len(str(r[k])) for r in rows)) for k in rows[0]}
+    click.echo("  ".join(f"{k:<{widths[k]}}" for k in rows[0]).rstrip())
+    for r in rows:
+        click.echo("  ".join(f"{str(v):<{widths[k]}}" for k, v in r.items()).rstrip())
+
+
+def _plain(text: str) -> str:
+    return "".join(ch for ch in text.casefold() if ch.isalnum())
 
 
 def _iso_range(lo: float, hi: float) -> str:
@@ -130,6 +163,8 @@ def show_cmd(profile, iso, as_json, plot):
         click.echo(json.dumps(data if iso is None else data["at_iso"], indent=2))
         return
     click.echo(f"{p.name}: {p.make} {p.model}")
+    kind = {"measured": "measured (a calibration)", "estimated": "estimated (sensor physics)"}
+    click.echo(f"  noise: {kind.get(p.noise_kind, 'not stated by the profile')}")
     click.echo(
         f"  CFA {p.cfa.pattern}, {p.bit_depth}-bit, black {p.black_level:g}, "
         f"white {p.white_level:g} DN"

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from rawsim import cameras
 from rawsim.cfa import CFA
 from rawsim.color import as_matrix, daylight_gains, split_seed_matrix, xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, ProfileError
@@ -49,6 +50,8 @@ PHYSICS_KEYS = ("noise.tukey_sigma", "noise.tukey_lambda", "noise.row_sigma")
 DARK_KEYS = ("noise.dark_shading", "noise.black_level_error")
 #: Optional noise keys that cite a source when present.
 OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread", *DARK_KEYS)
+#: How a profile's noise was obtained (its optional ``noise_kind`` key).
+NOISE_KINDS = ("measured", "estimated")
 SEED_KEYS = (
     "sensor_size",
     "sensor_res",
@@ -100,6 +103,8 @@ class SensorProfile:
     path: str | None = None
     #: Why the profile is not to be trusted (``rawsim calibrate --force``); empty if it is.
     unreliable: tuple[str, ...] = ()
+    #: ``measured`` (a calibration), ``estimated`` (the sensor's physics), or None (unstated).
+    noise_kind: str | None = None
 
     def with_cfa(self, cfa: CFA | str) -> SensorProfile:
         """This profile with another CFA layout (e.g. ``"XTRANS"`` for a Bayer profile):
@@ -145,6 +150,7 @@ class SensorProfile:
             "source": dict(self.source),
             "path": self.path,
             "unreliable": list(self.unreliable),
+            "noise_kind": self.noise_kind,
         }
 
 
@@ -190,26 +196,22 @@ def list_profiles() -> list[str]:
 
 
 def load_profile(name_or_path: str | Path) -> SensorProfile:
-    """Load a bundled profile by name (``"sony_a7s2"``) or a profile JSON by path."""
+    """Load a profile: a bundled one by name (``"sony_a7s2"``), a profile JSON by path, or
+    any camera of :mod:`rawsim.cameras` by its name (``"Sony ILCE-7M3"``, ``"sony a7 iii"``)."""
     text = str(name_or_path)
     path = Path(text)
-    if not (path.suffix == ".json" or path.exists() or "/" in text):
-        names = list_profiles()
-        folded = {n.casefold(): n for n in names}
-        path = profile_dir() / f"{folded.get(text.casefold(), text)}.json"
-        if not path.exists():
-            close = difflib.get_close_matches(text.casefold(), folded, n=1, cutoff=0.6)
-            hint = f"did you mean {folded[close[0]]}? " if close else ""
-            raise ProfileError(
-                f"unknown sensor profile {text!r}; {hint}bundled: {', '.join(names)} "
-                "(or give a path to a JSON file)"
-            )
+    if not (path.suffix == ".json" or path.exists()):
+        folded = {n.casefold(): n for n in list_profiles()}
+        bundled = folded.get(text.casefold())
+        if bundled is None and ("/" not in text or cameras.find(text)):  # "HS10/HS11"
+            return _from_database(text)
+        path = profile_dir() / f"{bundled}.json" if bundled else path
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
         raise ProfileError(
-            f"{path}: profile file not found (check the path, or give a bundled name: "
-            "'rawsim profiles list')"
+            f"{path}: profile file not found (check the path, or give a camera's name: "
+            "'rawsim profiles list --search TEXT')"
         ) from None
     except IsADirectoryError:
         raise ProfileError(f"{path} is a folder: give a profile's JSON file") from None
@@ -217,7 +219,33 @@ def load_profile(name_or_path: str | Path) -> SensorProfile:
         raise ProfileError(f"{path}: cannot read profile ({err})") from None
     except json.JSONDecodeError as err:
         raise ProfileError(f"{path}: not valid JSON (line {err.lineno}: {err.msg})") from None
-    return profile_from_dict(data, str(path))
+    profile = profile_from_dict(data, str(path))
+    if path.parent == profile_dir() and profile.noise_kind is None:
+        kind = cameras.bundled_noise(path.stem)
+        if kind:
+            source = {**profile.source, "noise_kind": kind["noise_source"]}
+            profile = replace(profile, noise_kind=kind["noise_kind"], source=source)
+    return profile
+
+
+def _from_database(name: str) -> SensorProfile:
+    """The camera database's profile for ``name``; the bundled one where it holds the camera."""
+    cam = cameras.find(name)
+    if cam is None:
+        names = list_profiles()
+        close = [n for n in difflib.get_close_matches(name.casefold(), names, n=2, cutoff=0.6)]
+        close += cameras.closest(name)
+        hint = f"did you mean {close[0]}? " if close else ""
+        if len(close) > 1:
+            hint += f"(also close: {', '.join(close[1:5])}); "
+        raise ProfileError(
+            f"unknown sensor profile {name!r} (no bundled profile or camera of that name): {hint}"
+            f"bundled: {', '.join(names)}; find any camera with "
+            "'rawsim profiles list --search TEXT', or give a path to a profile JSON file"
+        )
+    if cam.bundled:
+        return load_profile(cam.bundled)
+    return profile_from_dict(cam.profile_data(), f"<camera database: {cam.label}>")
 
 
 def profile_from_dict(data: Any, origin: str = "<profile>") -> SensorProfile:
@@ -462,12 +490,20 @@ def _from_rawsim(r: _Reader) -> SensorProfile:
         source=dict(source),
         path=None if r.origin.startswith("<") else r.origin,
         unreliable=_strings(r, "unreliable"),
+        noise_kind=_noise_kind(r),
     )
 
 
 def _optional(r: _Reader, key: str, read):
     """An optional key read by ``read(value, key, origin)``, None when absent."""
     return read(r.raw(key), key, r.origin) if r.has(key) else None
+
+
+def _noise_kind(r: _Reader) -> str | None:
+    value = r.raw("noise_kind", None)
+    if value not in (None, *NOISE_KINDS):
+        r.fail("noise_kind", f"expected one of {', '.join(NOISE_KINDS)}, got {value!r}")
+    return value
 
 
 def _strings(r: _Reader, key: str) -> tuple[str, ...]:

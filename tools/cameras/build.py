@@ -1,0 +1,433 @@
+"""Build ``rawsim/cameras/cameras.json``: a profile for every camera LibRaw knows.
+
+Run from the repository root, with snapshots of the upstream repositories as git
+directories (``fetch`` gives them; any clone works)::
+
+    python tools/cameras/build.py \\
+        --libraw /work/.mirror/LibRaw+LibRaw/repo \\
+        --rawspeed /work/.mirror/darktable-org+rawspeed/repo \\
+        --sensors /work/.mirror/openMVG+CameraSensorSizeDatabase/repo
+
+Only figures are carried, each with the upstream file, commit and line it came from
+(``upstream.py`` reads the tables). For each camera in LibRaw's list:
+
+- make, model, aliases: LibRaw's list, plus rawspeed's aliases;
+- D65 XYZ→camera matrix: LibRaw's ``adobe_coeff`` (its own prefix rule), else rawspeed's;
+- CFA, black and white levels: rawspeed, else LibRaw's table; what neither gives is
+  assumed (the maker's median over its tabulated cameras, RGGB) and marked "assumed";
+- noise: a bundled profile's when one names the camera (ELD, PMN, PMRID calibrations);
+  otherwise estimated (``rawsim.cameras.estimate``), the constants fitted on the five
+  cameras ELD calibrated, with the leave-one-out error stored beside them;
+- sensor size and pixel area: openMVG/digicamdb (size and resolution), else lensfun's crop
+  factor (size) with the median pixel area of cameras of that size (assumed).
+
+Cameras left out, with the count of each reason: no colour matrix in either table,
+Foveon or monochrome sensors, four-colour (CMYG) sensors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import statistics
+import subprocess
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from upstream import (  # noqa: E402
+    adobe_coeff,
+    camera_list,
+    coefficients_for,
+    keys_of,
+    maker_key,
+    norm,
+    rawspeed_cameras,
+    sensor_sizes,
+)
+
+from rawsim.cameras import estimate  # noqa: E402
+from rawsim.profiles import list_profiles, load_profile  # noqa: E402
+
+OUT = Path(__file__).resolve().parents[2] / "rawsim" / "cameras" / "cameras.json"
+#: Bundled profiles whose noise is a published calibration, and the study that made it.
+CALIBRATED = {
+    "canon_eos_5d_mark_iv": "ELD (Wei et al., CVPR 2020)",
+    "canon_eos_700d": "ELD (Wei et al., CVPR 2020)",
+    "canon_eos_70d": "ELD (Wei et al., CVPR 2020)",
+    "nikon_d850": "ELD (Wei et al., CVPR 2020)",
+    "sony_a7s2": "ELD (Wei et al., CVPR 2020) and PMN (Feng et al., 2022)",
+    "nikon_d800e": "a public measurement at ISO 100 (see the profile's source)",
+    "oppo_reno10x": "PMRID (Wang et al., ECCV 2020)",
+    "sony_imx686": "PMN (Feng et al., ACM MM 2022)",
+}
+#: The cameras the estimate is fitted and checked on: those ELD calibrated.
+ELD = ("canon_eos_5d_mark_iv", "canon_eos_700d", "canon_eos_70d", "nikon_d850", "sony_a7s2")
+#: ISOs of the leave-one-out check (the issue's range).
+CHECK_ISO = (400, 800, 1600, 3200, 6400)
+MAKER_NAMES = {"FujiFilm": "Fujifilm", "PhaseOne": "Phase One", "BlackMagic": "Blackmagic"}
+#: Layouts no table gives, from the maker's specification.
+CFA_FROM_SPEC = {
+    ("Fujifilm", "X-T50"): (
+        "XTRANS",
+        "Fujifilm's specification: X-Trans CMOS 5 HR (the layout of rawspeed's X-T5)",
+    ),
+}
+FOVEON = re.compile(r"^(SD\d|SD Quattro|DP\d|dp\d|sd Quattro)", re.I)
+
+
+def git_text(repo: str, path: str) -> str:
+    return subprocess.run(
+        ["git", "--git-dir", repo, "show", f"HEAD:{path}"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+
+
+def git_head(repo: str) -> str:
+    return subprocess.run(
+        ["git", "--git-dir", repo, "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
+def slug(make: str, model: str) -> str:
+    text = model if model.casefold().startswith(make.casefold()) else f"{make} {model}"
+    return re.sub(r"[^0-9a-z]+", "_", text.casefold()).strip("_")
+
+
+def calibrated_points(p) -> list[tuple[float, float, float]]:
+    return [
+        (iso, p.noise.gain(iso), p.noise.read_sigma(iso, p.noise.gain(iso))) for iso in CHECK_ISO
+    ]
+
+
+def calibrated_camera(name: str) -> dict:
+    p = load_profile(name)
+    return {
+        "name": name,
+        "span": p.white_level - p.black_level,
+        "area": estimate.pixel_area(p.size_mm, p.resolution),
+        "points": calibrated_points(p),
+    }
+
+
+def leave_one_out() -> tuple[dict, list[dict]]:
+    """The constants from all five ELD cameras, and each one predicted from the others."""
+    cams = [calibrated_camera(n) for n in ELD]
+    rows = []
+    for i, c in enumerate(cams):
+        k = estimate.fit(cams[:i] + cams[i + 1 :])
+        for iso, true_k, true_s in c["points"]:
+            est_k = estimate.gain(iso, c["span"], c["area"], k["eta"])
+            est_s = estimate.read_sigma(est_k, c["span"], k["read_e"], k["floor_dn14"])
+            rows.append(
+                {
+                    "camera": c["name"],
+                    "iso": iso,
+                    "k_measured": round(true_k, 5),
+                    "k_estimated": round(est_k, 5),
+                    "k_error": round(est_k / true_k - 1, 4),
+                    "read_sigma_measured": round(true_s, 3),
+                    "read_sigma_estimated": round(est_s, 3),
+                    "read_sigma_error": round(est_s / true_s - 1, 4),
+                }
+            )
+    return estimate.fit(cams), rows
+
+
+class Sizes:
+    """Sensor size and pixel area by camera: openMVG's, else lensfun's crop factor."""
+
+    def __init__(self, table: dict, lensfun_cameras: list):
+        self.table = table
+        self.crop = {}
+        for c in lensfun_cameras:
+            first = c.maker.split()[0]
+            model = (
+                c.model[len(first) :].strip()
+                if c.model.casefold().startswith(first.casefold())
+                else c.model
+            )
+            for key in keys_of(c.maker, [model]):
+                self.crop.setdefault(key, c.crop_factor)
+        by_size = defaultdict(list)
+        for s in {id(v): v for v in table.values()}.values():
+            if s.resolution:
+                by_size[self.size_class(s.size_mm)].append(
+                    estimate.pixel_area(s.size_mm, s.resolution)
+                )
+        self.median_area = {k: statistics.median(v) for k, v in by_size.items() if len(v) >= 3}
+        by_maker = defaultdict(list)
+        for s in {id(v): v for v in table.values()}.values():
+            if s.resolution:
+                by_maker[maker_key(s.make)].append(estimate.pixel_area(s.size_mm, s.resolution))
+        self.maker_area = {
+            k: (statistics.median(v), len(v)) for k, v in by_maker.items() if len(v) >= 5
+        }
+        every = [a for v in by_maker.values() for a in v]
+        self.any_area = (statistics.median(every), len(every))
+
+    @staticmethod
+    def size_class(size_mm) -> int:
+        """Sensor diagonals within about 4 % share a class."""
+        return round(math.log(math.hypot(*size_mm)) / math.log(1.04))
+
+    def find(self, keys: list[tuple[str, str]]):
+        """(size mm or None, resolution or None, area µm², how it was found).
+
+        Without a size, the pixel area is assumed: the median over the maker's cameras
+        in digicamdb (or over all of them, for a maker with fewer than five there).
+        """
+        s = next((self.table[k] for k in keys if k in self.table), None)
+        if s and s.resolution:
+            area = estimate.pixel_area(s.size_mm, s.resolution)
+            return s.size_mm, s.resolution, area, f"openmvg:{s.make};{s.model}"
+        size = s.size_mm if s else None
+        how = f"openmvg:{s.make};{s.model} (size only)" if s else None
+        if size is None:
+            cf = next((self.crop[k] for k in keys if k in self.crop), None)
+            if not cf:
+                area, n = self.maker_area.get(keys[0][0], self.any_area)
+                whose = "the maker's" if keys[0][0] in self.maker_area else "all"
+                return (
+                    None,
+                    None,
+                    area,
+                    (
+                        f"no sensor size found; pixel area assumed: the median of {whose} {n} "
+                        "digicamdb cameras"
+                    ),
+                )
+            aspect = (4, 3) if cf >= 1.9 else (3, 2)
+            diag = math.hypot(36, 24) / cf
+            unit = diag / math.hypot(*aspect)
+            size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
+            how = f"lensfun crop factor {cf:g}, aspect {aspect[0]}:{aspect[1]} assumed"
+        cls = self.size_class(size)
+        near = [self.median_area[c] for c in (cls, cls - 1, cls + 1) if c in self.median_area]
+        if not near:
+            near = [self.maker_area.get(keys[0][0], self.any_area)[0]]
+        return (
+            size,
+            None,
+            near[0],
+            how + "; pixel area assumed (median of digicamdb cameras of this size)",
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--libraw", required=True, help="git directory of LibRaw")
+    ap.add_argument("--rawspeed", required=True, help="git directory of darktable-org/rawspeed")
+    ap.add_argument(
+        "--sensors", required=True, help="git directory of openMVG/CameraSensorSizeDatabase"
+    )
+    ap.add_argument("-o", "--output", type=Path, default=OUT)
+    args = ap.parse_args()
+
+    import lensfunpy
+
+    upstream = {
+        "libraw": {
+            "repo": "github.com/LibRaw/LibRaw",
+            "commit": git_head(args.libraw),
+            "licence": "LGPL-2.1 or CDDL-1.0 (figures only carried)",
+            "files": {"list": "src/tables/cameralist.cpp", "colour": "src/tables/colordata.cpp"},
+        },
+        "rawspeed": {
+            "repo": "github.com/darktable-org/rawspeed",
+            "commit": git_head(args.rawspeed),
+            "licence": "CC-BY-SA 3.0 (figures only carried)",
+            "files": {"cameras": "data/cameras.xml"},
+        },
+        "openmvg": {
+            "repo": "github.com/openMVG/CameraSensorSizeDatabase",
+            "commit": git_head(args.sensors),
+            "licence": "MPL-2.0; figures from digicamdb.com",
+            "files": {"sizes": "sensor_database_detailed.csv"},
+        },
+        "lensfun": {
+            "repo": "the lensfun database bundled with lensfunpy",
+            "commit": f"lensfunpy {lensfunpy.__version__}",
+            "licence": "CC-BY-SA 3.0 (figures only carried)",
+            "files": {"cameras": "db/*.xml (crop factors)"},
+        },
+    }
+    listed = camera_list(git_text(args.libraw, "src/tables/cameralist.cpp"))
+    coeffs = adobe_coeff(git_text(args.libraw, "src/tables/colordata.cpp"))
+    rawspeed = rawspeed_cameras(git_text(args.rawspeed, "data/cameras.xml"))
+    sizes = Sizes(
+        sensor_sizes(git_text(args.sensors, "sensor_database_detailed.csv")),
+        lensfunpy.Database().cameras,
+    )
+    constants, loo = leave_one_out()
+    bundled = {}
+    for name in list_profiles():
+        p = load_profile(name)
+        bundled[(maker_key(p.make), norm(p.model))] = name
+
+    # The maker's usual levels, for cameras no table gives them for.
+    levels = defaultdict(list)
+    for cam in listed:
+        keys = keys_of(cam.make, [cam.model, *cam.aliases])
+        r = next((rawspeed[k] for k in keys if k in rawspeed), None)
+        if r and r.white:
+            levels[cam.make].append((r.white.bit_length(), r.black / r.white))
+
+    cameras, skipped, seen = [], Counter(), set()
+    for cam in listed:
+        make = MAKER_NAMES.get(cam.make, cam.make)
+        keys = keys_of(cam.make, [cam.model, *cam.aliases])
+        r = next((rawspeed[k] for k in keys if k in rawspeed), None)
+        co = coefficients_for(coeffs, cam.make, cam.model)
+        src = {}
+        if co and co.matrix and co.matrix[0] and len(co.matrix) in (9, 12):
+            if len(co.matrix) == 12 and any(co.matrix[9:]):
+                skipped["four-colour (CMYG) sensor"] += 1
+                continue
+            m = co.matrix[:9]
+            how = (
+                co.note if co.note and not co.note.startswith("same CMs") else "Adobe DNG Converter"
+            )
+            src["xyz_to_camera"] = f"libraw:colour:{co.line} (prefix {co.prefix!r}; {how})"
+        elif r and r.matrix and len(r.matrix) == 9:
+            m = r.matrix
+            src["xyz_to_camera"] = f"rawspeed:cameras:{r.line}"
+        else:
+            skipped["no colour matrix in LibRaw's or rawspeed's tables"] += 1
+            continue
+        if (make == "Sigma" and FOVEON.match(cam.model)) or "monochrom" in cam.model.casefold():
+            skipped["Foveon or monochrome sensor"] += 1
+            continue
+        if r and r.cfa and set(r.cfa) - set("RGB/"):
+            skipped["four-colour (CMYG) sensor"] += 1
+            continue
+        name = slug(make, cam.model)
+        if name in seen:
+            skipped["listed twice"] += 1
+            continue
+        seen.add(name)
+        cfa = r.cfa if r and r.cfa else None
+        src["cfa_pattern"] = f"rawspeed:cameras:{r.line}" if cfa else ""
+        if cfa is None and (make, cam.model) in CFA_FROM_SPEC:
+            cfa, src["cfa_pattern"] = CFA_FROM_SPEC[(make, cam.model)]
+        if cfa is None:  # "X-T1 Graphite Silver" is an X-T1
+            words = cam.model.split(" ")
+            stems = keys_of(cam.make, [" ".join(words[:n]) for n in range(len(words) - 1, 0, -1)])
+            base = next((rawspeed[k] for k in stems if k in rawspeed), None)
+            if base and base.cfa and " " in cam.model:
+                cfa = base.cfa
+                src["cfa_pattern"] = (
+                    f"rawspeed:cameras:{base.line} (its {base.model}, an edition of it)"
+                )
+        if cfa is None:
+            cfa = "RGGB"
+            src["cfa_pattern"] = "assumed: RGGB (no table gives it; the raw file records it)"
+        white = (r.white if r and r.white else None) or (
+            co.maximum if co and co.maximum > 0 else None
+        )
+        black = r.black if r and r.white else (abs(co.black) if co and co.black else None)
+        if white:
+            src["white_level"] = (
+                f"rawspeed:cameras:{r.line}" if r and r.white else f"libraw:colour:{co.line}"
+            )
+            if black is None:
+                black = 0
+                src["black_level"] = "assumed: 0 (no table gives it; the raw file records it)"
+            else:
+                src["black_level"] = (
+                    f"rawspeed:cameras:{r.line}" if r and r.white else f"libraw:colour:{co.line}"
+                )
+        else:
+            known = levels.get(cam.make) or [v for vs in levels.values() for v in vs]
+            bits = int(statistics.median(b for b, _ in known))
+            white = (1 << bits) - 1
+            black = round(statistics.median(f for _, f in known) * white)
+            why = (
+                f"assumed: the median over {len(known)} {cam.make} cameras rawspeed tabulates "
+                "(the raw file records it)"
+            )
+            src["white_level"] = src["black_level"] = why
+        bits = max(white.bit_length(), 8)
+        size, res, area, size_how = sizes.find(keys)
+        entry = {
+            "name": name,
+            "make": make,
+            "model": cam.model,
+            "aliases": sorted(set(cam.aliases + (r.aliases if r else [])) - {cam.model}),
+            "cfa_pattern": cfa,
+            "bit_depth": bits,
+            "black_level": black,
+            "white_level": white,
+            "xyz_to_camera": [[v / 10000 for v in m[i : i + 3]] for i in (0, 3, 6)],
+            "sensor_size_mm": list(size) if size else None,
+            "resolution": list(res) if res else None,
+            "pixel_area_um2": round(area, 3),
+        }
+        src["sensor"] = size_how
+        profile = bundled.get((maker_key(make), norm(cam.model)))
+        if profile:
+            entry["bundled"] = profile
+            entry["noise_kind"] = "measured" if profile in CALIBRATED else "estimated"
+            src["noise"] = f"bundled profile {profile}: " + CALIBRATED.get(
+                profile, "see its sources"
+            )
+        else:
+            entry["noise_kind"] = "estimated"
+            entry["noise"] = estimate.noise_spec(white - black, area, constants)
+        entry["source"] = src
+        cameras.append(entry)
+
+    out = {
+        "about": (
+            "Generated by tools/cameras/build.py; do not edit. "
+            "Figures only, each with its upstream line."
+        ),
+        "upstream": upstream,
+        "estimate": {
+            "constants": {k: round(v, 6) for k, v in constants.items()},
+            "fitted_on": [f"{n} ({CALIBRATED[n]})" for n in ELD],
+            "leave_one_out": loo,
+        },
+        "bundled": {
+            name: {
+                "noise_kind": "measured" if name in CALIBRATED else "estimated",
+                "noise_source": CALIBRATED.get(name, "derived in the profile (see its sources)"),
+            }
+            for name in list_profiles()
+        },
+        "skipped": dict(skipped),
+        "cameras": cameras,
+    }
+    text = json.dumps(out, indent=1, ensure_ascii=False)
+    # One camera per line keeps the file small and its diffs readable.
+    args.output.write_text(_compact(out) + "\n")
+    errors = [abs(r["k_error"]) for r in loo]
+    print(f"{len(cameras)} cameras written to {args.output} ({len(text) // 1024} kB indented)")
+    print(f"skipped: {dict(skipped)}")
+    print(f"constants: {constants}; leave-one-out |K error| max {max(errors):.1%}")
+    for row in loo:
+        if row["iso"] in (400, 6400):
+            print(
+                f"  {row['camera']:<22} ISO {row['iso']:>5}: K {row['k_estimated']:.4g} vs "
+                f"{row['k_measured']:.4g} ({row['k_error']:+.1%}); read σ "
+                f"{row['read_sigma_estimated']:.3g} vs {row['read_sigma_measured']:.3g} "
+                f"({row['read_sigma_error']:+.1%})"
+            )
+
+
+def _compact(data: dict) -> str:
+    head = {k: v for k, v in data.items() if k != "cameras"}
+    lines = json.dumps(head, indent=1, ensure_ascii=False)[:-2]
+    rows = ",\n".join("  " + json.dumps(c, ensure_ascii=False) for c in data["cameras"])
+    return f'{lines},\n "cameras": [\n{rows}\n ]\n}}'
+
+
+if __name__ == "__main__":
+    main()
