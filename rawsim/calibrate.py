@@ -474,6 +474,13 @@ class Line:
     offset: float
     bins: np.ndarray  # (BINS,) bin variance (DN²)
     levels: np.ndarray  # (BINS,) bin mean level (DN)
+    #: (BINS,) the bins with enough blocks to be fitted (None: unknown); those of them
+    #: that are NaN in ``bins`` were dropped as off the line.
+    usable: np.ndarray | None = None
+    #: K's distance from the line through every usable bin, the dropped ones too (patch
+    #: method: a shot of few large flat patches, such as a colour chart, puts each bin on
+    #: a few patches, and a bin off the line is then a patch's own bias, not an outlier).
+    spread: float = 0.0
 
 
 def _bin_edges(mean: np.ndarray) -> np.ndarray:
@@ -508,27 +515,34 @@ class _Bins:
 
 
 def _line_from_bins(
-    levels: np.ndarray, values: np.ndarray, counts: np.ndarray, method: str, tile: int = TILE
+    levels: np.ndarray,
+    values: np.ndarray,
+    counts: np.ndarray,
+    method: str,
+    tile: int = TILE,
+    drop: bool = True,
 ) -> Line:
     """Weighted least squares (weight ∝ count / variance²), dropping bins off the line by
-    more than 4 expected standard errors (+2 %) and refitting."""
+    more than 4 expected standard errors (+2 %) and refitting (not without ``drop``)."""
     ok = (counts >= MIN_BIN[method]) & np.isfinite(values)
     values = np.where(ok, values, np.nan)
     levels = np.where(counts > 0, levels, np.nan)
     if ok.sum() < 2:
-        return Line(math.nan, math.nan, values, levels)
+        return Line(math.nan, math.nan, values, levels, ok)
     rel_err = math.sqrt(2 / (tile * tile - 3)) if method == "flat" else math.sqrt(2.7 / BLOCK**2)
     keep = ok.copy()
-    for _ in range(3):
+    for _ in range(3 if drop else 1):
         w = counts[keep] / np.maximum(values[keep], 1e-12) ** 2
         slope, offset = _weighted_line(levels[keep], values[keep], w)
+        if not drop:
+            break
         model = np.maximum(slope * levels + offset, 1e-12)
         err = model * rel_err / np.sqrt(np.maximum(counts, 1))
         new = ok & (np.abs(values - model) <= 4 * err + 0.02 * model)
         if new.sum() < 2 or (new == keep).all():
             break
         keep = new
-    return Line(slope, offset, np.where(keep, values, np.nan), levels)
+    return Line(slope, offset, np.where(keep, values, np.nan), levels, ok)
 
 
 def _weighted_line(m: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[float, float]:
@@ -575,13 +589,19 @@ def fit_with_errors(data: ChannelData, method: str, span: float) -> tuple[Line, 
     def binned(var: np.ndarray) -> _Bins:
         return _Bins(data.mean[keep], var[keep] / model[keep], edges, q)
 
-    def second(bins: _Bins, weights: np.ndarray, divisor: float = divisor) -> Line:
+    def second(
+        bins: _Bins, weights: np.ndarray, divisor: float = divisor, drop: bool = True
+    ) -> Line:
         level, ratio, count = bins(weights)
         at = np.maximum(first.slope * level + first.offset, 1e-12)
-        return _line_from_bins(level, ratio / divisor * at, count, method, data.tile)
+        return _line_from_bins(level, ratio / divisor * at, count, method, data.tile, drop)
 
     bins, group = binned(data.var), data.group[keep]
     line = second(bins, np.ones(group.size))
+    if method == "patches" and math.isfinite(line.slope):
+        whole = second(bins, np.ones(group.size), drop=False)
+        if math.isfinite(whole.slope):
+            line.spread = abs(whole.slope - line.slope)
     check = unchecked
     if data.check is not None:
         checks = [
@@ -690,7 +710,19 @@ def calibrate_iso(
         )
     pooled = {k: np.concatenate([getattr(d, k) for d in per_channel], -1) for k in _POOLED}
     line, draws, check = fit_with_errors(ChannelData(**pooled, tile=flats[0].tile), method, span)
+    channels, points = {}, {}
+    for name, data in zip(names, per_channel, strict=True):
+        ch, ch_draws, ch_check = fit_with_errors(data, method, span)
+        channels[name] = {
+            "K": ch.slope,
+            "K_error": math.hypot(_std(ch_draws[:, 0]), ch.slope - ch_check.slope, ch.spread),
+            "read_sigma": math.sqrt(max(ch.offset - QUANTIZATION_VARIANCE, 0.0)),
+        }
+        ok = np.isfinite(ch.bins)
+        points[name] = (ch.levels[ok], ch.bins[ok], _column_std(ch_draws[:, 2:])[ok])
     k_stat, k_sys = _std(draws[:, 0]), abs(line.slope - check.slope)
+    if method == "patches":  # a chart's few patches: their bins' and channels' spread
+        k_sys = math.hypot(k_sys, line.spread, _channel_spread(channels))
     errors = {"K": math.hypot(k_stat, k_sys), "K_statistical": k_stat, "K_systematic": k_sys}
     problems += _line_problems(line, draws, darks, span, errors["K"])
     if math.isfinite(line.slope) and not math.isfinite(check.slope):
@@ -698,16 +730,6 @@ def calibrate_iso(
             f"a further variance estimator ({_CHECKS[method]}) gives no line, so K's "
             "systematic error is unknown; " + _LEVELS_HINT
         )
-    channels, points = {}, {}
-    for name, data in zip(names, per_channel, strict=True):
-        ch, ch_draws, ch_check = fit_with_errors(data, method, span)
-        channels[name] = {
-            "K": ch.slope,
-            "K_error": math.hypot(_std(ch_draws[:, 0]), ch.slope - ch_check.slope),
-            "read_sigma": math.sqrt(max(ch.offset - QUANTIZATION_VARIANCE, 0.0)),
-        }
-        ok = np.isfinite(ch.bins)
-        points[name] = (ch.levels[ok], ch.bins[ok], _column_std(ch_draws[:, 2:])[ok])
     if darks:
         read_var = np.concatenate([d.read_var.mean(axis=0) for d in darks])
         row_var = np.concatenate([d.row_var.mean(axis=0) for d in darks])
@@ -783,6 +805,24 @@ def _bias(channels: dict, name: str) -> float:
     return channels.get("G", channels.get("Y"))["bias"]
 
 
+def _channel_spread(channels: dict) -> float:
+    """How far the channels' K scatter beyond their own errors: the weighted mean's error
+    times √(χ²/dof − 1), 0 where they agree (χ²/dof ≤ 1) or fewer than 2 have a K.
+
+    One sensor has one K; channels that disagree by more than their errors show a bias
+    the pooled fit's bootstrap cannot see (on a chart, each channel sees the patches at
+    other levels)."""
+    k = np.array([c["K"] for c in channels.values()], dtype=np.float64)
+    e = np.array([c["K_error"] for c in channels.values()], dtype=np.float64)
+    ok = np.isfinite(k) & np.isfinite(e) & (e > 0)
+    if ok.sum() < 2:
+        return 0.0
+    k, w = k[ok], 1 / e[ok] ** 2
+    mean = float((w * k).sum() / w.sum())
+    reduced = float((w * (k - mean) ** 2).sum()) / (k.size - 1)
+    return math.sqrt(max(reduced - 1.0, 0.0) / float(w.sum()))
+
+
 def _sqrt_error(var: float, var_error: float) -> float:
     """Standard error of √var from that of var (delta method)."""
     return var_error / (2 * math.sqrt(var)) if var > 0 else math.nan
@@ -834,7 +874,10 @@ def _line_problems(
             f"variance does not follow a line in the signal ({rms:.0%} rms off it, "
             f"χ²/bin {chi2:.3g}); the frames may be processed, or mix exposures and settings"
         )
-    dropped = int((np.isfinite(line.levels) & ~ok).sum())
+    # Bins with too few blocks to fit were never on or off the line (a chart's dark
+    # surround and the gaps between its patches leave some levels nearly empty).
+    usable = np.isfinite(line.levels) if line.usable is None else line.usable
+    dropped = int((usable & ~ok).sum())
     if dropped > ok.sum():
         problems.append(
             f"{dropped} of {dropped + int(ok.sum())} signal levels were off the fitted line"
