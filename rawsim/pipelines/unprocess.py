@@ -727,6 +727,8 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
             "make": profile.make,
             "model": profile.model,
             "path": profile.path,
+            "noise_kind": profile.noise_kind,  # measured, estimated, or None (unstated)
+            "noise_source": profile.source.get("noise.gain"),
         },
         "sensor": options.sensor,
         "cfa_pattern": None if options.sensor == "mono" else profile.cfa.pattern,
