@@ -78,6 +78,8 @@ CFA_FROM_SPEC = {
         "Fujifilm's specification: X-Trans CMOS 5 HR (the layout of rawspeed's X-T5)",
     ),
 }
+#: Makers of medium-format digital backs and bodies only (sensor diagonals over 50 mm).
+MEDIUM_FORMAT = ("leaf", "phaseone", "sinar", "imacon", "mamiya", "hasselblad")
 FOVEON = re.compile(r"^(SD\d|SD Quattro|DP\d|dp\d|sd Quattro)", re.I)
 
 
@@ -142,83 +144,124 @@ def leave_one_out() -> tuple[dict, list[dict]]:
 
 
 class Sizes:
-    """Sensor size and pixel area by camera: openMVG's, else lensfun's crop factor."""
+    """Sensor size and pixel area by camera: digicamdb's (via openMVG), else lensfun's crop
+    factor with an assumed pixel area, else an assumed pixel area alone.
+
+    Each assumption's own error is measured on the digicamdb cameras whose area is known
+    (``errors``): the assumed area against the true one, median and 90th percentile.
+    """
 
     def __init__(self, table: dict, lensfun_cameras: list):
         self.table = table
         self.crop = {}
         for c in lensfun_cameras:
             first = c.maker.split()[0]
-            model = (
-                c.model[len(first) :].strip()
-                if c.model.casefold().startswith(first.casefold())
-                else c.model
-            )
+            model = c.model
+            if model.casefold().startswith(first.casefold()):
+                model = model[len(first) :].strip()
             for key in keys_of(c.maker, [model]):
                 self.crop.setdefault(key, c.crop_factor)
-        by_size = defaultdict(list)
-        for s in {id(v): v for v in table.values()}.values():
-            if s.resolution:
-                by_size[self.size_class(s.size_mm)].append(
-                    estimate.pixel_area(s.size_mm, s.resolution)
-                )
-        self.median_area = {k: statistics.median(v) for k, v in by_size.items() if len(v) >= 3}
-        by_maker = defaultdict(list)
-        for s in {id(v): v for v in table.values()}.values():
-            if s.resolution:
-                by_maker[maker_key(s.make)].append(estimate.pixel_area(s.size_mm, s.resolution))
-        self.maker_area = {
-            k: (statistics.median(v), len(v)) for k, v in by_maker.items() if len(v) >= 5
-        }
+        known = [s for s in {id(v): v for v in table.values()}.values() if s.resolution]
+        by_size, by_maker = defaultdict(list), defaultdict(list)
+        for s in known:
+            area = estimate.pixel_area(s.size_mm, s.resolution)
+            by_size[self.size_class(s.size_mm)].append(area)
+            by_maker[maker_key(s.make)].append(area)
+        self.size_area = {k: statistics.median(v) for k, v in by_size.items() if len(v) >= 3}
+        self.maker_area = {k: (statistics.median(v), len(v)) for k, v in by_maker.items()}
+        self.maker_area = {k: v for k, v in self.maker_area.items() if v[1] >= 5}
         every = [a for v in by_maker.values() for a in v]
         self.any_area = (statistics.median(every), len(every))
+        medium = [self._true(s) for s in known if math.hypot(*s.size_mm) > 50]
+        self.medium_area = (statistics.median(medium), len(medium))
+        self.errors = {
+            "size": _spread([self._by_size(s.size_mm, s.make) / self._true(s) for s in known]),
+            "none": _spread([self._by_maker(s.make)[0] / self._true(s) for s in known]),
+            "medium format": _spread([self.medium_area[0] / a for a in medium]),
+        }
+
+    @staticmethod
+    def _true(s) -> float:
+        return estimate.pixel_area(s.size_mm, s.resolution)
 
     @staticmethod
     def size_class(size_mm) -> int:
         """Sensor diagonals within about 4 % share a class."""
         return round(math.log(math.hypot(*size_mm)) / math.log(1.04))
 
-    def find(self, keys: list[tuple[str, str]]):
-        """(size mm or None, resolution or None, area µm², how it was found).
+    def _by_size(self, size_mm, make: str) -> float:
+        cls = self.size_class(size_mm)
+        near = [self.size_area[c] for c in (cls, cls - 1, cls + 1) if c in self.size_area]
+        return near[0] if near else self._by_maker(make)[0]
 
-        Without a size, the pixel area is assumed: the median over the maker's cameras
-        in digicamdb (or over all of them, for a maker with fewer than five there).
-        """
+    def _by_maker(self, make: str) -> tuple[float, str]:
+        key = maker_key(make)
+        area, n = self.maker_area.get(key, self.any_area)
+        whose = "the maker's" if key in self.maker_area else "all"
+        return area, f"the median of {whose} {n} digicamdb cameras"
+
+    def find(self, make: str, keys: list[tuple[str, str]]):
+        """(size mm or None, resolution or None, area µm², basis, how it was found)."""
         s = next((self.table[k] for k in keys if k in self.table), None)
         if s and s.resolution:
-            area = estimate.pixel_area(s.size_mm, s.resolution)
-            return s.size_mm, s.resolution, area, f"openmvg:{s.make};{s.model}"
-        size = s.size_mm if s else None
-        how = f"openmvg:{s.make};{s.model} (size only)" if s else None
-        if size is None:
-            cf = next((self.crop[k] for k in keys if k in self.crop), None)
-            if not cf:
-                area, n = self.maker_area.get(keys[0][0], self.any_area)
-                whose = "the maker's" if keys[0][0] in self.maker_area else "all"
-                return (
-                    None,
-                    None,
-                    area,
-                    (
-                        f"no sensor size found; pixel area assumed: the median of {whose} {n} "
-                        "digicamdb cameras"
-                    ),
-                )
+            return s.size_mm, s.resolution, self._true(s), "pitch", f"openmvg:{s.make};{s.model}"
+        if s:
+            size, how = s.size_mm, f"openmvg:{s.make};{s.model} (size only)"
+        elif cf := next((self.crop[k] for k in keys if k in self.crop), None):
             aspect = (4, 3) if cf >= 1.9 else (3, 2)
-            diag = math.hypot(36, 24) / cf
-            unit = diag / math.hypot(*aspect)
+            unit = math.hypot(36, 24) / cf / math.hypot(*aspect)
             size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
             how = f"lensfun crop factor {cf:g}, aspect {aspect[0]}:{aspect[1]} assumed"
-        cls = self.size_class(size)
-        near = [self.median_area[c] for c in (cls, cls - 1, cls + 1) if c in self.median_area]
-        if not near:
-            near = [self.maker_area.get(keys[0][0], self.any_area)[0]]
+        elif maker_key(make) in MEDIUM_FORMAT and maker_key(make) not in self.maker_area:
+            area, n = self.medium_area
+            err = self.errors["medium format"]
+            return (
+                None,
+                None,
+                area,
+                "none",
+                (
+                    f"no sensor size found; {make} makes medium-format backs only: pixel area "
+                    f"assumed, the median of digicamdb's {n} medium-format cameras (this "
+                    f"assumption alone: median error {err['median']:.0%}, 90th percentile "
+                    f"{err['p90']:.0%})"
+                ),
+            )
+        else:
+            area, whose = self._by_maker(make)
+            err = self.errors["none"]
+            return (
+                None,
+                None,
+                area,
+                "none",
+                (
+                    f"no sensor size found; pixel area assumed: {whose} (this assumption alone: "
+                    f"median error {err['median']:.0%}, 90th percentile {err['p90']:.0%})"
+                ),
+            )
+        err = self.errors["size"]
         return (
             size,
             None,
-            near[0],
-            how + "; pixel area assumed (median of digicamdb cameras of this size)",
+            self._by_size(size, make),
+            "size",
+            (
+                f"{how}; pixel area assumed: the median of digicamdb cameras of this size "
+                f"(this assumption alone: median error {err['median']:.0%}, "
+                f"90th percentile {err['p90']:.0%})"
+            ),
         )
+
+
+def _spread(ratios: list[float]) -> dict:
+    """Median and 90th percentile of |assumed/true − 1| in log terms (as fractions)."""
+    logs = sorted(abs(math.log(r)) for r in ratios)
+    return {
+        "median": math.exp(logs[len(logs) // 2]) - 1,
+        "p90": math.exp(logs[int(0.9 * len(logs))]) - 1,
+        "cameras": len(logs),
+    }
 
 
 def main() -> None:
@@ -355,7 +398,7 @@ def main() -> None:
             )
             src["white_level"] = src["black_level"] = why
         bits = max(white.bit_length(), 8)
-        size, res, area, size_how = sizes.find(keys)
+        size, res, area, basis, size_how = sizes.find(cam.make, keys)
         entry = {
             "name": name,
             "make": make,
@@ -369,6 +412,7 @@ def main() -> None:
             "sensor_size_mm": list(size) if size else None,
             "resolution": list(res) if res else None,
             "pixel_area_um2": round(area, 3),
+            "pixel_area_from": basis,
         }
         src["sensor"] = size_how
         profile = bundled.get((maker_key(make), norm(cam.model)))
@@ -393,6 +437,9 @@ def main() -> None:
         "estimate": {
             "constants": {k: round(v, 6) for k, v in constants.items()},
             "fitted_on": [f"{n} ({CALIBRATED[n]})" for n in ELD],
+            "pixel_area_assumed_error": {
+                k: {m: round(v, 3) for m, v in e.items()} for k, e in sizes.errors.items()
+            },
             "leave_one_out": loo,
         },
         "bundled": {
