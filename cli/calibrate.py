@@ -260,7 +260,7 @@ def summary(fits) -> str:
         stat, sys = f.errors.get("K_statistical"), f.errors.get("K_systematic")
         if stat is not None and sys is not None and sys > stat:
             table.append(
-                f"ISO {f.iso:g}: K's ± is mostly systematic ({sys:.4f} DN/e⁻: the variance "
-                f"estimators disagree; statistical {stat:.4f})"
+                f"ISO {f.iso:g}: K's ± is mostly systematic ({sys:.4f} DN/e⁻: estimators, "
+                f"signal levels or channels disagree; statistical {stat:.4f})"
             )
     return "\n".join(table)
