@@ -188,3 +188,61 @@ def show_cmd(profile, iso, as_json, plot):
         click.echo(f"  source[{key}]: {src}")
     for why in p.unreliable:
         click.echo(f"  unreliable: {why}")
+
+
+@command.command("from-raw")
+@output_options
+@click.argument("raw", metavar="FILE", type=PathType("file", exists=True))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=PathType("out_file", example="mycam.json"),
+    help="The profile JSON to write.",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing output profile.")
+@usage_errors
+def from_raw_cmd(raw, output, overwrite):
+    """Write a profile for the camera that took the raw FILE.
+
+    From the raw, as LibRaw reads it: the CFA layout, the black and white levels
+    (and so the bit depth), the XYZ→camera matrix (LibRaw's rgb_xyz_matrix) and
+    the daylight white balance. The noise is the camera database's where it
+    knows the camera (measured or estimated, as 'profiles list' says), else
+    estimated from the raw's own flat regions at its ISO. One line says which.
+    Every number's source names the file. Raws without a colour matrix or a
+    CFA mosaic (linear DNGs) are refused.
+
+    \b
+    Example:
+      rawsim profiles from-raw IMG_0001.CR2 -o mycam.json
+      rawsim unprocess photos/ -o raw/ --profile mycam.json --iso 800
+    """
+    from pathlib import Path
+
+    out = Path(output)
+    if out.exists() and not overwrite:  # the same policy as every command: skip
+        click.echo(f"skip: {out} exists (use --overwrite to replace it)", err=True)
+        return
+
+    from rawsim.cameras.from_raw import noise_summary, profile_from_raw
+    from rawsim.errors import ProfileError, UnsupportedInputError, shown
+    from rawsim.io.atomic import atomic_output
+    from rawsim.profiles import profile_from_dict
+
+    try:
+        profile = profile_from_raw(raw)
+        p = profile_from_dict(profile, f"the profile of {shown(raw)}")  # it must load
+    except (UnsupportedInputError, ProfileError) as err:
+        raise bad_option("FILE", err) from None
+    with atomic_output(out) as tmp:
+        tmp.write_text(json.dumps(profile, indent=2, ensure_ascii=False) + "\n")
+    if p.make == "unknown" or p.model.casefold().startswith(p.make.casefold()):
+        camera = "an unknown camera" if p.model == "unknown" else p.model
+    else:
+        camera = f"{p.make} {p.model}"
+    click.echo(
+        f"wrote {shown(out)}: {camera}, CFA {p.cfa.name}, {p.bit_depth}-bit, "
+        f"black {p.black_level:g}, white {p.white_level:g} DN, ISO {_iso_range(*p.iso_range)}"
+    )
+    click.echo(noise_summary(profile))
