@@ -353,7 +353,7 @@ def test_output_flags_after_the_subcommand_and_friendly_options(tmp_path):
     r = run("process", raws, "-o", tmp_path / "c", "--format", "jpeg")
     assert r.exit_code == 0 and (tmp_path / "c" / "canon_eos60d_mlv.jpg").is_file()
     photo = DATA / "srgb" / "chelsea.png"
-    r = run("unprocess", photo, "-o", tmp_path / "d", "-p", "sony_a7s3", "--iso", 100)
+    r = run("unprocess", photo, "-o", tmp_path / "d", "-p", "sony_a7s9", "--iso", 100)
     assert r.exit_code == 2 and "did you mean sony_a7s2?" in r.output
     r = run("unprocess", photo, "-o", tmp_path / "d", "-p", "SONY_A7S2", "--iso", 1234.5)
     assert r.exit_code == 0, r.output
