@@ -59,6 +59,15 @@ class UnprocessParams:
     ccm_bias: tuple[float, float, float] | None = None
 
     @property
+    def linear_scale(self) -> float:
+        """The factor on the linear image before the inverse ISP: the exposure, the
+        brightness, and the smallest white-balance gain where it is below 1. Raw
+        converters (LibRaw, ``rawsim process``) divide the gains by the smallest when it
+        is below 1, so that clipped highlights stay white; that brightens their render
+        by as much, which the raw is darkened to match (not part of BaselineExposure)."""
+        return 2.0**self.exposure_ev / self.brightness * min(1.0, *self.wb_gains)
+
+    @property
     def baseline_exposure(self) -> float:
         """DNG BaselineExposure (stops) that restores the source brightness."""
         return math.log2(self.brightness) - self.exposure_ev

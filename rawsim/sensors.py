@@ -138,7 +138,7 @@ class ProfileSensor(Sensor):
         check_choice("in_type", in_type, IN_TYPES)
         check_image(image, "image", channels=3)
         x = display_to_linear(image, p.tone, p.transfer) if in_type == "rgb" else image
-        scale = 2.0**p.exposure_ev / p.brightness
+        scale = p.linear_scale
         return x * scale if scale != 1.0 else x
 
     def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:

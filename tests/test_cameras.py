@@ -207,3 +207,24 @@ def _dng_make_model(path):
     with tifffile.TiffFile(path) as tif:
         tags = tif.pages[0].tags
         return tags["Make"].value, tags["Model"].value
+
+
+def test_a_camera_whose_daylight_gain_is_below_1_renders_at_the_photo_brightness(tmp_path):
+    """The Pentax K100D's blue daylight gain is 0.86: LibRaw and process divide the gains
+    by it, so unprocess darkens the raw by as much; the render keeps the photo's level."""
+    import OpenImageIO as oiio
+
+    assert min(load_profile("Pentax K100D").white_balance) < 0.9
+    photo = Path(__file__).parent / "data" / "srgb" / "chelsea.png"
+    flags = ["--iso", 200, "--noise", "none", "--wb-inverse", "exact", "-q"]
+    r = run("unprocess", photo, "-o", tmp_path / "raw", "-p", "Pentax K100D", *flags)
+    assert r.exit_code == 0, r.output
+    r = run("process", tmp_path / "raw" / "chelsea.dng", "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0, r.output
+    out = oiio.ImageBuf(str(tmp_path / "out" / "chelsea.png")).get_pixels(oiio.FLOAT)[..., :3]
+    src = oiio.ImageBuf(str(photo)).get_pixels(oiio.FLOAT)[: out.shape[0], : out.shape[1], :3]
+    assert out.mean() == pytest.approx(src.mean(), rel=0.02)
+    with rawpy.imread(str(tmp_path / "raw" / "chelsea.dng")) as raw:
+        srgb = {"gamma": (2.4, 12.92), "no_auto_bright": True, "output_bps": 8}
+        libraw = raw.postprocess(user_flip=0, **srgb) / 255
+    assert libraw.mean() == pytest.approx(src.mean(), rel=0.06)

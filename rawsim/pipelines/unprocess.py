@@ -248,7 +248,7 @@ def engine_unprocess(
     if clean_out is None:
         clean_out = np.empty((h, w) if clean else (0, 0), noisy.dtype)
     lut = np.zeros(0, np.float32) if lut is None else lut.numpy()
-    scale = 2.0**params.exposure_ev / params.brightness
+    scale = params.linear_scale
     ccm_bias = np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0,) * 3, float)
     matrix = camera_from_srgb(params.xyz_to_camera)
     if lens is not None:  # camera RGB through the lens, whole; then the rows as linear floats
