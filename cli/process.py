@@ -16,7 +16,7 @@ from rawsim_cli.report import check_inputs, run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
 DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
-HIGHLIGHTS = ("clip", "blend")
+HIGHLIGHTS = ("clip", "blend", "reconstruct", "unclip")
 DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
 FORMATS = ("png", "tiff", "jpg", "exr")
@@ -57,7 +57,13 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     help="Half the width and height, no demosaic: one pixel per 2×2 block of the "
     "mosaic (LibRaw's half_size), for fast previews.",
 )
-@click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="Clip, or blend (dcraw -H 2).")
+@click.option(
+    "--highlights",
+    type=click.Choice(HIGHLIGHTS),
+    help="clip at white (default; LibRaw -H 0); unclip: keep values above white (-H 1); "
+    "blend: dcraw's blend (-H 2); reconstruct: rebuild clipped colours on the mosaic from "
+    "the unclipped ones and the surrounding hue (as darktable's inpaint opposed).",
+)
 @click.option(
     "--denoise",
     type=click.Choice(DENOISES),

@@ -55,7 +55,32 @@ XTRANS_METHOD = {"wcd": "icd", "menon": "icd", "malvar": "icd", "bilinear": "bil
 #: The demosaic stage's ``half``: no interpolation, one pixel per 2×2 block of any
 #: mosaic (:mod:`rawsim.isp.half_size`; ``rawsim process --half-size``).
 HALF_SIZE = "half"
-HIGHLIGHT_MODES = ("clip", "blend")
+#: ``clip`` at white (LibRaw -H 0); ``unclip``: none (-H 1); ``blend``: dcraw's blend
+#: (-H 2, on RGB); ``reconstruct``: clipped sites rebuilt from the unclipped colours and
+#: the hue around them, on the mosaic (:mod:`rawsim.isp.highlights`).
+HIGHLIGHT_MODES = ("clip", "blend", "reconstruct", "unclip")
+#: ``reconstruct``: a site is clipped at this share of its colour's clip level (the
+#: white-balance gain: white = 1 before it).
+HIGHLIGHT_CLIPPED = 0.99
+#: ``reconstruct``: half-widths (in blocks) of the boxes whose normalised sum carries
+#: the hue of unclipped blocks into clipped ones, nearest first; the largest bounds
+#: how far a region's border reaches into it. Each box's mean counts this much less
+#: than the one before it, so the nearest unclipped blocks give the hue where there are
+#: any and farther ones only fill in where there are none.
+HIGHLIGHT_SCALES = (1, 4, 16, 64)
+HIGHLIGHT_SCALE_WEIGHT = 0.25
+#: ``reconstruct``: the hue is read from unclipped blocks within this many blocks of a
+#: clipped one (and not next to one, where the mean of a colour may hold a clipped
+#: site's neighbour): the border of a clipped region, as darktable reads it.
+HIGHLIGHT_BORDER = 4
+#: ``reconstruct``: where all three colours clip, the border's hue fades to neutral
+#: with depth: it keeps κ = min(1, 2 × the unclipped share of the box of this
+#: half-width around the block), so a blown area's core, ≳ 16 blocks deep, is white.
+HIGHLIGHT_NEUTRAL = 16
+#: ``reconstruct``: a rebuilt value is at most this many times its colour's clip level.
+HIGHLIGHT_HEADROOM = 4.0
+#: ``reconstruct``: no colour's share of a block's sum is taken below this.
+HIGHLIGHT_RATIO_FLOOR = 0.01
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
 DENOISE_METHODS = ("none", "gaussian", "bilateral")
@@ -63,6 +88,29 @@ DENOISE_METHODS = ("none", "gaussian", "bilateral")
 RAW_DENOISE_METHODS = ("profiled", "learned")
 #: ``rawsim process --denoise``: the filters of the denoise stage, or a raw method.
 DENOISE_CHOICES = (*DENOISE_METHODS, *RAW_DENOISE_METHODS)
+
+
+def highlight_block(colors: tuple[int, ...], period: tuple[int, int]) -> int:
+    """``reconstruct``'s block side: the smallest b dividing the CFA period whose every
+    aligned b × b block holds all three colours (2 for Bayer, 3 for X-Trans), else the
+    least common multiple of the period's sides (whole periods); 1 without a CFA."""
+    if not colors:
+        return 1
+    ph, pw = period
+    tile = [colors[r * pw : (r + 1) * pw] for r in range(ph)]
+    for b in range(2, max(ph, pw) + 1):
+        if ph % b or pw % b:
+            continue
+        blocks = (
+            {tile[r][c] for r in range(i, i + b) for c in range(j, j + b)}
+            for i in range(0, ph, b)
+            for j in range(0, pw, b)
+        )
+        if all(block == {0, 1, 2} for block in blocks):
+            return b
+    return math.lcm(ph, pw)
+
+
 #: dcraw's lightness/chroma transform of the highlight blend (rows: L, C1, C2).
 HIGHLIGHT_TRANSFORM = ((1.0, 1.0, 1.0), (1.7320508, -1.7320508, 0.0), (-1.0, -1.0, 2.0))
 #: EXIF/TIFF orientation → (transpose first, flip rows, flip columns) of (…, H, W).
@@ -375,7 +423,8 @@ class WhiteBalanceStage(Stage):
 
         With highlights clipped (LibRaw's default) the gains are scaled so that the
         smallest is 1, as LibRaw does: every channel reaches white together and clipped
-        highlights stay neutral. With other highlight modes they keep G = 1.
+        highlights stay neutral. With other highlight modes (blend, reconstruct,
+        unclip) they keep G = 1: each colour then clips at its own gain.
         """
         mode, source = self.mode, self.mode
         if mode == "camera" and raw.as_shot_wb is None:
@@ -404,11 +453,15 @@ class WhiteBalanceStage(Stage):
 
 @dataclass(frozen=True)
 class HighlightsStage(Stage):
-    """Clipping at white, or dcraw's blend of clipped channels."""
+    """Clipping at white, none, dcraw's blend of clipped channels, or reconstruction."""
 
     name: ClassVar[str] = "highlights"
     colour_only: ClassVar[bool] = True
-    mode: str = _param("clip", _choice(HIGHLIGHT_MODES), "clip, or blend (after demosaic)")
+    mode: str = _param(
+        "clip",
+        _choice(HIGHLIGHT_MODES),
+        "clip, unclip (none), blend (after demosaic) or reconstruct (before demosaic)",
+    )
 
 
 @dataclass(frozen=True)
@@ -761,10 +814,10 @@ class IspConfig:
         ``baseline_exposure``, ``output_space``, ``transfer``, ``lens``, ``focal_length``,
         ``aperture``, ``lens_correction``); None leaves a value as it is. A flag enables
         its stage (adding it, if missing, where the default order has it); ``highlights
-        blend`` moves the stage to just after demosaic; ``lens_correction`` ``auto``
-        enables the lens stage, ``off`` disables it (then no other lens flag may be
-        given); ``denoise`` enables the ``raw_denoise`` stage for a raw method
-        (``profiled``) or the ``denoise`` stage for a filter (``gaussian``,
+        blend`` moves the stage to just after demosaic, ``reconstruct`` to just before;
+        ``lens_correction`` ``auto`` enables the lens stage, ``off`` disables it (then
+        no other lens flag may be given); ``denoise`` enables the ``raw_denoise`` stage
+        for a raw method (``profiled``) or the ``denoise`` stage for a filter (``gaussian``,
         ``bilateral``), and disables the other (``none``: both). Errors name the flag."""
         tables = self.to_tables()
         denoise = flags.pop("denoise", None)
@@ -804,11 +857,12 @@ class IspConfig:
             table = _table_of(tables, stage)
             table[key] = value
             table["enabled"] = True
-            if stage is HighlightsStage and value == "blend":
-                # Blending needs RGB: move the stage to just after demosaic.
+            if stage is HighlightsStage and value in ("blend", "reconstruct"):
+                # Blending needs RGB: move the stage to just after demosaic;
+                # reconstruction reads the mosaic: just before it.
                 tables.remove(table)
                 at = next(i for i, t in enumerate(tables) if t["name"] == DemosaicStage.name)
-                tables.insert(at + 1, table)
+                tables.insert(at + (value == "blend"), table)
         return IspConfig.from_tables(tables, "options")
 
     def with_disabled(self, *kinds: type[Stage]) -> IspConfig:

@@ -1,34 +1,65 @@
-"""Highlight handling after white balance: clip, or blend (dcraw's method).
+"""Highlight handling after white balance: clip, unclip, blend (dcraw's method) or
+reconstruct.
 
 White-balance gains push saturated sites above 1 by different amounts per
 channel, which turns clipped highlights magenta. ``clip`` limits every value to
 1 (the one intended clipping here; value by value, so on a mosaic of any CFA
-as on RGB, as LibRaw does before demosaicking). ``blend`` (RGB only) keeps
-the clipped image's lightness and the unclipped image's hue, with the chroma
-scaled to the clipped chroma's size, where any channel exceeds 1 — dcraw's
-``-H 2``.
+as on RGB, as LibRaw does before demosaicking). ``unclip`` leaves every value as
+it is (LibRaw's ``-H 1``). ``blend`` (RGB only) keeps the clipped image's
+lightness and the unclipped image's hue, with the chroma scaled to the clipped
+chroma's size, where any channel exceeds 1 — dcraw's ``-H 2``.
+
+``reconstruct`` (:func:`reconstruct_highlights`) rebuilds the clipped colours of
+a mosaic (or RGB image) from the colours that did not clip and from the hue of
+the unclipped surround, in the spirit of darktable's "inpaint opposed": each
+colour clips at its own white-balance gain, so where one or two colours clip
+the others still measure the light. The compiled engine's form is
+:mod:`rawsim.engine.highlights`.
 """
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
+from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_choice, check_image
-from rawsim.isp.config import HIGHLIGHT_MODES, HIGHLIGHT_TRANSFORM
+from rawsim.isp.config import (
+    HIGHLIGHT_BORDER,
+    HIGHLIGHT_CLIPPED,
+    HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_MODES,
+    HIGHLIGHT_NEUTRAL,
+    HIGHLIGHT_RATIO_FLOOR,
+    HIGHLIGHT_SCALE_WEIGHT,
+    HIGHLIGHT_SCALES,
+    HIGHLIGHT_TRANSFORM,
+    highlight_block,
+)
 
 # An orthonormal-ish transform separating lightness from two chroma axes (dcraw).
 _TRANS = torch.tensor(HIGHLIGHT_TRANSFORM, dtype=torch.float64)
 
 
-def handle_highlights(x: torch.Tensor, mode: str = "clip") -> torch.Tensor:
+def handle_highlights(
+    x: torch.Tensor, mode: str = "clip", gains=None, cfa: CFA | None = None
+) -> torch.Tensor:
     """Apply ``mode`` to white-balanced linear data, white = 1: a mosaic (B, 1, H, W) of
-    any CFA or an image (B, C, H, W) for ``clip`` (values ≤ 1 out), RGB (B, 3, H, W)
-    for ``blend`` (values above 1 may remain)."""
+    any CFA or an image (B, C, H, W) for ``clip`` (values ≤ 1 out) and ``unclip``
+    (unchanged), RGB (B, 3, H, W) for ``blend`` (values above 1 may remain), a mosaic
+    with its ``cfa`` or RGB, and the white-balance ``gains``, for ``reconstruct``
+    (:func:`reconstruct_highlights`)."""
     check_choice("highlight mode", mode, HIGHLIGHT_MODES)
     check_image(x, "image")
     if mode == "clip":
         return x.clamp(max=1.0)
+    if mode == "unclip":
+        return x
+    if mode == "reconstruct":
+        if gains is None:
+            raise ParameterError("highlight mode 'reconstruct' needs the white-balance gains")
+        return reconstruct_highlights(x, gains, cfa)
     if x.shape[1] != 3:
         raise ParameterError("highlight mode 'blend' needs RGB: put the stage after demosaic")
     trans = _TRANS.to(x.dtype).to(x.device)
@@ -47,15 +78,154 @@ def handle_highlights(x: torch.Tensor, mode: str = "clip") -> torch.Tensor:
     return torch.where(over, out, x)
 
 
-class Highlights(nn.Module):
-    """Highlight stage; ``reverse`` is the identity (clipped values are lost)."""
+def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> torch.Tensor:
+    """Rebuild clipped colours: a white-balanced mosaic (B, 1, H, W) of ``cfa``, or RGB
+    (B, 3, H, W), linear, white = 1 before the white-balance ``gains`` (R, G, B), so
+    colour c clips at ``gains[c]``. Returns the same shape; values may exceed 1 (at
+    most ``HIGHLIGHT_HEADROOM`` × the colour's clip level) and none is lowered.
 
-    def __init__(self, mode: str = "clip") -> None:
+    The mosaic is read in b × b blocks that hold every colour (:func:`highlight_block`:
+    2 for Bayer, 3 for X-Trans; a pixel of RGB). In each block: the mean of each
+    colour, and which colours clipped (a site ≥ ``HIGHLIGHT_CLIPPED`` of its level).
+    Blocks within ``HIGHLIGHT_BORDER`` blocks of a clipped one, but with no clipped
+    colour in their 3 × 3 neighbourhood, measure the hue: each colour's share of the
+    colours' sum, weighted by the block's brightness (its brightest colour over its
+    clip level, at most 1). Box means of those shares over the ``HIGHLIGHT_SCALES``
+    (each scale weighted ``HIGHLIGHT_SCALE_WEIGHT`` times the one before), normalised
+    by the weights', carry the border's hue into clipped blocks; without any within
+    reach the hue is neutral (equal shares). Where all three colours clipped the hue
+    is blended towards neutral by how little of the box around the block is
+    unclipped (κ = min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each
+    way), so the core of a large blown area is white. The block's level is then
+    fitted to its unclipped colours' means, or raised to the largest clipped mean
+    over its share where that is higher, and each site of a clipped colour becomes
+    max(its value, share × level). Differentiable almost everywhere; support:
+    (largest scale + border + 2) blocks.
+    """
+    check_image(x, "image")
+    g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
+    if not bool((g > 0).all()):
+        raise ParameterError("white-balance gains must be positive")
+    if x.shape[1] == 3:
+        cmap, b = None, 1
+    elif x.shape[1] == 1:
+        if cfa is None:
+            raise ParameterError("a mosaic (B, 1, H, W) needs its CFA pattern")
+        b = highlight_block(cfa.colors, cfa.period)
+        cmap = _colour_map(cfa, *x.shape[-2:], x.device)
+    else:
+        raise ParameterError(f"reconstruct needs a mosaic or RGB, got shape {tuple(x.shape)}")
+    h, w = x.shape[-2:]
+    hb, wb = h // b, w // b
+    if hb == 0 or wb == 0:
+        return x
+    means, clipped = _blocks(x, g, cmap, b, hb, wb)
+    anyclip = clipped.any(1, keepdim=True)
+    if not bool(anyclip.any()):
+        return x
+    est = _estimates(means, clipped, anyclip, g)
+    if cmap is None:
+        return torch.where(clipped, torch.maximum(x, est), x)
+    # Each site takes its block's value (edge rows/columns beyond whole blocks the last).
+    pad = (0, w - wb * b, 0, h - hb * b)
+    grow = lambda t: F.pad(  # noqa: E731
+        t.repeat_interleave(b, -2).repeat_interleave(b, -1), pad, mode="replicate"
+    )
+    index = cmap.expand(x.shape[0], 1, h, w)
+    est_site = grow(est).gather(1, index)
+    clip_site = grow(clipped.to(x.dtype)).gather(1, index) > 0
+    return torch.where(clip_site, torch.maximum(x, est_site), x)
+
+
+def _colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
+    """(1, 1, H, W) int64: the colour (R=0, G=1, B=2) of each site."""
+    ph, pw = cfa.period
+    tile = torch.tensor(cfa.colors, device=device).reshape(ph, pw)
+    return tile.repeat(-(-h // ph), -(-w // pw))[:h, :w].reshape(1, 1, h, w)
+
+
+def _blocks(x, g, cmap, b, hb, wb):
+    """Per block (B, 3, Hb, Wb): each colour's mean, and whether it clipped."""
+    level = (HIGHLIGHT_CLIPPED * g).reshape(1, 3, 1, 1)
+    if cmap is None:
+        return x, x >= level
+    n = x.shape[0]
+    site = x[..., : hb * b, : wb * b]
+    colour = cmap[..., : hb * b, : wb * b]
+    onehot = colour == torch.arange(3, device=x.device).reshape(1, 3, 1, 1)  # (1, 3, h, w)
+    split = (n, 3, hb, b, wb, b)
+    sums = torch.where(onehot, site, 0.0).reshape(split).sum((3, 5))
+    counts = onehot.to(x.dtype).reshape(1, *split[1:]).sum((3, 5))
+    over = onehot & (site >= level.reshape(3)[colour])
+    return sums / counts, over.reshape(split).any(5).any(3)
+
+
+def _box(a: torch.Tensor, s: int) -> torch.Tensor:
+    """Sums of ``a`` (B, C, H, W) over (2s + 1)² boxes, zero outside (float64)."""
+    h, w = a.shape[-2:]
+    c = F.pad(a, (0, 0, s + 1, s)).cumsum(-2)
+    rows = c[..., 2 * s + 1 : 2 * s + 1 + h, :] - c[..., :h, :]
+    c = F.pad(rows, (s + 1, s)).cumsum(-1)
+    return c[..., 2 * s + 1 : 2 * s + 1 + w] - c[..., :w]
+
+
+def _estimates(means, clipped, anyclip, g):
+    """Each colour's rebuilt value per block (B, 3, Hb, Wb) (used where it clipped)."""
+    dtype = means.dtype
+    near = F.max_pool2d(anyclip.to(dtype), 3, stride=1, padding=1) > 0
+    k = HIGHLIGHT_BORDER
+    border = (F.max_pool2d(anyclip.to(dtype), 2 * k + 1, stride=1, padding=k) > 0) & ~near
+    total = means.sum(1, keepdim=True)
+    lit = total > 0
+    share = means / torch.where(lit, total, 1.0)
+    bright = (means / g.reshape(1, 3, 1, 1)).amax(1, keepdim=True).clamp(0.0, 1.0)
+    weight = torch.where(border & lit, bright, 0.0)
+    fields = torch.cat([weight * share, weight], 1).double()
+    hue_sum = 0.0
+    for k, s in enumerate(HIGHLIGHT_SCALES):
+        box = _box(fields, s) / float((2 * s + 1) ** 2)
+        hue_sum = hue_sum + box * HIGHLIGHT_SCALE_WEIGHT**k
+    has = hue_sum[:, 3:4] > 0
+    hue = torch.where(has, hue_sum[:, :3] / torch.where(has, hue_sum[:, 3:4], 1.0), 1.0 / 3.0)
+    s = HIGHLIGHT_NEUTRAL
+    free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
+    kappa = (2 * free).clamp(max=1.0).to(dtype)
+    hue = hue.to(dtype)
+    blown = clipped.all(1, keepdim=True)
+    share = torch.where(blown, kappa * hue + (1 - kappa) / 3, hue).clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    free = ~clipped
+    num = torch.where(free, means, 0.0).sum(1, keepdim=True)
+    den = torch.where(free, share, 0.0).sum(1, keepdim=True)
+    level = torch.where(den > 0, num / torch.where(den > 0, den, 1.0), 0.0)
+    floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
+    level = torch.maximum(level, floor)
+    return torch.minimum(share * level, HIGHLIGHT_HEADROOM * g.reshape(1, 3, 1, 1))
+
+
+class Highlights(nn.Module):
+    """Highlight stage; ``reverse`` is the identity (clipped values are lost).
+
+    ``reconstruct`` needs the white-balance ``gains`` and, on a mosaic, its ``cfa``;
+    :attr:`radius` is then its reach in rows (strips carry that much context).
+    """
+
+    def __init__(self, mode: str = "clip", gains=None, cfa: CFA | None = None) -> None:
         super().__init__()
         self.mode = check_choice("highlight mode", mode, HIGHLIGHT_MODES)
+        if mode == "reconstruct" and gains is None:
+            raise ParameterError("highlight mode 'reconstruct' needs the white-balance gains")
+        self.gains = None if gains is None else tuple(float(v) for v in gains)
+        self.cfa = cfa
+
+    @property
+    def radius(self) -> int:
+        if self.mode != "reconstruct":
+            return 0
+        b = highlight_block(self.cfa.colors, self.cfa.period) if self.cfa else 1
+        return (max(HIGHLIGHT_SCALES) + HIGHLIGHT_BORDER + 2) * b
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return handle_highlights(x, self.mode)
+        return handle_highlights(x, self.mode, self.gains, self.cfa)
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
         return x

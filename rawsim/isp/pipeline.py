@@ -171,7 +171,9 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     LensShadingStage: lambda s, r: LensShading(s.k, s.strength),
     AntiAliasingStage: lambda s, r: AntiAliasing(r.raw.cfa, s.method, s.sigma),
     WhiteBalanceStage: lambda s, r: WhiteBalance(r.white_balance, r.raw.cfa),
-    HighlightsStage: lambda s, r: Highlights(s.mode),
+    HighlightsStage: lambda s, r: Highlights(
+        s.mode, r.info.get("white_balance", (1.0, 1.0, 1.0)), r.raw.cfa
+    ),
     DemosaicStage: lambda s, r: _demosaic(r.raw.cfa, s.method),
     DenoiseStage: lambda s, r: Denoise(
         r.raw.cfa if r.config.before_demosaic(s) else None,

@@ -163,6 +163,9 @@ class EnginePlan:
     #: :func:`rawsim.denoise.learned.refine_mosaic`), or None: the kernels render the
     #: mosaic it gives.
     denoise: tuple | None = None
+    #: ``highlights reconstruct``: (white-balance gains, the count of mosaic ops before
+    #: the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
+    highlights: tuple | None = None
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -243,11 +246,22 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     orientation = 1
     method = "bilinear"
     lens, lens_at = None, 0
-    denoise = None
+    denoise = highlights = None
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
             learned = resolved.info["raw_denoise"] == "learned"
             denoise = (*stage_model(resolved), stage.strength, learned)
+            continue
+        if isinstance(stage, HighlightsStage) and stage.mode in ("unclip", "reconstruct"):
+            if stage.mode == "unclip":
+                continue  # no op: values above white reach the matrix
+            codes = [op for op, _ in pre]
+            if not resolved.config.before_demosaic(stage) or codes not in (
+                [ep.OP_LEVELS],
+                [ep.OP_LEVELS, ep.OP_WB],
+            ):
+                return None  # the pre-pass reads levels and white balance only
+            highlights = (tuple(resolved.info.get("white_balance", (1.0, 1.0, 1.0))), len(pre))
             continue
         if isinstance(stage, LensCorrectionStage):
             if tail:
@@ -290,6 +304,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         lens,
         lens_at,
         denoise,
+        highlights,
     )
 
 
@@ -392,6 +407,15 @@ def engine_render(
 
             data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
         raw, plan = replace(raw, data=data), replace(plan, denoise=None)
+    if plan.highlights is not None:
+        from rawsim.engine.highlights import reconstruct_mosaic
+
+        gains, at = plan.highlights
+        ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
+        data, numbers = reconstruct_mosaic(raw.data, raw.cfa, ops, numbers, gains)
+        pre_f = plan.pre_f.copy()
+        pre_f[:at] = numbers
+        raw, plan = replace(raw, data=data), replace(plan, pre_f=pre_f, highlights=None)
     transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
     h, w = raw.data.shape
     half = plan.method == HALF_SIZE

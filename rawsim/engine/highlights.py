@@ -1,0 +1,289 @@
+"""Highlight reconstruction of a raw mosaic, compiled: the engine's form of
+:func:`rawsim.isp.highlights.reconstruct_highlights` (the torch reference, which
+defines the method).
+
+:func:`reconstruct_mosaic` is a pre-pass, as raw denoising is: it turns the uint16
+mosaic (DN) into one whose clipped sites hold their rebuilt values (DN, rounded),
+which the render kernels of :mod:`rawsim.engine.process` then take as any raw,
+with no highlight op of their own. The mosaic stages before the highlight stage
+(levels, white balance: the kernels' own arithmetic, :func:`_mosaic_value`) give the
+linear values the method reads; rebuilt values go back through their inverse.
+Values above the white level fit the uint16 codes above it; where they would not
+(a white level near 65535) the whole mosaic is scaled down, and the levels' span
+with it, so the kernels read the same linear values to rounding.
+
+Work: one pass over the mosaic for each block's colour means and clip flags
+(parallel over block rows); nothing else when nothing clipped. Otherwise the hue
+fields live on the band of block rows that holds clipped blocks (plus the border),
+as summed-area tables in float64, read only at clipped blocks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from rawsim.cfa import CFA
+from rawsim.engine import configure
+from rawsim.engine.process import OP_LEVELS, OP_WB, _mosaic_value
+from rawsim.isp.config import (
+    HIGHLIGHT_BORDER,
+    HIGHLIGHT_CLIPPED,
+    HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_NEUTRAL,
+    HIGHLIGHT_RATIO_FLOOR,
+    HIGHLIGHT_SCALE_WEIGHT,
+    HIGHLIGHT_SCALES,
+    highlight_block,
+)
+
+configure()
+
+_JIT = {"cache": True, "error_model": "numpy"}
+
+
+@njit(parallel=True, **_JIT)
+def _blocks(raw, cmap, slots, ops, opf, level, b, means, flags):
+    """Each whole b × b block's colour means (3, Hb, Wb) and clip flags (bit c: colour c
+    has a site ≥ ``level[c]``); whether any block clipped."""
+    hb, wb = flags.shape
+    ph, pw = cmap.shape
+    count = np.zeros(hb, np.int64)
+    for i in prange(hb):
+        sums = np.zeros(3, np.float32)
+        n = np.zeros(3, np.float32)
+        for j in range(wb):
+            sums[:] = 0
+            n[:] = 0
+            f = 0
+            for y in range(i * b, i * b + b):
+                for x in range(j * b, j * b + b):
+                    c = cmap[y % ph, x % pw]
+                    v = _mosaic_value(
+                        np.float32(raw[y, x]), slots[y % ph, x % pw], c, y, x, 0.0, 0.0, ops, opf
+                    )
+                    sums[c] += v
+                    n[c] += 1
+                    if v >= level[c]:
+                        f |= 1 << c
+            for c in range(3):
+                means[c, i, j] = sums[c] / n[c]
+            flags[i, j] = f
+            if f:
+                count[i] += 1
+    return count.sum() > 0
+
+
+@njit(**_JIT)
+def _sat(fields, near, r0, r1, hb, wb, border):
+    """Summed-area tables over block rows [r0, r1): the hue fields (weight × share of
+    R, G, B; weight) of the border blocks, and the count of blocks next to a clip."""
+    n = r1 - r0
+    sat = np.zeros((5, n + 1, wb + 1), np.float64)
+    for i in range(n):
+        for j in range(wb):
+            for k in range(5):
+                v = fields[k, i, j] if k < 4 else np.float64(near[i, j])
+                sat[k, i + 1, j + 1] = v + sat[k, i, j + 1] + sat[k, i + 1, j] - sat[k, i, j]
+    return sat
+
+
+@njit(inline="always", **_JIT)
+def _box(sat, k, i0, i1, j0, j1):
+    """Sum of field ``k`` over band rows [i0, i1) and columns [j0, j1)."""
+    return sat[k, i1, j1] - sat[k, i0, j1] - sat[k, i1, j0] + sat[k, i0, j0]
+
+
+@njit(**_JIT)
+def _fields(means, flags, gains, r0, r1, border):
+    """The border blocks' hue fields (4, band, Wb) in float64, and which blocks lie
+    next to a clipped one (band, Wb)."""
+    hb, wb = flags.shape
+    n = r1 - r0
+    clip = np.zeros((n + 1, wb + 1), np.int64)  # summed-area table of clipped blocks
+    for i in range(n):
+        for j in range(wb):
+            hit = 1 if flags[r0 + i, j] else 0
+            clip[i + 1, j + 1] = hit + clip[i, j + 1] + clip[i + 1, j] - clip[i, j]
+    fields = np.zeros((4, n, wb), np.float64)
+    near = np.zeros((n, wb), np.uint8)
+    for i in range(n):
+        y = r0 + i
+        for j in range(wb):
+            i0, i1 = max(i - 1, 0), min(i + 2, n)
+            j0, j1 = max(j - 1, 0), min(j + 2, wb)
+            close = clip[i1, j1] - clip[i0, j1] - clip[i1, j0] + clip[i0, j0] > 0
+            i0, i1 = max(i - border, 0), min(i + border + 1, n)
+            j0, j1 = max(j - border, 0), min(j + border + 1, wb)
+            inside = clip[i1, j1] - clip[i0, j1] - clip[i1, j0] + clip[i0, j0] > 0
+            near[i, j] = close
+            if close or not inside:
+                continue
+            total = means[0, y, j] + means[1, y, j] + means[2, y, j]
+            if not total > 0:
+                continue
+            bright = max(
+                means[0, y, j] / gains[0], means[1, y, j] / gains[1], means[2, y, j] / gains[2]
+            )
+            bright = min(max(bright, np.float32(0.0)), np.float32(1.0))
+            for c in range(3):
+                fields[c, i, j] = np.float64(bright * (means[c, y, j] / total))
+            fields[3, i, j] = np.float64(bright)
+    return fields, near
+
+
+@njit(parallel=True, **_JIT)
+def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, headroom, est):
+    """Each clipped block's rebuilt colour values into ``est`` (3, band, Wb)."""
+    hb, wb = flags.shape
+    third = np.float32(1.0 / 3.0)
+    for i in prange(r1 - r0):
+        y = r0 + i
+        share = np.empty(3, np.float32)
+        for j in range(wb):
+            f = flags[y, j]
+            if f == 0:
+                continue
+            acc = np.zeros(4, np.float64)
+            weight = 1.0
+            for s in scales:
+                i0, i1 = max(y - s, r0) - r0, min(y + s + 1, r1) - r0
+                j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+                area = np.float64((2 * s + 1) * (2 * s + 1))
+                for k in range(4):
+                    acc[k] += _box(sat, k, i0, i1, j0, j1) / area * weight
+                weight *= lam
+            s = neutral
+            i0, i1 = max(y - s, r0) - r0, min(y + s + 1, r1) - r0
+            j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+            inside = (min(y + s + 1, hb) - max(y - s, 0)) * (j1 - j0)
+            free = (inside - _box(sat, 4, i0, i1, j0, j1)) / np.float64((2 * s + 1) * (2 * s + 1))
+            kappa = np.float32(min(2.0 * free, 1.0))
+            blown = f == 7
+            for c in range(3):
+                hue = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+                if blown:
+                    hue = kappa * hue + (np.float32(1.0) - kappa) / np.float32(3.0)
+                share[c] = max(hue, floor)
+            num, den, low = np.float32(0.0), np.float32(0.0), np.float32(0.0)
+            for c in range(3):
+                if f >> c & 1:
+                    low = max(low, means[c, y, j] / share[c])
+                else:
+                    num += means[c, y, j]
+                    den += share[c]
+            level = num / den if den > 0 else np.float32(0.0)
+            level = max(level, low)
+            for c in range(3):
+                est[c, i, j] = min(share[c] * level, headroom * gains[c])
+
+
+@njit(parallel=True, **_JIT)
+def _write(raw, out, cmap, slots, ops, opf, flags, est, r0, r1, b, scale, black, span, applied):
+    """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
+    clipped block takes max(its value, the estimate). ``scale`` < 1: every site is
+    first scaled about its black level (``span``: the levels' divisor per slot)."""
+    h, w = raw.shape
+    hb, wb = flags.shape
+    ph, pw = cmap.shape
+    for y in prange(h):
+        by = min(y // b, hb - 1)
+        banded = r0 <= by < r1
+        for x in range(w):
+            p, q = y % ph, x % pw
+            slot, c = slots[p, q], cmap[p, q]
+            dn = np.float32(raw[y, x])
+            if scale != 1.0:
+                dn = black[slot] + (dn - black[slot]) * scale
+            if banded:
+                bx = min(x // b, wb - 1)
+                if flags[by, bx] >> c & 1:
+                    v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
+                    e = est[c, by - r0, bx]
+                    if e > v:
+                        dn = black[slot] + e / applied[c] * span[slot] * scale
+            out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+
+
+def _slots(cfa: CFA) -> np.ndarray:
+    """The levels slot (the kernels' table row) of each site of the period: the Bayer
+    site for Bayer, the colour otherwise."""
+    ph, pw = cfa.period
+    if cfa.is_bayer:
+        return np.arange(4, dtype=np.int64).reshape(2, 2)
+    return np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
+
+
+def reconstruct_mosaic(
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt,
+    and the op numbers ``opf`` to read it with.
+
+    ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
+    balance (:func:`rawsim.engine.process._mosaic_value`); ``gains``: the white
+    balance (R, G, B) that sets the clip levels, colour c clipping at ``gains[c]``.
+    Returns ``data`` itself and ``opf`` when nothing clipped; else a new mosaic (DN)
+    and ``opf`` with the levels' span scaled where the rebuilt values needed more
+    codes than 65535.
+    """
+    ops = np.asarray(ops, dtype=np.int64)
+    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
+        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
+    g = np.asarray(gains, dtype=np.float32)
+    h, w = data.shape
+    b = highlight_block(cfa.colors, cfa.period)
+    hb, wb = h // b, w // b
+    if hb == 0 or wb == 0:
+        return data, opf
+    ph, pw = cfa.period
+    cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
+    slots = _slots(cfa)
+    level = np.float32(HIGHLIGHT_CLIPPED) * g
+    means = np.empty((3, hb, wb), np.float32)
+    flags = np.empty((hb, wb), np.uint8)
+    data = np.ascontiguousarray(data)
+    opf = np.asarray(opf, dtype=np.float64)
+    if not _blocks(data, cmap, slots, ops, opf, level, b, means, flags):
+        return data, opf
+    rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border
+    r0 = max(0, int(rows[0]) - HIGHLIGHT_BORDER - 1)
+    r1 = min(hb, int(rows[-1]) + HIGHLIGHT_BORDER + 2)
+    fields, near = _fields(means, flags, g, r0, r1, HIGHLIGHT_BORDER)
+    sat = _sat(fields, near, r0, r1, hb, wb, HIGHLIGHT_BORDER)
+    del fields
+    est = np.zeros((3, r1 - r0, wb), np.float32)
+    scales = np.array(HIGHLIGHT_SCALES, dtype=np.int64)
+    _estimates(
+        means,
+        flags,
+        g,
+        sat,
+        r0,
+        r1,
+        scales,
+        HIGHLIGHT_SCALE_WEIGHT,
+        HIGHLIGHT_NEUTRAL,
+        np.float32(HIGHLIGHT_RATIO_FLOOR),
+        np.float32(HIGHLIGHT_HEADROOM),
+        est,
+    )
+    black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
+    applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
+    # The largest code a rebuilt value needs: fit it under 65535 by scaling every site.
+    top = max(
+        float(black[k]) + float(est[c].max() / applied[c] * span[k]) for k, c in _slot_colours(cfa)
+    )
+    scale = min(1.0, (65535.0 - float(black.max())) / (top - float(black.max())))
+    out = np.empty_like(data)
+    scale = np.float32(scale)
+    _write(data, out, cmap, slots, ops, opf, flags, est, r0, r1, b, scale, black, span, applied)
+    if scale < 1:
+        opf = opf.copy()
+        opf[0, 4:8] = (span * scale).astype(np.float64)
+    return out, opf
+
+
+def _slot_colours(cfa: CFA):
+    slots = _slots(cfa).ravel().tolist()
+    return sorted(set(zip(slots, cfa.colors, strict=True)))

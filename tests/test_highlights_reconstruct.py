@@ -1,0 +1,391 @@
+"""Highlight reconstruction (``--highlights reconstruct``) and ``unclip``: each case of
+clipping on synthetic mosaics with a known truth, Bayer and X-Trans, the compiled
+engine against the torch reference, and the clip and blend renders unchanged."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from rawsim.cfa import CFA
+from rawsim.isp.config import (
+    HIGHLIGHT_TRANSFORM,
+    DemosaicStage,
+    HighlightsStage,
+    IspConfig,
+    default_config,
+    highlight_block,
+    override,
+)
+from rawsim.isp.highlights import Highlights, handle_highlights, reconstruct_highlights
+from tests.test_engine_process import _assert_close, _both, synthetic_raw  # noqa: F401
+
+GAINS = torch.tensor([2.0, 1.0, 1.6])
+
+
+def scene(h, w, hue, peak, radius, base=0.25):
+    """White-balanced camera RGB (1, 3, H, W): a bluish-grey ground and an object of
+    ``hue`` (shares of R, G, B; a disc of 2.5 ``radius``) lit by a highlight whose
+    centre reaches (``base`` + ``peak``) × 3 × hue (a lit face, a sunset)."""
+    y, x = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+    r2 = ((y - h / 2) ** 2 + (x - w / 2) ** 2).double()
+    lum = base + peak * torch.exp(-r2 / (2 * radius**2))
+    ground = torch.tensor([0.9, 1.0, 1.1]).double()
+    tint = torch.tensor(hue).double()
+    weight = torch.sigmoid(2.5 * radius - r2.sqrt())
+    colour = ground[:, None, None] * (1 - weight) + 3 * tint[:, None, None] * weight
+    return (colour * lum)[None].float()
+
+
+def mosaic_of(rgb, cfa):
+    h, w = rgb.shape[-2:]
+    ph, pw = cfa.period
+    cmap = torch.tensor(cfa.colors).reshape(ph, pw).repeat(-(-h // ph), -(-w // pw))[:h, :w]
+    return rgb[0].gather(0, cmap[None])[None], cmap
+
+
+def clip_sensor(m, cmap, gains=GAINS):
+    return torch.minimum(m, gains[cmap])
+
+
+def hue_angle(rgb):
+    """Hue (degrees) of camera RGB (..., 3) on dcraw's chroma axes."""
+    t = torch.tensor(HIGHLIGHT_TRANSFORM, dtype=rgb.dtype)
+    c = rgb @ t.T
+    return torch.rad2deg(torch.atan2(c[..., 2], c[..., 1]))
+
+
+def block_rgb(m, cmap, sel, b):
+    """Each colour's mean over the sites of ``sel`` (a site mask), per block, then over
+    the blocks: (3,) camera RGB of the region."""
+    out = []
+    for c in range(3):
+        pick = sel & (cmap == c)
+        out.append(m[0, 0][pick].mean())
+    return torch.stack(out)
+
+
+def region_hue_error(pattern, hue, peak, radius, size=160):
+    cfa = CFA(pattern)
+    truth, cmap = mosaic_of(scene(size, size, hue, peak, radius), cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    assert sel.any()
+    # every site near a clipped one: the region the demosaic reads
+    near = torch.nn.functional.max_pool2d(sel[None, None].float(), 5, 1, 2)[0, 0] > 0
+    want = block_rgb(truth, cmap, near, 2)
+    got = block_rgb(out, cmap, near, 2)
+    plain = block_rgb(clipped, cmap, near, 2)
+    err = lambda a: abs((hue_angle(a) - hue_angle(want) + 180) % 360 - 180)  # noqa: E731
+    return float(err(got)), float(err(plain)), out, truth, clipped, cmap
+
+
+CASES = {
+    # R alone clips: an orange highlight (sunset, skin).
+    "one": ((0.7, 0.2, 0.1), 1.35, 14),
+    # R and G clip, B does not: a yellow highlight.
+    "two": ((0.45, 0.4, 0.15), 2.2, 14),
+}
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "GBRG", "XTRANS"])
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_one_or_two_colours_clipped_keep_their_hue(case, pattern):
+    hue, peak, radius = CASES[case]
+    err, plain, out, truth, clipped, cmap = region_hue_error(pattern, hue, peak, radius)
+    assert err < 4.0, (err, plain)
+    assert plain > 3 * err  # what clipping alone does
+    assert bool((out >= clipped).all())  # nothing is lowered
+
+
+def test_which_colours_clip_in_each_case():
+    cfa = CFA("RGGB")
+    for case, clips in (("one", {0}), ("two", {0, 1})):
+        hue, peak, radius = CASES[case]
+        truth, cmap = mosaic_of(scene(160, 160, hue, peak, radius), cfa)
+        over = {c for c in range(3) if bool((truth[0, 0][cmap == c] > GAINS[c]).any())}
+        assert over == clips
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_all_three_clipped_is_neutral_at_the_core_and_never_magenta(pattern):
+    cfa = CFA(pattern)
+    truth, cmap = mosaic_of(scene(200, 200, (0.4, 0.35, 0.25), 8.0, 30), cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    blown = torch.ones(200, 200, dtype=torch.bool)
+    for c in range(3):  # blocks where every colour clipped: a disc around the centre
+        blown &= (
+            torch.nn.functional.max_pool2d(
+                ((clipped[0, 0] >= 0.99 * GAINS[c]) & (cmap == c))[None, None].float(), 3, 1, 1
+            )[0, 0]
+            > 0
+        )
+    assert blown.sum() > 2000
+    core = torch.zeros_like(blown)
+    core[90:110, 90:110] = True
+    rgb = block_rgb(out, cmap, core & blown, 2)
+    assert float(rgb.max() / rgb.min()) < 1.1  # white, not tinted
+    assert bool((rgb >= GAINS * 0.99).all())  # as bright as the clip, at least
+    # No magenta anywhere in the blown area: green never the smallest by a margin.
+    for y in range(60, 140, 6):
+        for x in range(60, 140, 6):
+            cell = torch.zeros_like(blown)
+            cell[y : y + 6, x : x + 6] = True
+            if (cell & blown).sum() < 30:
+                continue
+            r, g, b = block_rgb(out, cmap, cell & blown, 2)
+            assert not (g < 0.9 * r and g < 0.9 * b), (y, x, r, g, b)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_large_region_takes_its_border_hue(pattern):
+    """R clipped over a disc of radius ~70 px: its centre is 70 px from any unclipped
+    site, yet gets the border's hue (a clip alone gives a hue far off)."""
+    cfa = CFA(pattern)
+    size = 240
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5  # a broad sky-like dome
+    rgb = (torch.tensor([1.6, 0.9, 0.5])[:, None, None] * lum)[None]
+    truth, cmap = mosaic_of(rgb, cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    assert sel.sum() > 3 * 60 * 60
+    core = torch.zeros_like(sel)
+    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
+    want = hue_angle(block_rgb(truth, cmap, core, 2))
+    got = hue_angle(block_rgb(out, cmap, core, 2))
+    plain = hue_angle(block_rgb(clipped, cmap, core, 2))
+    assert abs(float(got - want)) < 3.0
+    assert abs(float(plain - want)) > 3 * abs(float(got - want))
+
+
+def test_nothing_clipped_is_the_identity_and_values_are_never_lowered():
+    cfa = CFA("RGGB")
+    x = torch.rand(2, 1, 32, 48) * 0.9
+    assert reconstruct_highlights(x, GAINS, cfa) is x
+    x[0, 0, 10:14, 10:14] = 3.0
+    out = reconstruct_highlights(x, GAINS, cfa)
+    assert out.shape == x.shape and bool((out >= x).all())
+    assert torch.equal(out[1], x[1])  # each batch item on its own
+    assert bool((out <= 4.0 * GAINS.max()).all())  # the headroom
+
+
+def test_rgb_input_and_module_equals_function():
+    rgb = scene(64, 64, (0.55, 0.3, 0.15), 1.6, 8)
+    clipped = torch.minimum(rgb, GAINS.reshape(1, 3, 1, 1))
+    out = reconstruct_highlights(clipped, GAINS)
+    assert out.shape == rgb.shape
+    err = (out - rgb).abs().mean() / (clipped - rgb).abs().mean()
+    assert err < 0.2
+    module = Highlights("reconstruct", GAINS.tolist())
+    assert torch.equal(module(clipped), out)
+    assert torch.equal(handle_highlights(clipped, "reconstruct", GAINS), out)
+    assert torch.equal(module.reverse(out), out)
+
+
+def test_strips_with_the_radius_give_the_whole_image():
+    """The Isp runs long images in strips with ``radius`` rows of context: the result
+    is the same as on the whole image."""
+    cfa = CFA("XTRANS")
+    truth, cmap = mosaic_of(scene(360, 120, (0.55, 0.3, 0.15), 2.5, 40), cfa)
+    clipped = clip_sensor(truth, cmap)
+    whole = reconstruct_highlights(clipped, GAINS, cfa)
+    halo = Highlights("reconstruct", GAINS.tolist(), cfa).radius
+    assert halo == (64 + 4 + 2) * 3
+    for top in (0, 96, 198):
+        lo, hi = max(0, top - halo), min(360, top + 60 + halo)
+        part = reconstruct_highlights(clipped[..., lo:hi, :], GAINS, cfa)
+        assert torch.equal(part[..., top - lo : top - lo + 60, :], whole[..., top : top + 60, :])
+
+
+def test_gradcheck_float64():
+    cfa = CFA("RGGB")
+    x = (torch.rand(1, 1, 12, 12, dtype=torch.float64) * 1.2).requires_grad_()
+    g = GAINS.double()
+
+    def f(v):
+        return reconstruct_highlights(v, g, cfa)
+
+    # away from the kinks (a site exactly at its clip level, max ties)
+    with torch.no_grad():
+        x.data = torch.where(
+            (x - 0.99 * g[mosaic_of(x.expand(1, 3, 12, 12), cfa)[1]]).abs() < 0.02, x * 0.9, x
+        )
+    assert torch.autograd.gradcheck(f, (x,), eps=1e-6, atol=1e-5)
+
+
+def test_errors_are_clear():
+    with pytest.raises(Exception, match="CFA"):
+        reconstruct_highlights(torch.rand(1, 1, 8, 8), GAINS)
+    with pytest.raises(Exception, match="gains"):
+        handle_highlights(torch.rand(1, 1, 8, 8), "reconstruct")
+    with pytest.raises(Exception, match="positive"):
+        reconstruct_highlights(torch.rand(1, 3, 8, 8), [1.0, 0.0, 1.0])
+    with pytest.raises(Exception, match="finite"):
+        reconstruct_highlights(torch.full((1, 3, 8, 8), math.nan), GAINS)
+    with pytest.raises(Exception, match="valid"):
+        Highlights("rebuild")
+
+
+def test_block_side_per_cfa():
+    for pattern, side in (("RGGB", 2), ("XTRANS", 3), ("GRG/BGB/GRG", 3)):
+        cfa = CFA(pattern)
+        assert highlight_block(cfa.colors, cfa.period) == side
+    assert highlight_block((), (1, 1)) == 1
+
+
+def test_unclip_keeps_values_above_white():
+    x = torch.rand(1, 1, 8, 8) * 3
+    assert torch.equal(handle_highlights(x, "unclip"), x)
+
+
+def test_config_places_reconstruct_before_demosaic():
+    config = IspConfig.default().override(highlights="blend").override(highlights="reconstruct")
+    names = [s.name for s in config.stages]
+    assert names.index(HighlightsStage.name) == names.index(DemosaicStage.name) - 1
+    config = IspConfig.default().override(highlights="unclip")
+    assert config.enabled_stage(HighlightsStage).mode == "unclip"
+
+
+# -------------------------------------------------------------- the render
+#: sha256 (first 16 hex digits) of the 16-bit TIFF samples of ``synthetic_raw`` (84 ×
+#: 150) with clip and blend, engine and torch reference, measured before reconstruct
+#: and unclip were added: those modes' bytes must not change.
+CLIP_BLEND_BYTES = {
+    ("RGGB", "clip"): ("e9b39081f3394c4e", "b06304353fd8a0ba"),
+    ("RGGB", "blend"): ("a02f04cf877f0d1c", "88bae5bf6d696d29"),
+    ("XTRANS", "clip"): ("613aba9224170c30", "801c887f6874c660"),
+    ("XTRANS", "blend"): ("26a402213ddd07fb", "cb923f3f1d395dd6"),
+}
+
+
+@pytest.mark.parametrize("key", sorted(CLIP_BLEND_BYTES))
+def test_clip_and_blend_bytes_unchanged(key):
+    pattern, mode = key
+    raw = synthetic_raw(pattern, h=84, w=150)
+    ours, ref = _both(raw, override(default_config(), highlights=mode))
+    digest = lambda a: hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]  # noqa: E731
+    assert (digest(ours), digest(ref)) == CLIP_BLEND_BYTES[key]
+
+
+def test_cli_lists_the_modes():
+    from rawsim_cli.main import cli
+
+    result = CliRunner().invoke(cli, ["process", "--help"])
+    assert result.exit_code == 0
+    for mode in ("reconstruct", "unclip", "-H 1"):
+        assert mode in result.output
+
+
+# -------------------------------------------------------------- the engine
+def _engine_and_reference_mosaics(raw, config):
+    """The engine pre-pass's mosaic read as the kernels read it (white = 1, white
+    balanced), and the torch reference's mosaic after its highlight stage."""
+    from rawsim.engine.highlights import reconstruct_mosaic
+    from rawsim.engine.process import mosaic_table
+    from rawsim.isp.config import resolve
+    from rawsim.isp.pipeline import isp_for
+    from rawsim.pipelines.process import engine_plan, raw_tensor
+
+    plan = engine_plan(raw, config, "tiff")
+    gains, at = plan.highlights
+    data, numbers = reconstruct_mosaic(raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+    isp = isp_for(resolve(config, raw))
+    assert isp.names[:3] == ["black_level", "white_balance", "highlights"]
+    x = raw_tensor(raw, "cpu")
+    with torch.no_grad():
+        for module in isp.stages[:3]:
+            x = module(x)
+    h, w = data.shape
+    if raw.cfa.is_bayer:
+        colours = np.array(raw.cfa.colors)
+        slot = (np.arange(h)[:, None] % 2) * 2 + (np.arange(w)[None] % 2)
+    else:  # the kernels' table rows are the colours
+        colours = np.array([0, 1, 2, 1])
+        ph, pw = raw.cfa.period
+        tile = np.array(raw.cfa.colors).reshape(ph, pw)
+        slot = np.tile(tile, (-(-h // ph), -(-w // pw)))[:h, :w]
+    table = mosaic_table(colours, plan.pre_ops, numbers)
+    return table[slot, data], x[0, 0].numpy(), data
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "BGGR", "XTRANS", "GRG/BGB/GRG"])
+def test_engine_pre_pass_equals_the_reference(pattern):
+    """To the rounding of rebuilt values to whole DN: half a DN, × the gain."""
+    raw = synthetic_raw(pattern, h=90, w=150)
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, data = _engine_and_reference_mosaics(raw, config)
+    assert (data != raw.data).sum() > 50  # sites were rebuilt
+    dn = 2.1 * 0.5 / (16383 - 516)
+    assert np.abs(ours - ref).max() <= dn * 1.01
+
+
+def test_engine_scales_the_mosaic_when_codes_run_out():
+    """White at 65535: rebuilt values above it need the whole mosaic scaled down (and
+    the levels' span with it); unclipped sites move by at most the rounding."""
+    raw = synthetic_raw("RGGB", h=90, w=150)
+    data = np.clip(raw.data.astype(np.int64) * 4, 0, 65535).astype(np.uint16)
+    raw = replace_raw(raw, data=data, white_level=65535.0, black_level=raw.black_level * 4)
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, out = _engine_and_reference_mosaics(raw, config)
+    assert out.max() <= 65535 and out.max() > 30000
+    assert np.abs(ours - ref).max() <= 2.1 * 2.5 / (65535 - 2064)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_engine_render_equals_the_reference(pattern):
+    """Whole renders: 16-bit codes within 8 (the rebuilt sites' rounding through the
+    demosaic); unclip exactly as the reference (to the usual one code)."""
+    raw = synthetic_raw(pattern, h=84, w=150)
+    ours, ref = _both(raw, override(default_config(), highlights="reconstruct"))
+    diff = np.abs(ours.astype(np.int64) - ref)
+    assert diff.max() <= 8 and (diff > 1).mean() < 1e-3
+    ours, ref = _both(raw, override(default_config(), highlights="reconstruct"), "exr", 32)
+    assert np.abs(ours - ref).max() <= 2e-3
+    _assert_close(*_both(raw, override(default_config(), highlights="unclip")))
+    _assert_close(*_both(raw, override(default_config(), highlights="unclip"), "exr", 32))
+
+
+def test_engine_skips_an_unclipped_raw():
+    from rawsim.engine.highlights import reconstruct_mosaic
+    from rawsim.pipelines.process import engine_plan
+
+    raw = synthetic_raw("RGGB", h=90, w=150)
+    raw = replace_raw(raw, data=(raw.data // 2).astype(np.uint16))
+    plan = engine_plan(raw, override(default_config(), highlights="reconstruct"), "tiff")
+    gains, at = plan.highlights
+    data, numbers = reconstruct_mosaic(raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+    assert data is raw.data
+
+
+def replace_raw(raw, **changes):
+    from dataclasses import replace
+
+    return replace(raw, **changes)
+
+
+def test_engine_equals_the_reference_on_a_real_raw():
+    """Apple QuickTake 150 (GRBG, 0.3 % of sites at white): the pre-pass to half a DN
+    × the gain, the render's 16-bit codes within 8."""
+    from rawsim.io.raw import read_raw
+    from tests.conftest import DATA
+
+    raw = read_raw(DATA / "raw" / "apple_quicktake150.qtk")
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, data = _engine_and_reference_mosaics(raw, config)
+    assert (data != raw.data).sum() > 100
+    gain = max(ours.max(), 1.0)
+    black = float(np.max(raw.black_level))
+    assert np.abs(ours - ref).max() <= gain * 0.51 / (raw.white_level - black)
+    ours, ref = _both(raw, config)
+    diff = np.abs(ours.astype(np.int64) - ref)
+    assert diff.max() <= 8 and (diff > 1).mean() < 1e-3
