@@ -3,7 +3,8 @@
 :func:`lens_kernel` is the process engine's second pass when the config corrects
 the lens: it reads the first pass's linear render (H, W, 3) float32, fills each
 tile's RGB buffers with the remapped pixels (per channel: the radial tables of
-a :class:`~rawsim.io.lensfun.LensField`, a bilinear sample, the gain), then runs
+a :class:`~rawsim.io.lensfun.LensField`, a Lanczos-3 sample (:mod:`rawsim.resample`),
+the gain), then runs
 the same :func:`rawsim.engine.process._finish` as the other kernels (the RGB
 stages after the lens stage, tone/transfer, quantisation, orientation).
 :func:`correct_lens` and :func:`add_lens` are the numpy twins of the torch
@@ -25,11 +26,14 @@ from rawsim.engine.process import HALO, OUT_FLOAT, TILE_COLS, TILE_ROWS, _finish
 from rawsim.engine.tiles import next_tile
 from rawsim.errors import ParameterError, check_choice
 from rawsim.io.lensfun import LensField, LensParams, lens_field
+from rawsim.resample import FIRST, PHASES, TAPS, lanczos_table
 
 configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
+#: The resampling weights by phase (a compile-time constant of the kernels).
+_WEIGHTS = lanczos_table()
 #: ``padding`` codes, in :data:`rawsim.isp.lens.PADDINGS` order.
 PADDING_CODES = {"zeros": 0, "border": 1, "reflect": 2}
 
@@ -61,6 +65,9 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
     h, w = src.shape[0], src.shape[1]
     n = table.shape[0]
     one = np.float32(1.0)
+    weights = _WEIGHTS
+    phases = np.float32(PHASES)
+    half = np.float32(0.5)
     for i in range(r0, r1):
         dy = np.float32(i) - cy
         for j in range(c0, c1):
@@ -77,19 +84,23 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
                 m = ratio - one
                 ox, oy = dx * m, dy * m
                 fx, fy = np.floor(ox), np.floor(oy)
-                ax, ay = ox - fx, oy - fy
-                x0, y0 = j + int(fx), i + int(fy)
-                if 0 <= x0 < w - 1 and 0 <= y0 < h - 1:  # all four taps inside
-                    v00, v01 = src[y0, x0, k], src[y0, x0 + 1, k]
-                    v10, v11 = src[y0 + 1, x0, k], src[y0 + 1, x0 + 1, k]
+                px, py = int((ox - fx) * phases + half), int((oy - fy) * phases + half)
+                x0, y0 = j + int(fx) + FIRST, i + int(fy) + FIRST
+                inside = 0 <= x0 and x0 + TAPS <= w and 0 <= y0 and y0 + TAPS <= h
+                acc = np.float32(0.0)
+                if inside:  # all taps in the frame: no padding to look up
+                    for b in range(TAPS):
+                        row = np.float32(0.0)
+                        for a in range(TAPS):
+                            row += weights[px, a] * src[y0 + b, x0 + a, k]
+                        acc += weights[py, b] * row
                 else:
-                    v00 = _tap(src, y0, x0, k, h, w, padding)
-                    v01 = _tap(src, y0, x0 + 1, k, h, w, padding)
-                    v10 = _tap(src, y0 + 1, x0, k, h, w, padding)
-                    v11 = _tap(src, y0 + 1, x0 + 1, k, h, w, padding)
-                top = (one - ax) * v00 + ax * v01
-                bottom = (one - ax) * v10 + ax * v11
-                rgb[k][HALO + i - r0, HALO + j - c0] = ((one - ay) * top + ay * bottom) * gain
+                    for b in range(TAPS):
+                        row = np.float32(0.0)
+                        for a in range(TAPS):
+                            row += weights[px, a] * _tap(src, y0 + b, x0 + a, k, h, w, padding)
+                        acc += weights[py, b] * row
+                rgb[k][HALO + i - r0, HALO + j - c0] = acc * gain
 
 
 @njit(parallel=True, nogil=True, **_JIT)

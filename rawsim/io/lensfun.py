@@ -400,7 +400,8 @@ class LensField:
 
     Output pixel (y, x) (integers) lies at radius r = |(x − cx, y − cy)| from the lens
     centre; channel k of it is ``gain_k(r) · I_k(centre + (p − centre) · ratio_k(r))``,
-    sampled bilinearly, where ``ratio_k`` and ``gain_k`` are interpolated linearly in
+    sampled by Lanczos-3 (:mod:`rawsim.resample`), where ``ratio_k`` and ``gain_k`` are
+    interpolated linearly in
     ``table`` (n, 3, 2) float32 (``[:, k, 0]`` ratio, ``[:, k, 1]`` gain) at t = r · scale
     (float32): knots at most a pixel of radius apart (at least :data:`MIN_KNOTS`
     intervals), from the centre (t = 0) to the farthest pixel (t = n − 1).

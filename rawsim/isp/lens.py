@@ -2,7 +2,8 @@
 
 :func:`remap_lens` applies a :class:`~rawsim.io.lensfun.LensField` (the radial
 tables of :mod:`rawsim.io.lensfun`) to linear RGB: each output pixel's channel k
-samples the input bilinearly at its own source position and is multiplied by
+samples the input at its own source position (Lanczos-3, :mod:`rawsim.resample`:
+the 6 × 6 pixels around it) and is multiplied by
 its gain. :func:`correct_lens` takes the lens out of a photo (what ``rawsim
 process --lens-correction auto`` does after the demosaic); :func:`add_lens`
 puts it into a clean image (the unprocessing direction). The compiled engine's
@@ -21,6 +22,7 @@ from torch import nn
 
 from rawsim.errors import ParameterError, check_choice, check_image
 from rawsim.io.lensfun import LensField, LensParams, lens_field
+from rawsim.resample import FIRST, PHASES, TAPS, lanczos_table
 
 PADDINGS = ("zeros", "border", "reflect")
 #: Output pixels per chunk: the per-pixel temporaries stay a few tens of MB.
@@ -29,7 +31,7 @@ CHUNK_PIXELS = 1 << 18
 
 def remap_lens(image: torch.Tensor, field: LensField, padding: str = "zeros") -> torch.Tensor:
     """Apply ``field`` to ``image`` (B, 3, H, W), linear RGB with H × W the field's size:
-    channel k of output pixel p is ``gain_k · bilinear(image_k, source_k(p))``. A grey
+    channel k of output pixel p is ``gain_k · lanczos3(image_k, source_k(p))``. A grey
     image (B, 1, H, W) takes the green channel's remap. Returns the image's shape and
     dtype, computed in chunks of rows."""
     _check(image)
@@ -52,6 +54,7 @@ def _remap_rows(image, field, table, top, bottom, padding):
     """Output rows [top, bottom): (B, 3, rows, W). The engine's arithmetic, in order."""
     b, _, h, w = image.shape
     dev, dt = image.device, image.dtype
+    weights = torch.from_numpy(lanczos_table()).to(dt).to(dev)
     cy, cx = (torch.tensor(v, dtype=torch.float32).to(dt) for v in field.centre)
     xi = torch.arange(w, device=dev)
     yi = torch.arange(top, bottom, device=dev)
@@ -70,18 +73,21 @@ def _remap_rows(image, field, table, top, bottom, padding):
         m = ratio - 1
         ox, oy = dx * m, dy * m  # source − output, small: kept apart from the position
         fx, fy = torch.floor(ox), torch.floor(oy)
-        ax, ay = ox - fx, oy - fy
-        x0 = xi[None, :] + fx.long()
-        y0 = yi[:, None] + fy.long()
+        half = torch.tensor(0.5, dtype=dt, device=dev)
+        px = ((ox - fx) * PHASES + half).long()  # ≥ 0: truncation is the engine's int()
+        py = ((oy - fy) * PHASES + half).long()
+        wx, wy = weights[px], weights[py]  # (rows, W, TAPS)
+        x0 = xi[None, :] + fx.long() + FIRST
+        y0 = yi[:, None] + fy.long() + FIRST
         plane = image[:, c].reshape(b, h * w)
-        v00 = _tap(plane, y0, x0, h, w, padding)
-        v01 = _tap(plane, y0, x0 + 1, h, w, padding)
-        v10 = _tap(plane, y0 + 1, x0, h, w, padding)
-        v11 = _tap(plane, y0 + 1, x0 + 1, h, w, padding)
-        one = torch.ones((), dtype=dt, device=dev)
-        top_row = (one - ax) * v00 + ax * v01
-        bottom_row = (one - ax) * v10 + ax * v11
-        out.append(((one - ay) * top_row + ay * bottom_row) * gain)
+        acc = torch.zeros((), dtype=dt, device=dev)
+        for row_tap in range(TAPS):  # the engine's order of sums
+            row = torch.zeros((), dtype=dt, device=dev)
+            for col_tap in range(TAPS):
+                v = _tap(plane, y0 + row_tap, x0 + col_tap, h, w, padding)
+                row = row + wx[..., col_tap] * v
+            acc = acc + wy[..., row_tap] * row
+        out.append(acc * gain)
     return torch.stack(out, dim=1)
 
 
