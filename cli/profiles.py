@@ -49,20 +49,27 @@ def list_cmd(text, as_json):
     from rawsim import cameras
     from rawsim.profiles import list_profiles, load_profile, profile_from_dict
 
-    hits = None if text is None else {c.name for c in cameras.search(text)}
+    found = cameras.cameras() if text is None else cameras.search(text)
+    aliases = {c.bundled: c.data["aliases"] for c in cameras.cameras() if c.bundled}
+    hit_bundled = {c.bundled for c in found if c.bundled}
     profiles = []
     for name in list_profiles():
         p = load_profile(name)
-        if hits is None or _plain(text) in _plain(f"{name} {p.make} {p.model}"):
+        if (
+            text is None
+            or name in hit_bundled
+            or _plain(text) in _plain(f"{name} {p.make} {p.model}")
+        ):
             profiles.append(p)
-    held = {p.name for p in profiles}
-    for cam in cameras.cameras():
-        if (hits is None or cam.name in hits) and cam.bundled not in held and not cam.bundled:
+    for cam in found:
+        if not cam.bundled:
+            aliases[cam.name] = cam.data["aliases"]
             profiles.append(
                 profile_from_dict(cam.profile_data(), f"<camera database: {cam.label}>")
             )
     if as_json:
-        click.echo(json.dumps([p.to_dict() for p in profiles], indent=1, ensure_ascii=False))
+        rows = [{**p.to_dict(), "aliases": aliases.get(p.name, [])} for p in profiles]
+        click.echo(json.dumps(rows, indent=1, ensure_ascii=False))
         return
     if not profiles:
         click.echo(

@@ -46,6 +46,7 @@ def test_profiles_list_json_has_every_camera_with_every_field_and_its_source():
     for row in rows:
         for key in ("make", "model", "cfa_pattern", "bit_depth", "xyz_to_camera", "noise"):
             assert row[key] not in (None, "", []), (row["name"], key)
+        assert isinstance(row["aliases"], list)
         assert 0 <= row["black_level"] < row["white_level"] < 2 ** row["bit_depth"]
         assert row["noise_kind"] in ("measured", "estimated"), row["name"]
         assert all(row["source"].get(k) for k in SOURCED_KEYS), row["name"]
@@ -107,6 +108,9 @@ def test_search_and_show_say_measured_or_estimated():
     assert "sony_ilce_7m4" not in r.output
     r = run("profiles", "list", "--search", "D850")
     assert "nikon_d850" in r.output and "measured" in r.output
+    assert "canon_eos_700d" in run("profiles", "list", "--search", "rebel t5i").output
+    rows = json.loads(run("profiles", "list", "--json", "--search", "a7 iii").output)
+    assert {r["name"]: r["aliases"] for r in rows} == {"sony_ilce_7m3": ["A7 III"]}
     r = run("profiles", "show", "sony a7 iii")
     assert "noise: estimated (sensor physics)" in r.output and "source[noise.gain]" in r.output
     assert "noise: measured" in run("profiles", "show", "nikon_d850").output
