@@ -95,7 +95,8 @@ profile_opt = click.option(
     "profile",
     required=True,
     metavar="NAME|PATH",
-    help="Sensor profile: a bundled name (see 'rawsim profiles list') or a JSON file.",
+    help="Sensor profile: a bundled name, a camera's own name ('Sony ILCE-7M3', "
+    "'sony a7 iii'; see 'rawsim profiles list --search TEXT') or a JSON file.",
 )
 shard_opt = click.option(
     "--shard",
