@@ -189,6 +189,33 @@ class Sizes:
         """Sensor diagonals within about 4 % share a class."""
         return round(math.log(math.hypot(*size_mm)) / math.log(1.04))
 
+    def _sibling(self, make: str, model: str):
+        """(size, how) of the camera this one succeeds or varies in its line ("Z 6 II" →
+        "Z 6", "ILCE-9M3" → "ILCE-9", "EOS R5 C" → "EOS R5", "D810A" → "D810"): a line
+        keeps its sensor format. None if no such camera has a size."""
+        base = model
+        for _ in range(2):
+            shorter = re.sub(r"\s*(Mark\s*|Mk\s*)?(II|III|IV|V|VI)$", "", base)
+            shorter = re.sub(r"(?<=\d)M\d$", "", shorter) if shorter == base else shorter
+            shorter = (
+                re.sub(r"(?<=[0-9A-Za-z])\s?[A-Za-z]$", "", shorter) if shorter == base else shorter
+            )
+            if shorter == base or not shorter:
+                return None
+            base = shorter
+            for key in keys_of(make, [base]):
+                if key in self.table:
+                    s = self.table[key]
+                    return s.size_mm, f"openmvg:{s.make};{s.model} (size of the {base} of its line)"
+                if key in self.crop:
+                    cf = self.crop[key]
+                    aspect = (4, 3) if cf >= 1.9 else (3, 2)
+                    unit = math.hypot(36, 24) / cf / math.hypot(*aspect)
+                    size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
+                    how = f"lensfun crop factor {cf:g} of the {base} of its line, aspect assumed"
+                    return size, how
+        return None
+
     def _by_size(self, size_mm, make: str) -> float:
         cls = self.size_class(size_mm)
         near = [self.size_area[c] for c in (cls, cls - 1, cls + 1) if c in self.size_area]
@@ -200,7 +227,7 @@ class Sizes:
         whose = "the maker's" if key in self.maker_area else "all"
         return area, f"the median of {whose} {n} digicamdb cameras"
 
-    def find(self, make: str, keys: list[tuple[str, str]]):
+    def find(self, make: str, model: str, keys: list[tuple[str, str]]):
         """(size mm or None, resolution or None, area µm², basis, how it was found)."""
         s = next((self.table[k] for k in keys if k in self.table), None)
         if s and s.resolution:
@@ -212,6 +239,8 @@ class Sizes:
             unit = math.hypot(36, 24) / cf / math.hypot(*aspect)
             size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
             how = f"lensfun crop factor {cf:g}, aspect {aspect[0]}:{aspect[1]} assumed"
+        elif sibling := self._sibling(make, model):
+            size, how = sibling
         elif maker_key(make) in MEDIUM_FORMAT and maker_key(make) not in self.maker_area:
             area, n = self.medium_area
             err = self.errors["medium format"]
@@ -398,7 +427,7 @@ def main() -> None:
             )
             src["white_level"] = src["black_level"] = why
         bits = max(white.bit_length(), 8)
-        size, res, area, basis, size_how = sizes.find(cam.make, keys)
+        size, res, area, basis, size_how = sizes.find(cam.make, cam.model, keys)
         entry = {
             "name": name,
             "make": make,
