@@ -30,6 +30,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
@@ -132,14 +133,40 @@ def _fields(means, flags, gains, r0, r1, border):
     return fields, near
 
 
+@njit(inline="always", **_JIT)
+def _log(v, floor):
+    return np.log(max(v, floor))
+
+
+@njit(inline="always", **_JIT)
+def _hue_or_white(m, seen, hue, c, floor, sigma):
+    """Colour ``c`` alone clipped: the odds of ``hue`` over white light (the reference's
+    ``_hue_or_white``), ``m`` the block's means, ``seen`` its shares."""
+    a, b = (1, 2) if c == 0 else ((0, 2) if c == 1 else (0, 1))
+    seen_ratio = _log(seen[a], floor) - _log(seen[b], floor)
+    guess_ratio = _log(hue[a], floor) - _log(hue[b], floor)
+    rest = m[a] + m[b]
+    top = _log(m[c], floor)
+    short_white = max(top - _log(rest / np.float32(2.0), floor), np.float32(0.0))
+    guess = max(hue[c], floor) * rest / max(hue[a] + hue[b], floor)
+    short_hue = max(top - _log(guess, floor), np.float32(0.0))
+    miss_white = seen_ratio * seen_ratio + short_white * short_white
+    miss_hue = (seen_ratio - guess_ratio) ** 2 + short_hue * short_hue
+    z = (miss_white - miss_hue) / (np.float32(2.0) * sigma * sigma)
+    return np.float32(1.0) / (np.float32(1.0) + np.exp(-z))
+
+
 @njit(parallel=True, **_JIT)
-def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, headroom, est):
+def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, headroom, sigma, est):
     """Each clipped block's rebuilt colour values into ``est`` (3, band, Wb)."""
     hb, wb = flags.shape
     third = np.float32(1.0 / 3.0)
     for i in prange(r1 - r0):
         y = r0 + i
         share = np.empty(3, np.float32)
+        hue = np.empty(3, np.float32)
+        seen = np.empty(3, np.float32)
+        m = np.empty(3, np.float32)
         for j in range(wb):
             f = flags[y, j]
             if f == 0:
@@ -159,12 +186,24 @@ def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, he
             inside = (min(y + s + 1, hb) - max(y - s, 0)) * (j1 - j0)
             free = (inside - _box(sat, 4, i0, i1, j0, j1)) / np.float64((2 * s + 1) * (2 * s + 1))
             kappa = np.float32(min(2.0 * free, 1.0))
-            blown = f == 7
+            blown = f == 3 or f >= 5  # two or three colours clipped
             for c in range(3):
-                hue = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+                hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+            trust = np.float32(1.0)
+            if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
+                c = 0 if f == 1 else (1 if f == 2 else 2)
+                total = means[0, y, j] + means[1, y, j] + means[2, y, j]
+                for k in range(3):
+                    m[k] = means[k, y, j]
+                    seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
+                trust = _hue_or_white(m, seen, hue, c, floor, sigma)
+            for c in range(3):
+                h = hue[c]
                 if blown:
-                    hue = kappa * hue + (np.float32(1.0) - kappa) / np.float32(3.0)
-                share[c] = max(hue, floor)
+                    h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
+                elif trust < 1:
+                    h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
+                share[c] = max(h, floor)
             num, den, low = np.float32(0.0), np.float32(0.0), np.float32(0.0)
             for c in range(3):
                 if f >> c & 1:
@@ -266,6 +305,7 @@ def reconstruct_mosaic(
         HIGHLIGHT_NEUTRAL,
         np.float32(HIGHLIGHT_RATIO_FLOOR),
         np.float32(HIGHLIGHT_HEADROOM),
+        np.float32(HIGHLIGHT_HUE_SIGMA),
         est,
     )
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)

@@ -73,10 +73,14 @@ HIGHLIGHT_SCALE_WEIGHT = 0.25
 #: clipped one (and not next to one, where the mean of a colour may hold a clipped
 #: site's neighbour): the border of a clipped region, as darktable reads it.
 HIGHLIGHT_BORDER = 4
-#: ``reconstruct``: where all three colours clip, the border's hue fades to neutral
+#: ``reconstruct``: where two or three colours clip, the border's hue fades to neutral
 #: with depth: it keeps κ = min(1, 2 × the unclipped share of the box of this
 #: half-width around the block), so a blown area's core, ≳ 16 blocks deep, is white.
 HIGHLIGHT_NEUTRAL = 16
+#: ``reconstruct``: where one colour clips, the other two's ratio tests the border's
+#: hue against white light (equal shares): each is trusted by how well it predicts
+#: that ratio, a Gaussian of this width in the log of the ratio.
+HIGHLIGHT_HUE_SIGMA = 0.2
 #: ``reconstruct``: a rebuilt value is at most this many times its colour's clip level.
 HIGHLIGHT_HEADROOM = 4.0
 #: ``reconstruct``: no colour's share of a block's sum is taken below this.

@@ -29,6 +29,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_MODES,
     HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
@@ -93,14 +94,23 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     clip level, at most 1). Box means of those shares over the ``HIGHLIGHT_SCALES``
     (each scale weighted ``HIGHLIGHT_SCALE_WEIGHT`` times the one before), normalised
     by the weights', carry the border's hue into clipped blocks; without any within
-    reach the hue is neutral (equal shares). Where all three colours clipped the hue
-    is blended towards neutral by how little of the box around the block is
-    unclipped (κ = min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each
-    way), so the core of a large blown area is white. The block's level is then
-    fitted to its unclipped colours' means, or raised to the largest clipped mean
-    over its share where that is higher, and each site of a clipped colour becomes
-    max(its value, share × level). Differentiable almost everywhere; support:
-    (largest scale + border + 2) blocks.
+    reach the hue is neutral (equal shares).
+
+    Where one colour clipped, the other two test that hue against white light
+    (equal shares): the hue is blended with neutral by the odds of each predicting
+    their ratio and raising the clipped colour to at least its clipped mean (misses
+    squared in logs, a Gaussian of width ``HIGHLIGHT_HUE_SIGMA``), so a white
+    highlight in coloured surroundings stays white and a coloured one keeps its hue.
+    Where two or three clipped, one colour cannot test it: the hue is blended
+    towards neutral by how little of the box around the block is unclipped (κ =
+    min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the
+    core of a large blown area is white (on the benchmark, white light at depth is
+    the better guess).
+
+    The block's level is then fitted to its unclipped colours' means, or raised to
+    the largest clipped mean over its share where that is higher, and each site of
+    a clipped colour becomes max(its value, share × level). Differentiable almost
+    everywhere; support: (largest scale + border + 2) blocks.
     """
     check_image(x, "image")
     g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
@@ -191,8 +201,13 @@ def _estimates(means, clipped, anyclip, g):
     free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
     kappa = (2 * free).clamp(max=1.0).to(dtype)
     hue = hue.to(dtype)
-    blown = clipped.all(1, keepdim=True)
-    share = torch.where(blown, kappa * hue + (1 - kappa) / 3, hue).clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    blown = clipped.sum(1, keepdim=True) >= 2  # one colour left at most
+    single = clipped.sum(1, keepdim=True) == 1
+    seen = share
+    trust = _hue_or_white(means, seen, hue, clipped)
+    tested = trust * hue + (1 - trust) / 3
+    share = torch.where(blown, kappa * hue + (1 - kappa) / 3, torch.where(single, tested, hue))
+    share = share.clamp_min(HIGHLIGHT_RATIO_FLOOR)
     free = ~clipped
     num = torch.where(free, means, 0.0).sum(1, keepdim=True)
     den = torch.where(free, share, 0.0).sum(1, keepdim=True)
@@ -200,6 +215,36 @@ def _estimates(means, clipped, anyclip, g):
     floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
     level = torch.maximum(level, floor)
     return torch.minimum(share * level, HIGHLIGHT_HEADROOM * g.reshape(1, 3, 1, 1))
+
+
+def _hue_or_white(means, seen, hue, clipped):
+    """Where one colour clipped: the odds (0–1) of ``hue`` over white light, from how
+    well each predicts the other two colours' ratio (``seen``: the block's shares)
+    and raises the clipped colour to its clipped mean."""
+    floor = HIGHLIGHT_RATIO_FLOOR
+    log = lambda t: t.clamp_min(floor).log()  # noqa: E731
+    seen_ratio = guess_ratio = top = rest = hue_top = hue_rest = 0.0
+    for c, (a, b) in enumerate(((1, 2), (0, 2), (0, 1))):  # the two colours left
+        alone = clipped[:, c : c + 1]
+        seen_ratio = seen_ratio + _pick(alone, log(seen[:, a : a + 1]) - log(seen[:, b : b + 1]))
+        guess_ratio = guess_ratio + _pick(alone, log(hue[:, a : a + 1]) - log(hue[:, b : b + 1]))
+        top = top + _pick(alone, means[:, c : c + 1])
+        rest = rest + _pick(alone, means[:, a : a + 1] + means[:, b : b + 1])
+        hue_top = hue_top + _pick(alone, hue[:, c : c + 1])
+        hue_rest = hue_rest + _pick(alone, hue[:, a : a + 1] + hue[:, b : b + 1])
+
+    def short(estimate):  # how far an estimate falls below the clipped mean
+        return (log(top) - log(estimate)).clamp_min(0.0) ** 2
+
+    miss_white = seen_ratio**2 + short(rest / 2)
+    miss_hue = (seen_ratio - guess_ratio) ** 2 + short(
+        hue_top.clamp_min(floor) * rest / hue_rest.clamp_min(floor)
+    )
+    return torch.sigmoid((miss_white - miss_hue) / (2 * HIGHLIGHT_HUE_SIGMA**2))
+
+
+def _pick(where: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    return torch.where(where, t, 0.0)
 
 
 class Highlights(nn.Module):

@@ -1,0 +1,331 @@
+"""Highlight recovery against a known truth: rawsim's highlight modes beside LibRaw's
+``-H 0/1/2/5`` and darktable's default reconstruction, measured in the same run.
+
+Each scene-linear EXR (default: /work/shared/data/exr, else tests/data/exr) is
+unprocessed by ``rawsim unprocess --clean --exposure EV --wb-inverse exact`` at
++1, +2 and +3 EV (``--profile``, default sony_a7s2), so the sensor clips as a
+real one does, and once at −3 EV, where nothing clips: the truth. The noise-free
+DNGs (``*.clean.dng``) are rendered scene-linear (sRGB primaries, no tone
+curve) by
+
+* rawsim (the engine, as ``rawsim process --format exr``) with each highlight
+  mode, the truth with ``unclip`` (nothing is clipped there);
+* LibRaw (rawpy ``postprocess``: camera white balance, sRGB, linear, 16 bits, no
+  auto-brightening) with ``highlight_mode`` 0 (clip), 1 (unclip), 2 (blend) and 5
+  (rebuild), the truth with 0;
+* darktable (``darktable-cli``, its default pipeline with the workflow ``none``:
+  no tone mapping, EXR in linear Rec. 709), whose raw default includes its
+  highlight reconstruction; the truth through the same pipeline.
+
+Each render is compared with its own pipeline's render of the truth, after one
+gain that matches the two on the pixels far from any clipped site (the truth DNG
+is 3 + EV stops darker, and LibRaw scales its highlight modes by the largest
+white-balance gain), inside the clipped region: every pixel within 2 px of a site
+at ≥ 99 % of white in the clipped DNG. Scores, per exposure, the mean over the
+region's pixels of every image:
+
+* ΔE00: CIEDE2000 of CIELAB (D65) with the truth's brightest pixel in the region
+  as white (L = 100), so errors in highlights up to 8× white are measured;
+* log-lum: mean |log2(Y / Y_truth)|, stops of luminance error;
+* magenta %: lit pixels of the region (truth ≥ 5 % of its white: the highlights,
+  not the dark side of their edges, where demosaicking next to a clip tints a few
+  pixels in every mode) whose hue turned magenta (hue 290°–345°, chroma > 15,
+  where the truth's is not within 30° of that hue range).
+
+The machine is printed first. Usage::
+
+    python benchmarks/bench_highlights.py [--images DIR] [--profile NAME] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from machine import describe  # noqa: E402
+
+HERE = Path(__file__).resolve().parents[1]
+EVS = (1, 2, 3)
+TRUTH_EV = -3
+MODES = ("clip", "unclip", "blend", "reconstruct")
+LIBRAW_MODES = (0, 1, 2, 5)
+#: Rows of the table, in order.
+ROWS = (*(f"rawsim {m}" for m in MODES), *(f"libraw -H {h}" for h in LIBRAW_MODES), "darktable")
+
+# ------------------------------------------------------------------ colour
+_SRGB_TO_XYZ = np.array(
+    [
+        [0.4124564, 0.3575761, 0.1804375],
+        [0.2126729, 0.7151522, 0.0721750],
+        [0.0193339, 0.1191920, 0.9503041],
+    ]
+)
+_D65 = np.array([0.95047, 1.0, 1.08883])
+
+
+def lab(rgb: np.ndarray, white_y: float) -> np.ndarray:
+    """CIELAB (N, 3) of linear sRGB (N, 3), Y = ``white_y`` being L = 100."""
+    xyz = rgb @ _SRGB_TO_XYZ.T / white_y / _D65
+    d = 6 / 29
+    f = np.where(xyz > d**3, np.cbrt(np.maximum(xyz, 0)), xyz / (3 * d * d) + 4 / 29)
+    return np.stack([116 * f[:, 1] - 16, 500 * (f[:, 0] - f[:, 1]), 200 * (f[:, 1] - f[:, 2])], 1)
+
+
+def ciede2000(lab1: np.ndarray, lab2: np.ndarray) -> np.ndarray:
+    """CIEDE2000 colour difference of (N, 3) CIELAB pairs (Sharma et al. 2005)."""
+    l1, a1, b1 = lab1.T
+    l2, a2, b2 = lab2.T
+    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
+    cm = (c1 + c2) / 2
+    g = 0.5 * (1 - np.sqrt(cm**7 / (cm**7 + 25.0**7)))
+    a1p, a2p = (1 + g) * a1, (1 + g) * a2
+    c1p, c2p = np.hypot(a1p, b1), np.hypot(a2p, b2)
+    h1p = np.degrees(np.arctan2(b1, a1p)) % 360
+    h2p = np.degrees(np.arctan2(b2, a2p)) % 360
+    dl, dc = l2 - l1, c2p - c1p
+    dh = h2p - h1p
+    dh = np.where(dh > 180, dh - 360, np.where(dh < -180, dh + 360, dh))
+    dh = np.where(c1p * c2p == 0, 0, dh)
+    dhh = 2 * np.sqrt(c1p * c2p) * np.sin(np.radians(dh / 2))
+    lm, cmp_ = (l1 + l2) / 2, (c1p + c2p) / 2
+    hs = h1p + h2p
+    hm = np.where(
+        c1p * c2p == 0,
+        hs,
+        np.where(
+            np.abs(h1p - h2p) <= 180, hs / 2, np.where(hs < 360, (hs + 360) / 2, (hs - 360) / 2)
+        ),
+    )
+    t = (
+        1
+        - 0.17 * np.cos(np.radians(hm - 30))
+        + 0.24 * np.cos(np.radians(2 * hm))
+        + 0.32 * np.cos(np.radians(3 * hm + 6))
+        - 0.20 * np.cos(np.radians(4 * hm - 63))
+    )
+    sl = 1 + 0.015 * (lm - 50) ** 2 / np.sqrt(20 + (lm - 50) ** 2)
+    sc = 1 + 0.045 * cmp_
+    sh = 1 + 0.015 * cmp_ * t
+    rt = (
+        -2
+        * np.sqrt(cmp_**7 / (cmp_**7 + 25.0**7))
+        * np.sin(np.radians(60 * np.exp(-(((hm - 275) / 25) ** 2))))
+    )
+    return np.sqrt((dl / sl) ** 2 + (dc / sc) ** 2 + (dhh / sh) ** 2 + rt * (dc / sc) * (dhh / sh))
+
+
+def _magenta(lab_: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    hue = np.degrees(np.arctan2(lab_[:, 2], lab_[:, 1])) % 360
+    chroma = np.hypot(lab_[:, 1], lab_[:, 2])
+    return (hue >= 290 - margin) & (hue <= 345 + margin) & (chroma > 15 - margin / 2)
+
+
+# ------------------------------------------------------------------ inputs
+def unprocess(exr: Path, out: Path, ev: float, profile: str) -> Path:
+    """The noise-free DNG of ``exr`` at ``ev`` stops."""
+    folder = out / f"ev{ev:+g}"
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rawsim_cli.main",
+            "unprocess",
+            str(exr),
+            "-o",
+            str(folder),
+            "-p",
+            profile,
+            "--clean",
+            "--exposure",
+            str(ev),
+            "--wb-inverse",
+            "exact",
+            "--iso",
+            "200",  # in every bundled profile's range (noise-free DNGs: no effect)
+            "-q",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    return folder / f"{exr.stem}.clean.dng"
+
+
+def clipped_region(dng: Path) -> np.ndarray:
+    """(H, W) bool: pixels within 2 px of a site at ≥ 99 % of white."""
+    from scipy.ndimage import binary_dilation
+
+    from rawsim.io.raw import read_raw
+
+    raw = read_raw(dng)
+    black = float(np.max(raw.black_level))
+    sites = raw.data >= black + 0.99 * (raw.white_level - black)
+    return binary_dilation(sites, iterations=2)
+
+
+# ------------------------------------------------------------------ renders
+def rawsim_render(dng: Path, mode: str) -> np.ndarray:
+    from rawsim.io.raw import read_raw
+    from rawsim.isp.config import IspConfig, ToneStage, TransferStage, YCbCrStage
+    from rawsim.pipelines.process import render_float
+
+    config = IspConfig.default().override(highlights=mode, baseline_exposure="ignore")
+    config = config.with_disabled(ToneStage, TransferStage, YCbCrStage)
+    out, _ = render_float(read_raw(dng), config)
+    return out[0].permute(1, 2, 0).double().numpy()
+
+
+def libraw_render(dng: Path, mode: int) -> np.ndarray | None:
+    """LibRaw's render, or None where it fails (LibRaw 0.21 cannot demosaic some
+    small X-Trans DNGs)."""
+    import rawpy
+
+    with rawpy.imread(str(dng)) as raw:
+        try:
+            rgb = raw.postprocess(
+                highlight_mode=mode,
+                output_color=rawpy.ColorSpace.sRGB,
+                gamma=(1, 1),
+                no_auto_bright=True,
+                output_bps=16,
+                use_camera_wb=True,
+                user_flip=0,
+            )
+        except rawpy.LibRawError:
+            return None
+    return rgb.astype(np.float64) / 65535
+
+
+class Darktable:
+    """darktable's default raw pipeline, headless, without tone mapping (workflow
+    ``none``), exported as linear Rec. 709 EXR. Its library is in memory and its
+    configuration in a folder of its own, so nothing of the user's is read."""
+
+    def __init__(self, work: Path) -> None:
+        self.work = work
+        self.work.mkdir(parents=True, exist_ok=True)
+
+    def render(self, dng: Path) -> np.ndarray | None:
+        """The render, or None where darktable cannot export (images under ~300 px)."""
+        import OpenImageIO as oiio
+
+        src, out = self.work / "in.dng", self.work / "out.exr"
+        shutil.copy(dng, src)
+        out.unlink(missing_ok=True)
+        cmd = ["darktable-cli", str(src), str(out), "--icc-type", "LIN_REC709", "--core"]
+        cmd += ["--configdir", str(self.work / "config"), "--library", ":memory:"]
+        cmd += ["--conf", "plugins/darkroom/workflow=none"]
+        subprocess.run(cmd, capture_output=True, check=False)
+        if not out.exists():
+            return None
+        return oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3].astype(np.float64)
+
+
+# ------------------------------------------------------------------ scores
+def score(render: np.ndarray, truth: np.ndarray, region: np.ndarray) -> dict:
+    """ΔE00, log-lum error and magenta share in ``region``, after matching ``render``
+    to ``truth`` by one gain on the pixels far from any clip."""
+    from scipy.ndimage import binary_dilation
+
+    y_r = render @ _SRGB_TO_XYZ[1]
+    y_t = truth @ _SRGB_TO_XYZ[1]
+    far = ~binary_dilation(region, iterations=8)
+    lit = far & (y_t > 0.05 * y_t[far].max()) & (y_r > 0)
+    gain = float(np.median(y_t[lit] / y_r[lit]))
+    rgb_r, rgb_t = render[region] * gain, truth[region]
+    white = float((rgb_t @ _SRGB_TO_XYZ[1]).max())
+    lab_r, lab_t = lab(rgb_r, white), lab(rgb_t, white)
+    y1 = np.maximum(rgb_r @ _SRGB_TO_XYZ[1], 1e-6 * white)
+    y0 = np.maximum(rgb_t @ _SRGB_TO_XYZ[1], 1e-6 * white)
+    magenta = _magenta(lab_r) & ~_magenta(lab_t, margin=30.0) & (y0 >= 0.05 * white)
+    return {
+        "de": ciede2000(lab_r, lab_t),
+        "loglum": np.abs(np.log2(y1 / y0)),
+        "magenta": magenta,
+        "gain": gain,
+    }
+
+
+def run(images: list[Path], profile: str, keep: Path | None) -> dict:
+    work = keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
+    darktable = Darktable(work / "darktable") if shutil.which("darktable-cli") else None
+    if darktable is None:
+        print("darktable-cli is not installed: its row is left out")
+    for line in describe():
+        print(line)
+    print(f"profile {profile}; images: {', '.join(p.name for p in images)}")
+    results: dict = {ev: {row: [] for row in ROWS} for ev in EVS}
+    for exr in images:
+        truth_dng = unprocess(exr, work / exr.stem, TRUTH_EV, profile)
+        assert not clipped_region(truth_dng).any(), f"{exr.name}: the truth clips"
+        truths = {
+            "rawsim": rawsim_render(truth_dng, "unclip"),
+            "libraw": libraw_render(truth_dng, 0),
+            "darktable": darktable.render(truth_dng) if darktable else None,
+        }
+        for ev in EVS:
+            dng = unprocess(exr, work / exr.stem, ev, profile)
+            region = clipped_region(dng)
+            if region.sum() < 50:
+                print(f"{exr.name} +{ev} EV: {region.sum()} clipped pixels, left out")
+                continue
+            for mode in MODES:
+                results[ev][f"rawsim {mode}"].append(
+                    score(rawsim_render(dng, mode), truths["rawsim"], region)
+                )
+            for h in LIBRAW_MODES:
+                render = libraw_render(dng, h) if truths["libraw"] is not None else None
+                if render is not None:
+                    results[ev][f"libraw -H {h}"].append(score(render, truths["libraw"], region))
+            if truths["darktable"] is not None:
+                render = darktable.render(dng)
+                if render is not None:
+                    results[ev]["darktable"].append(score(render, truths["darktable"], region))
+            share = 100 * region.mean()
+            print(
+                f"{exr.name} +{ev} EV: {region.sum()} pixels in the clipped region ({share:.1f} %)"
+            )
+    return results
+
+
+def table(results: dict) -> None:
+    for ev, rows in results.items():
+        print(f"\n+{ev} EV (clipped regions of every image; mean over their pixels)")
+        print(
+            f"{'':18s} {'ΔE00':>7s} {'log-lum':>8s} {'magenta %':>10s} {'(px)':>6s}  per image ΔE00"
+        )
+        for row, scores in rows.items():
+            if not scores:
+                print(f"{row:18s} {'—':>7s}")
+                continue
+            de = np.concatenate([s["de"] for s in scores])
+            ll = np.concatenate([s["loglum"] for s in scores])
+            mg = np.concatenate([s["magenta"] for s in scores])
+            each = " ".join(f"{s['de'].mean():6.2f}" for s in scores)
+            share = f"{100 * mg.mean():10.2f} {mg.sum():6d}"
+            print(f"{row:18s} {de.mean():7.2f} {ll.mean():8.3f} {share}  {each}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    default = Path("/work/shared/data/exr")
+    parser.add_argument("--images", type=Path, default=default if default.is_dir() else None)
+    parser.add_argument("--profile", default="sony_a7s2")
+    parser.add_argument("--keep", type=Path, help="keep the DNGs and renders here")
+    args = parser.parse_args()
+    folder = args.images or HERE / "tests" / "data" / "exr"
+    images = sorted(folder.glob("*.exr"))
+    if not images:
+        sys.exit(f"no EXR images in {folder}")
+    table(run(images, args.profile, args.keep))
+
+
+if __name__ == "__main__":
+    main()
