@@ -70,6 +70,11 @@ TASKS: tuple[tuple[str, str | None, str], ...] = (
         None,
         "unprocess {in}/linear.exr -o {out}/linear -p nikon_d850 --iso 800 --noise gaussian",
     ),
+    (  # the linear EXR reaches 1.5: its DNG clips
+        "process: highlight reconstruction",
+        "unprocess: linear EXR, Gaussian noise",
+        "process {out}/linear/linear.dng -o {out}/reconstruct --highlights reconstruct",
+    ),
     (
         "unprocess: monochrome sensor",
         BAYER,

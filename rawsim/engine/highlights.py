@@ -279,10 +279,16 @@ def reconstruct_mosaic(
     cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
     slots = _slots(cfa)
     level = np.float32(HIGHLIGHT_CLIPPED) * g
-    means = np.empty((3, hb, wb), np.float32)
-    flags = np.empty((hb, wb), np.uint8)
     data = np.ascontiguousarray(data)
     opf = np.asarray(opf, dtype=np.float64)
+    # A site clips at black + 0.99 of the span: below the lowest such code, none can
+    # (a margin for float32 rounding), and one max over the codes is all the work.
+    used = np.unique(slots)
+    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
+    if int(data.max()) < lowest:
+        return data, opf
+    means = np.empty((3, hb, wb), np.float32)
+    flags = np.empty((hb, wb), np.uint8)
     if not _blocks(data, cmap, slots, ops, opf, level, b, means, flags):
         return data, opf
     rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border
