@@ -54,7 +54,7 @@ def _remap_rows(image, field, table, top, bottom, padding):
     """Output rows [top, bottom): (B, 3, rows, W). The engine's arithmetic, in order."""
     b, _, h, w = image.shape
     dev, dt = image.device, image.dtype
-    weights = torch.from_numpy(lanczos_table()).to(dt).to(dev)
+    weights = torch.tensor(lanczos_table(), dtype=dt, device=dev)
     cy, cx = (torch.tensor(v, dtype=torch.float32).to(dt) for v in field.centre)
     xi = torch.arange(w, device=dev)
     yi = torch.arange(top, bottom, device=dev)
