@@ -389,3 +389,31 @@ def test_engine_equals_the_reference_on_a_real_raw():
     ours, ref = _both(raw, config)
     diff = np.abs(ours.astype(np.int64) - ref)
     assert diff.max() <= 8 and (diff > 1).mean() < 1e-3
+
+
+def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
+    """A DNG whose BaselineExposure brings a bright scene back over white (as the
+    Blackmagic Pocket 4K's +2.65 EV): the render warns, naming --baseline-exposure
+    ignore and --exposure; ignoring the baseline, it does not."""
+    import json
+
+    from rawsim.io.images import write_image
+    from rawsim_cli.main import cli
+
+    y, x = np.mgrid[0:120, 0:160].astype(np.float32)
+    sky = np.stack([0.8 + 0 * x, 0.9 + 0 * x, 1.0 + 0 * x], -1) * (0.7 + 0.5 * (y < 70)[..., None])
+    write_image(tmp_path / "sky.png", np.round(np.clip(sky, 0, 1) * 255).astype(np.uint8), "png")
+    runner = CliRunner()
+    args = ["unprocess", str(tmp_path / "sky.png"), "-o", str(tmp_path / "raw")]
+    args += ["-p", "sony_a7s2", "--iso", "100", "--exposure", "-2", "--noise", "none", "-q"]
+    assert runner.invoke(cli, args).exit_code == 0
+    base = ["process", str(tmp_path / "raw" / "sky.dng"), "--json", "-q"]
+    r = runner.invoke(cli, [*base, "-o", str(tmp_path / "plain")])
+    assert r.exit_code == 0, r.output
+    (record,) = [json.loads(line) for line in r.stdout.splitlines()]
+    (warning,) = [w for w in record["warnings"] if "blown render" in w]
+    assert "+2.00 EV" in warning and "--baseline-exposure ignore" in warning
+    assert "--exposure" in warning
+    r = runner.invoke(cli, [*base, "--baseline-exposure", "ignore", "-o", str(tmp_path / "low")])
+    (record,) = [json.loads(line) for line in r.stdout.splitlines()]
+    assert not any("blown render" in w for w in record["warnings"])

@@ -692,6 +692,37 @@ def _warn_if_dark(samples: np.ndarray, bits: int, config: IspConfig, info: dict)
         )
 
 
+#: A render with more than this share of its samples at or above ``BLOWN_LEVEL`` of full
+#: scale (in code values: 250 of 255) is blown.
+BLOWN_SHARE = 0.2
+BLOWN_LEVEL = 250 / 255
+
+
+def _warn_if_blown(samples: np.ndarray, bits: int, raw: RawImage, config: IspConfig, info: dict):
+    """Add a warning to ``info`` when more than ``BLOWN_SHARE`` of the render's samples
+    (every 4th row and column) reach ``BLOWN_LEVEL`` of full scale, naming what
+    brightened it: the DNG's BaselineExposure where it was applied, and --exposure."""
+    sub = samples[::4, ::4]
+    full = 2.0**bits - 1
+    at = int(np.ceil(BLOWN_LEVEL * full)) if sub.dtype.kind in "ui" else BLOWN_LEVEL * full
+    share = float(np.count_nonzero(sub >= at)) / max(sub.size, 1)
+    if share <= BLOWN_SHARE:
+        return
+    exposure = config.enabled_stage(ExposureStage)
+    why = []
+    if exposure is not None and exposure.baseline == "apply" and raw.baseline_exposure > 0:
+        why.append(
+            f"the DNG's BaselineExposure of {raw.baseline_exposure:+.2f} EV is applied "
+            "(--baseline-exposure ignore leaves it out, as LibRaw does)"
+        )
+    stops = info.get("exposure_stops", 0.0)
+    why.append(f"--exposure sets the brightness (now {stops:+.2f} EV in all; lower keeps more)")
+    info["warnings"].append(
+        f"blown render: {100 * share:.0f} % of its samples are at or above "
+        f"{BLOWN_LEVEL * 255:.0f}/255 of full scale; " + "; ".join(why)
+    )
+
+
 def _percentile_reaches(x: np.ndarray, full: float, level: float) -> bool:
     """Whether ``np.percentile(x, 99) / full >= level``, found for integer codes by
     counting the codes at or above the level (about 5× faster than the partition)
@@ -744,6 +775,8 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     exposure = config.enabled_stage(ExposureStage)
     if options.fmt != "exr" and (exposure is None or exposure.ev != "auto"):
         _warn_if_dark(samples, options.bits, config, info)
+    if options.fmt != "exr":
+        _warn_if_blown(samples, options.bits, raw, config, info)
     color = output_encoding(config, info)
     meta = {
         "rawsim_version": __version__,
