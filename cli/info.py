@@ -7,8 +7,7 @@ import json
 import click
 
 from rawsim_cli.options import output_options, usage_errors
-
-HIGHLIGHTS = ("clip", "blend")
+from rawsim_cli.process import HIGHLIGHTS
 
 
 @click.command("info")
