@@ -8,19 +8,13 @@ from pathlib import Path
 
 import click
 
-from rawsim_cli.options import PathType, output_options, usage_errors
+from rawsim_cli.options import PathType, output_options, profile_output_opt, usage_errors
 
 
 @click.command("calibrate")
 @output_options
 @click.argument("raws", nargs=-1, required=True, type=PathType("input"))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=PathType("out_file", example="mycam.json"),
-    help="The profile JSON to write.",
-)
+@profile_output_opt
 @click.option(
     "--dark",
     "darks",

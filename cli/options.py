@@ -98,6 +98,14 @@ profile_opt = click.option(
     help="Sensor profile: a bundled name, a camera's own name ('Sony ILCE-7M3', "
     "'sony a7 iii'; see 'rawsim profiles list --search TEXT') or a JSON file.",
 )
+#: ``-o FILE``: the profile JSON a command writes (calibrate, profiles from-raw).
+profile_output_opt = click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=PathType("out_file", example="mycam.json"),
+    help="The profile JSON to write.",
+)
 shard_opt = click.option(
     "--shard",
     metavar="K/N|auto",

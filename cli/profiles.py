@@ -6,7 +6,13 @@ import json
 
 import click
 
-from rawsim_cli.options import PathType, bad_option, output_options, usage_errors
+from rawsim_cli.options import (
+    PathType,
+    bad_option,
+    output_options,
+    profile_output_opt,
+    usage_errors,
+)
 
 
 @click.group("profiles")
@@ -200,13 +206,7 @@ def show_cmd(profile, iso, as_json, plot):
 @command.command("from-raw")
 @output_options
 @click.argument("raw", metavar="FILE", type=PathType("file", exists=True))
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=PathType("out_file", example="mycam.json"),
-    help="The profile JSON to write.",
-)
+@profile_output_opt
 @click.option("--overwrite", is_flag=True, help="Replace an existing output profile.")
 @usage_errors
 def from_raw_cmd(raw, output, overwrite):

@@ -116,3 +116,25 @@ def libraw_linear(path, algorithm) -> torch.Tensor:
             adjust_maximum_thr=0,
         )
     return torch.from_numpy(y.astype(np.float32) / 65535).permute(2, 0, 1)[None]
+
+
+def simulated_raw(data: np.ndarray, profile, iso: float, path: str = "<simulated>"):
+    """A :class:`~rawsim.io.raw.RawImage` of a simulated mosaic ``data`` (H, W) uint16 with
+    ``profile``'s CFA, levels, make and model, as calibrate reads a real raw."""
+    from rawsim.io.raw import RawImage
+
+    return RawImage(
+        data=data,
+        cfa=profile.cfa,
+        black_level=np.full(profile.cfa.period, profile.black_level),
+        white_level=profile.white_level,
+        as_shot_wb=None,
+        daylight_wb=None,
+        xyz_to_camera=None,
+        camera_to_srgb=None,
+        orientation=1,
+        iso=iso,
+        make=profile.make,
+        model=profile.model,
+        path=path,
+    )

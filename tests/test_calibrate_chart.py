@@ -33,7 +33,7 @@ from scipy import ndimage
 from rawsim.calibrate import calibrate_iso, frame_stats, planes_of
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.sensors import RGBSensor
-from tests.conftest import DATA
+from tests.conftest import DATA, simulated_raw
 
 CHART = DATA / "chart" / "canon_550d_colorchecker.dng"
 #: The hand fit of the lower page's 24 patches (module docstring): K ± error, DN/e⁻.
@@ -92,21 +92,7 @@ def _noisy(scene: np.ndarray, k: float, read_sigma: float, seed: int) -> RawImag
     rng = np.random.default_rng(seed)
     dn = k * rng.poisson(scene / k) + rng.normal(0.0, read_sigma, scene.shape)
     out = np.clip(np.round(p.black_level + dn), 0, p.white_level).astype(np.uint16)
-    return RawImage(
-        data=out,
-        cfa=p.cfa,
-        black_level=np.full(p.cfa.period, p.black_level),
-        white_level=p.white_level,
-        as_shot_wb=None,
-        daylight_wb=None,
-        xyz_to_camera=None,
-        camera_to_srgb=None,
-        orientation=1,
-        iso=100.0,
-        make=p.make,
-        model=p.model,
-        path="<simulated chart>",
-    )
+    return simulated_raw(out, p, 100.0, "<simulated chart>")
 
 
 def test_synthetic_charts_cover_the_known_gain_at_two_sigma(chart):

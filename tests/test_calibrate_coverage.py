@@ -20,7 +20,7 @@ from rawsim.calibrate import calibrate_iso, frame_stats
 from rawsim.io.images import read_image
 from rawsim.io.raw import RawImage
 from rawsim.sensors import RGBSensor
-from tests.conftest import DATA
+from tests.conftest import DATA, simulated_raw
 
 SENSOR = RGBSensor.from_profile("sony_a7s2")
 PHOTOS = (
@@ -50,22 +50,7 @@ def _camera_photo(name: str, where: str = "centre") -> torch.Tensor:
 
 
 def _raw(mosaic: torch.Tensor, iso: float) -> RawImage:
-    p = SENSOR.profile
-    return RawImage(
-        data=mosaic[0, 0].numpy().astype(np.uint16),
-        cfa=p.cfa,
-        black_level=np.full(p.cfa.period, p.black_level),
-        white_level=p.white_level,
-        as_shot_wb=None,
-        daylight_wb=None,
-        xyz_to_camera=None,
-        camera_to_srgb=None,
-        orientation=1,
-        iso=iso,
-        make=p.make,
-        model=p.model,
-        path="<simulated>",
-    )
+    return simulated_raw(mosaic[0, 0].numpy().astype(np.uint16), SENSOR.profile, iso)
 
 
 @pytest.fixture(scope="module")
