@@ -90,7 +90,7 @@ class Planes:
         # The margin of planes read but not computed, per axis, and the halo (sites):
         # the margin plus the reach of the steps after the bilinear start, in periods.
         self.margin = tuple(int(np.abs(self.nb5[..., 2 + a]).max()) for a in (0, 1))
-        after = 0 if method == "bilinear" else 3 * iterations
+        after = 0 if method == "bilinear" else 3 * iterations + 1  # rounds, refinement
         self.halo = tuple(
             -(-(m * p + after) // p) * p for m, p in zip(self.margin, cfa.period, strict=True)
         )
@@ -367,10 +367,83 @@ def _red_blue(m, out, cmap, nb5, lists5, counts5, margin, num, den):
                         dst[x] = g0[x] + num[x] / den[x]
 
 
+#: A median-of-9 network (Paeth; Devillard's ``opt_med9``): 19 compare-exchanges of
+#: the values' slots, after which slot 4 holds the median.
+_MEDIAN9 = np.array(
+    [
+        (1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3),
+        (5, 8), (4, 7), (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2),
+    ],
+    np.int64,
+)  # fmt: skip
+
+
+@njit(**_JIT)
+def _median_rows(v, n):
+    """Row 4 of ``v`` (9, ≥ n) becomes the median of the 9 rows, column by column; the
+    other rows are left permuted. Branch-free (min/max), so LLVM vectorises it."""
+    for e in range(_MEDIAN9.shape[0]):
+        a, b = v[_MEDIAN9[e, 0]], v[_MEDIAN9[e, 1]]
+        for x in range(n):
+            lo, hi = min(a[x], b[x]), max(a[x], b[x])
+            a[x], b[x] = lo, hi
+
+
+@njit(**_JIT)
+def _refine(m, est, out, cmap, nb3, margin, rows):
+    """The ``icd`` median refinement (:func:`rawsim.isp.xtrans._refine`) of ``est``
+    into ``out``: R − G and B − G take their medians over the site and its 8
+    neighbours (NEIGHBOURS_3), each site keeping its sample. ``rows``: (18, ≥ n)
+    scratch (the 9 differences of each kind)."""
+    _, ph, pw, ny, nx = m.shape
+    my, mx = margin[0], margin[1]
+    n = nx - 2 * mx
+    vr, vb = rows[:9], rows[9:18]
+    for pr in range(ph):
+        for pc in range(pw):
+            own = cmap[pr, pc]
+            for y in range(my, ny - my):
+                for k in range(9):  # slot 0 the site, then its neighbours in order
+                    if k == 0:
+                        qr, qc, yy, xx = pr, pc, y, mx
+                    else:
+                        qr, qc = nb3[pr, pc, k - 1, 0], nb3[pr, pc, k - 1, 1]
+                        yy, xx = y + nb3[pr, pc, k - 1, 2], mx + nb3[pr, pc, k - 1, 3]
+                    er = _row(est, 0, qr, qc, yy, xx, n)
+                    eg = _row(est, 1, qr, qc, yy, xx, n)
+                    eb = _row(est, 2, qr, qc, yy, xx, n)
+                    dr, db = vr[k], vb[k]
+                    for x in range(n):
+                        dr[x] = er[x] - eg[x]
+                        db[x] = eb[x] - eg[x]
+                _median_rows(vr, n)
+                _median_rows(vb, n)
+                dr, db = vr[4], vb[4]
+                sample = _row(m, 0, pr, pc, y, mx, n)
+                red = _row(out, 0, pr, pc, y, mx, n)
+                green = _row(out, 1, pr, pc, y, mx, n)
+                blue = _row(out, 2, pr, pc, y, mx, n)
+                if own == 1:
+                    for x in range(n):
+                        green[x] = sample[x]
+                        red[x] = sample[x] + dr[x]
+                        blue[x] = sample[x] + db[x]
+                elif own == 0:
+                    for x in range(n):
+                        red[x] = sample[x]
+                        green[x] = sample[x] - dr[x]
+                        blue[x] = green[x] + db[x]
+                else:
+                    for x in range(n):
+                        blue[x] = sample[x]
+                        green[x] = sample[x] - db[x]
+                        red[x] = green[x] + dr[x]
+
+
 @njit(**_JIT)
 def demosaic_planes(m, est, out, scratch, geometry):
     """Demosaic the tile in ``m`` (1, ph, pw, NY, NX); returns the buffer holding the
-    result (``est`` or ``out``, each (3, ph, pw, NY, NX)). ``scratch``: (10, NX) rows."""
+    result (``est`` or ``out``, each (3, ph, pw, NY, NX)). ``scratch``: (28, NX) rows."""
     cmap, nb3, nb5, lists3, counts3, lists5, counts5, den3, margin, method, rounds, root = geometry
     if root:
         _to_sqrt(m)
@@ -383,6 +456,8 @@ def demosaic_planes(m, est, out, scratch, geometry):
         _green(m, est, out, cmap, nb3, margin, l1, num, den)
         _red_blue(m, out, cmap, nb5, lists5, counts5, margin, num, den)
         est, out = out, est
+    _refine(m, est, out, cmap, nb3, margin, scratch[10:28])
+    est = out
     if root:
         _from_sqrt(est)
     return est
@@ -396,7 +471,7 @@ def new_buffers(ph, pw, ny, nx):
         np.zeros((1, ph, pw, ny, nx), np.float32),
         np.zeros((3, ph, pw, ny, nx), np.float32),
         np.zeros((3, ph, pw, ny, nx), np.float32),
-        np.zeros((10, nx), np.float32),
+        np.zeros((28, nx), np.float32),
     )
 
 

@@ -28,6 +28,12 @@ Methods (:data:`XTRANS_DEMOSAIC_METHODS`):
      5×5 window, weighted by 1 / (distance² · (g + 10⁻⁴)²), g the same kind of
      difference taken on the green plane.
 
+  Then one median refinement (:func:`_refine`): the colour differences R − G and
+  B − G are replaced by their medians over the 3×3 window, each site keeping its
+  own sample (green at a red site becomes the sample minus the median R − G). On
+  Kodak photos tiled as X-Trans this gains 0.33 dB on linear data and 0.37 dB on
+  coded data (photos 2, 4, …, 20; the window was chosen on the odd ones).
+
   X-Trans puts both R and B on every row and column and green in every 3×3,
   so colour differences are sampled densely in every direction, which is what
   this exploits (LibRaw's Markesteijn demosaic instead picks one of 4 or 8
@@ -57,6 +63,7 @@ from rawsim.isp.xtrans_stencils import (
     NEIGHBOURS_5,
     SQRT_KNEE,
     SQRT_SLOPE,
+    WINDOW_3,
     XTRANS_DEMOSAIC_METHODS,
     min_size,
     padding,
@@ -150,6 +157,20 @@ def _icd_round(m: torch.Tensor, est: torch.Tensor, masks: torch.Tensor) -> torch
     return torch.cat([out[0], green, out[1]], dim=1)
 
 
+def _refine(m: torch.Tensor, est: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
+    """The median refinement (see the module doc) on the extended mosaic: R − G and
+    B − G take their medians over :data:`WINDOW_3` (of 9 values: the middle one)."""
+    red, green_site, blue = (mk > 0 for mk in masks)
+    diff = torch.cat([est[:, 0:1] - est[:, 1:2], est[:, 2:3] - est[:, 1:2]], dim=1)
+    window = torch.stack([_at(diff, dy, dx) for dy, dx in WINDOW_3])
+    med = window.median(dim=0).values
+    dr, db = med[:, 0:1], med[:, 1:2]
+    green = torch.where(green_site, m, torch.where(red, m - dr, m - db))
+    r = torch.where(red, m, green + dr)
+    b = torch.where(blue, m, green + db)
+    return torch.cat([r, green, b], dim=1)
+
+
 def to_sqrt(x: torch.Tensor) -> torch.Tensor:
     """The signed square root, linear below :data:`SQRT_KNEE` (see there). Any real x."""
     a = x.abs()
@@ -190,6 +211,7 @@ def demosaic_xtrans(
     if method == "icd":
         for _ in range(iterations):
             est = _icd_round(m, est, masks)
+        est = _refine(m, est, masks)
     elif method != "bilinear":
         raise ParameterError(f"unknown method {method!r}")  # check_choice above
     est = est[..., pad : pad + h, pad : pad + w]

@@ -28,10 +28,15 @@ NEIGHBOURS_5 = tuple((dy, dx) for dy in range(-2, 3) for dx in range(-2, 3) if (
 INV_DIST_5 = tuple(1.0 / (dy * dy + dx * dx) for dy, dx in NEIGHBOURS_5)
 
 
+#: The 3×3 window of the ``icd`` median refinement: the site, then its 8 neighbours.
+WINDOW_3 = ((0, 0), *NEIGHBOURS_3)
+
+
 def reach(method: str, iterations: int = ICD_ITERATIONS) -> int:
-    """Pixels of context each output pixel depends on."""
+    """Pixels of context each output pixel depends on: the bilinear start (1), each
+    ``icd`` round (3), and its final median refinement (1)."""
     check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
-    return 1 if method == "bilinear" else 1 + 3 * iterations
+    return 1 if method == "bilinear" else 2 + 3 * iterations
 
 
 def padding(cfa: CFA, method: str, iterations: int = ICD_ITERATIONS) -> int:
