@@ -87,6 +87,8 @@ def _lines(facts: dict) -> list[str]:
             value = "yes" if value else f"no — {facts['reason']}"
         elif key == "noise_model":
             value = f"{value['source']}: {value['detail']}"
+        elif key == "unprocess_profile":
+            value = f"{value['name']} ({value['camera']}; noise {value['noise']})"
         elif key == "iso":
             value = f"{value:g}"
             if "ISOSpeedRatings" not in metadata:  # e.g. a Kodak DC50's, from LibRaw's table

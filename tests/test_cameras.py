@@ -232,3 +232,19 @@ def test_a_camera_whose_daylight_gain_is_below_1_renders_at_the_photo_brightness
         srgb = {"gamma": (2.4, 12.92), "no_auto_bright": True, "output_bps": 8}
         libraw = raw.postprocess(user_flip=0, **srgb) / 255
     assert libraw.mean() == pytest.approx(src.mean(), rel=0.06)
+
+
+def test_info_names_the_profile_unprocess_takes_for_a_raws_camera():
+    raws = Path(__file__).parent / "data"
+    facts = json.loads(run("info", raws / "raw" / "canon_eos60d_mlv.dng", "--json").output)
+    assert facts["unprocess_profile"] == {
+        "name": "canon_eos_60d",
+        "camera": "Canon EOS 60D",
+        "noise": "estimated",
+    }
+    chart = json.loads(run("info", raws / "chart" / "canon_550d_colorchecker.dng", "--json").output)
+    assert chart["model"] == "Canon EOS Kiss X4" and chart["unprocess_profile"]["name"] == (
+        "canon_eos_550d"
+    )  # an alias of the EOS 550D
+    unknown = json.loads(run("info", raws / "raw" / "apple_quicktake150.qtk", "--json").output)
+    assert unknown["unprocess_profile"] is None

@@ -145,7 +145,7 @@ def test_a_measured_camera_gets_its_bundled_calibration(tmp_path, monkeypatch):
     """A raw of a camera with a bundled profile (the A7S II, said to have shot the 60D's
     raw) takes that profile's measured noise, physics terms and sources included."""
     a7s2 = cameras.find("Sony ILCE-7SM2")
-    monkeypatch.setattr(from_raw, "_find", lambda make, model: a7s2)
+    monkeypatch.setattr(from_raw.cameras, "find_camera", lambda make, model: a7s2)
     out = tmp_path / "a7s2.json"
     said = make_profile(RAW / "canon_eos60d_mlv.dng", out)
     assert "noise: camera database, measured (a calibration)" in said and "sony_a7s2" in said
@@ -181,7 +181,7 @@ def test_an_unknown_camera_gets_noise_estimated_from_the_raw(tmp_path, monkeypat
     assert p.noise_kind == "estimated" and p.name == "apple_quicktake150"
     assert "estimated from the raw: apple_quicktake150.qtk's flat regions" in p.source["noise.gain"]
     # the 60D, taken for a camera the database lacks: a sure fit at its own ISO 100
-    monkeypatch.setattr(from_raw, "_find", lambda make, model: None)
+    monkeypatch.setattr(from_raw.cameras, "find_camera", lambda make, model: None)
     out = tmp_path / "60d.json"
     said = make_profile(RAW / "canon_eos60d_mlv.dng", out)
     assert "at ISO 100: K 0.2103 DN/e⁻, read σ 6.131 DN, the fit sure" in said

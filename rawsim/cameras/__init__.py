@@ -196,6 +196,29 @@ def find(name: str) -> Camera | None:
     return None
 
 
+def find_camera(make: str, model: str) -> Camera | None:
+    """The camera of a raw's Make and Model tags (as LibRaw reads them), or None. The
+    maker must agree: "NIKON CORPORATION" / "NIKON D850" finds the Nikon D850; a bare
+    model only a camera of that maker."""
+    if model == "unknown":
+        return None
+    first = make.split()[0] if make != "unknown" and make.split() else ""
+    queries = []
+    if not first or model.casefold().startswith(first.casefold()):
+        queries.append(model)
+    if first:
+        queries += [f"{make} {model}", f"{first} {model}"]
+    queries.append(model)
+    for q in dict.fromkeys(queries):
+        cam = find(q)
+        if cam is None:
+            continue
+        maker = cam.data["make"].split()[0].casefold()
+        if not first or maker in make.casefold() or first.casefold() in cam.data["make"].casefold():
+            return cam
+    return None
+
+
 def closest(name: str, n: int = 5) -> list[str]:
     """Up to ``n`` camera labels nearest to ``name``, best first (for error messages)."""
     labels = {_fold(c.label): c.label for c in cameras()}

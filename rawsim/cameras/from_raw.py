@@ -25,6 +25,7 @@ import math
 import re
 from pathlib import Path
 
+from rawsim import cameras
 from rawsim.errors import ParameterError, UnsupportedInputError, shown
 
 #: The ISO a raw that records none is taken to be shot at (for K(ISO)); said in its source.
@@ -54,7 +55,7 @@ def profile_from_raw(path: str | Path) -> dict:
     camera = _camera_text(raw.make, raw.model)
     _refuse_unusable(raw, path, camera)
 
-    cam = _find(raw.make, raw.model)
+    cam = cameras.find_camera(raw.make, raw.model)
     blacks = sorted({float(v) for v in raw.black_level.ravel()})
     black = sum(float(v) for v in raw.black_level.ravel()) / raw.black_level.size
     white = float(raw.white_level)
@@ -165,30 +166,6 @@ def _without_maker(model: str, make: str) -> str:
     if first and model.casefold().startswith(first.casefold() + " "):
         return model[len(first) + 1 :].strip() or model
     return model
-
-
-def _find(make: str, model: str):
-    """The database's camera of a raw's Make and Model, or None. The maker must agree:
-    "NIKON CORPORATION" / "NIKON D850" finds Nikon D850; a bare model only of that maker."""
-    from rawsim import cameras
-
-    if model == "unknown":
-        return None
-    first = make.split()[0] if make != "unknown" and make.split() else ""
-    queries = []
-    if not first or model.casefold().startswith(first.casefold()):
-        queries.append(model)
-    if first:
-        queries += [f"{make} {model}", f"{first} {model}"]
-    queries.append(model)
-    for q in dict.fromkeys(queries):
-        cam = cameras.find(q)
-        if cam is None:
-            continue
-        maker = cam.data["make"].split()[0].casefold()
-        if not first or maker in make.casefold() or first.casefold() in cam.data["make"].casefold():
-            return cam
-    return None
 
 
 def _bundled_noise(cam, bits: int) -> dict:

@@ -611,8 +611,9 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
     camera, ``renderable`` (true), CFA, levels, the camera's and daylight multipliers,
     the white balance and matrix it will apply with where they come from,
     orientation, ISO, the DNG BaselineExposure and whether it is applied, the noise
-    model ``--denoise profiled`` takes (:mod:`rawsim.denoise.noise_model`), and the
-    photo metadata (lens, exposure, time, GPS, …) that renders carry.
+    model ``--denoise profiled`` takes (:mod:`rawsim.denoise.noise_model`), the
+    camera database's profile of the camera (:mod:`rawsim.cameras`, None if it has
+    none), and the photo metadata (lens, exposure, time, GPS, …) that renders carry.
 
     For a raw rawsim cannot render (the :class:`~rawsim.io.raw.RawFacts` of an
     :class:`~rawsim.io.raw.UnrenderableRawError`): what LibRaw read (camera, CFA in
@@ -653,9 +654,22 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
             out["matrix_source"] = raw.matrix_source
     if raw.cfa is not None:
         out["noise_model"] = info.get("noise_model") or _noise_model_record(raw)
+        out["unprocess_profile"] = _camera_profile(raw)
     out["metadata"] = read_metadata(raw.path).summary()
     out["warnings"] = info["warnings"]
     return out
+
+
+def _camera_profile(raw: RawImage) -> dict:
+    """The profile ``unprocess --profile "MAKE MODEL"`` takes for the raw's camera (its
+    name and whether its noise is measured or estimated), or None when the camera
+    database does not hold it."""
+    from rawsim import cameras
+
+    cam = cameras.find_camera(raw.make, raw.model)
+    if cam is None:
+        return None
+    return {"name": cam.bundled or cam.name, "camera": cam.label, "noise": cam.noise_kind}
 
 
 def _noise_model_record(raw: RawImage) -> dict:
