@@ -209,11 +209,8 @@ class Sizes:
                     return s.size_mm, f"openmvg:{s.make};{s.model} (size of the {base} of its line)"
                 if key in self.crop:
                     cf = self.crop[key]
-                    aspect = (4, 3) if cf >= 1.9 else (3, 2)
-                    unit = math.hypot(36, 24) / cf / math.hypot(*aspect)
-                    size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
                     how = f"lensfun crop factor {cf:g} of the {base} of its line, aspect assumed"
-                    return size, how
+                    return _crop_size(cf), how
         return None
 
     def _by_size(self, size_mm, make: str) -> float:
@@ -235,10 +232,8 @@ class Sizes:
         if s:
             size, how = s.size_mm, f"openmvg:{s.make};{s.model} (size only)"
         elif cf := next((self.crop[k] for k in keys if k in self.crop), None):
-            aspect = (4, 3) if cf >= 1.9 else (3, 2)
-            unit = math.hypot(36, 24) / cf / math.hypot(*aspect)
-            size = (round(aspect[0] * unit, 2), round(aspect[1] * unit, 2))
-            how = f"lensfun crop factor {cf:g}, aspect {aspect[0]}:{aspect[1]} assumed"
+            size, (aw, ah) = _crop_size(cf), _aspect(cf)
+            how = f"lensfun crop factor {cf:g}, aspect {aw}:{ah} assumed"
         elif sibling := self._sibling(make, model):
             size, how = sibling
         elif maker_key(make) in MEDIUM_FORMAT and maker_key(make) not in self.maker_area:
@@ -281,6 +276,19 @@ class Sizes:
                 f"90th percentile {err['p90']:.0%})"
             ),
         )
+
+
+def _aspect(crop_factor: float) -> tuple[int, int]:
+    """The aspect assumed for a crop factor: 4:3 from Four Thirds (about 2) down, else 3:2."""
+    return (4, 3) if crop_factor >= 1.9 else (3, 2)
+
+
+def _crop_size(crop_factor: float) -> tuple[float, float]:
+    """Sensor (width, height) in mm of a crop factor: the diagonal of 36 × 24 mm over it,
+    at :func:`_aspect`."""
+    aspect = _aspect(crop_factor)
+    unit = math.hypot(36, 24) / crop_factor / math.hypot(*aspect)
+    return round(aspect[0] * unit, 2), round(aspect[1] * unit, 2)
 
 
 def _spread(ratios: list[float]) -> dict:
