@@ -64,7 +64,7 @@ def list_cmd(text, as_json):
         if (
             text is None
             or name in hit_bundled
-            or _plain(text) in _plain(f"{name} {p.make} {p.model}")
+            or cameras.matches(text, [f"{name} {p.make} {p.model}"])
         ):
             profiles.append(p)
     for cam in found:
@@ -97,10 +97,6 @@ def list_cmd(text, as_json):
     click.echo("  ".join(f"{k:<{widths[k]}}" for k in rows[0]).rstrip())
     for r in rows:
         click.echo("  ".join(f"{str(v):<{widths[k]}}" for k, v in r.items()).rstrip())
-
-
-def _plain(text: str) -> str:
-    return "".join(ch for ch in text.casefold() if ch.isalnum())
 
 
 def _iso_range(lo: float, hi: float) -> str:

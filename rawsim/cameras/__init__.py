@@ -231,18 +231,24 @@ def closest(name: str, n: int = 5) -> list[str]:
     return list(dict.fromkeys(found + contains))[:n]
 
 
-def search(text: str) -> list[Camera]:
-    """Cameras whose name, maker, model or an alias contains ``text`` (case-insensitive)."""
+def matches(text: str, names: list[str]) -> bool:
+    """Whether one of ``names`` contains ``text``, ignoring case, spaces and punctuation
+    (``profiles list --search``)."""
 
     def plain(s: str) -> str:
         return "".join(re.findall(r"[0-9a-z]+", s.casefold()))
 
     key = plain(text)
+    return any(key in plain(n) for n in names)
+
+
+def search(text: str) -> list[Camera]:
+    """Cameras whose name, maker, model or an alias contains ``text`` (:func:`matches`)."""
     out = []
     for c in cameras():
         d = c.data
         names = [d["name"], c.label, *d["aliases"], *(f"{d['make']} {a}" for a in d["aliases"])]
-        if any(key in plain(n) for n in names):
+        if matches(text, names):
             out.append(c)
     return out
 
