@@ -118,17 +118,10 @@ def test_search_and_show_say_measured_or_estimated():
     assert r.exit_code == 0 and "no camera matches" in r.output
 
 
-def _eld_camera(name):
-    p = load_profile(name)
-    area = estimate.pixel_area(p.size_mm, p.resolution)
-    iso = (400, 800, 1600, 3200, 6400)
-    points = [(i, p.noise.gain(i), p.noise.read_sigma(i, p.noise.gain(i))) for i in iso]
-    return {"name": name, "span": p.white_level - p.black_level, "area": area, "points": points}
-
-
 def test_the_estimate_predicts_each_eld_camera_from_the_others_within_35_percent():
     """Leave one out: fitted on four of ELD's cameras, K of the fifth over ISO 400–6400."""
-    cams = [_eld_camera(n) for n in ELD]
+    iso = (400, 800, 1600, 3200, 6400)
+    cams = [estimate.calibrated_camera(load_profile(n), iso) for n in ELD]
     for i, cam in enumerate(cams):
         eta = estimate.fit(cams[:i] + cams[i + 1 :])["eta"]
         for iso, k, _ in cam["points"]:

@@ -53,6 +53,21 @@ def noise_spec(span: float, area_um2: float, constants: dict) -> dict:
     }
 
 
+def calibrated_camera(profile, isos) -> dict:
+    """A calibrated :class:`~rawsim.profiles.SensorProfile` as :func:`fit` takes it: its
+    name, span (white − black, DN), pixel area (µm²) and (ISO, K, read σ) at ``isos``."""
+    points = []
+    for iso in isos:
+        k = profile.noise.gain(iso)
+        points.append((iso, k, profile.noise.read_sigma(iso, k)))
+    return {
+        "name": profile.name,
+        "span": profile.white_level - profile.black_level,
+        "area": pixel_area(profile.size_mm, profile.resolution),
+        "points": points,
+    }
+
+
 def fit(cameras: list[dict]) -> dict:
     """η, r and d from calibrated cameras.
 

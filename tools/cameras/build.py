@@ -103,25 +103,9 @@ def slug(make: str, model: str) -> str:
     return re.sub(r"[^0-9a-z]+", "_", text.casefold()).strip("_")
 
 
-def calibrated_points(p) -> list[tuple[float, float, float]]:
-    return [
-        (iso, p.noise.gain(iso), p.noise.read_sigma(iso, p.noise.gain(iso))) for iso in CHECK_ISO
-    ]
-
-
-def calibrated_camera(name: str) -> dict:
-    p = load_profile(name)
-    return {
-        "name": name,
-        "span": p.white_level - p.black_level,
-        "area": estimate.pixel_area(p.size_mm, p.resolution),
-        "points": calibrated_points(p),
-    }
-
-
 def leave_one_out() -> tuple[dict, list[dict]]:
     """The constants from all five ELD cameras, and each one predicted from the others."""
-    cams = [calibrated_camera(n) for n in ELD]
+    cams = [estimate.calibrated_camera(load_profile(n), CHECK_ISO) for n in ELD]
     rows = []
     for i, c in enumerate(cams):
         k = estimate.fit(cams[:i] + cams[i + 1 :])
