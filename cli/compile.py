@@ -5,6 +5,9 @@ Without this step the first command that needs a kernel compiles it (seconds to
 minutes, logged as it happens); after it, the first command runs as fast as the
 second. It runs each command the engine serves once, on tiny images made here,
 in ``--jobs`` processes at a time: the commands compile exactly what they use.
+First it byte-compiles rawsim's own modules, which an editable install, or an
+environment with ``PYTHONDONTWRITEBYTECODE`` set, otherwise compiles from source
+in every process (0.06 s of each command's start).
 """
 
 from __future__ import annotations
@@ -123,6 +126,9 @@ def command(ctx, jobs):
             f"rawsim: compiling the engine's kernels: {len(TASKS)} commands, {jobs} at a time",
             err=True,
         )
+    modules = byte_compile(jobs)
+    if not quiet:
+        click.echo(f"rawsim: byte-compiled {modules} modules", err=True)
     compiled = 0
     with tempfile.TemporaryDirectory(prefix="rawsim-compile-") as tmp:
         folders = {"in": Path(tmp) / "in", "out": Path(tmp) / "out"}
@@ -139,6 +145,35 @@ def command(ctx, jobs):
         "later runs load them from numba's cache",
         err=True,
     )
+
+
+def byte_compile(jobs: int = 1, folders: list[Path] | None = None) -> int:
+    """Write the bytecode (``__pycache__``) of every module in ``folders`` (default:
+    the ``rawsim`` and ``rawsim_cli`` packages) that lacks an up-to-date one, even
+    where ``PYTHONDONTWRITEBYTECODE`` is set: how many were written. A folder this
+    process may not write to (a system install, whose bytecode pip wrote) is left
+    as it is."""
+    import compileall
+    import os
+
+    import rawsim
+    import rawsim_cli
+
+    if folders is None:
+        folders = [Path(rawsim.__file__).parent, Path(rawsim_cli.__file__).parent]
+    written = 0
+    for folder in folders:
+        if not os.access(folder, os.W_OK):
+            continue
+        before = _bytecode(folder)
+        compileall.compile_dir(folder, quiet=2, workers=jobs)
+        written += sum(before.get(p) != t for p, t in _bytecode(folder).items())
+    return written
+
+
+def _bytecode(folder: Path) -> dict[Path, int]:
+    """The bytecode files under ``folder`` and their modification times (ns)."""
+    return {p: p.stat().st_mtime_ns for p in folder.rglob("__pycache__/*.pyc")}
 
 
 def _schedule(folders: dict[str, Path], jobs: int):

@@ -154,6 +154,34 @@ def test_compile_runs_each_task_once_after_the_task_it_needs(monkeypatch):
             assert ("end", need, None) in events[:i], f"{name} started before {need} ended"
 
 
+def test_byte_compile_writes_bytecode_where_python_would_not(tmp_path, monkeypatch):
+    """``rawsim compile`` writes the bytecode of a package's modules even where
+    ``PYTHONDONTWRITEBYTECODE`` holds, once: a second run finds it up to date."""
+    from rawsim_cli.compile import byte_compile
+
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    (tmp_path / "pkg" / "sub").mkdir(parents=True)
+    for name in ("pkg/__init__.py", "pkg/a.py", "pkg/sub/__init__.py", "pkg/sub/b.py"):
+        (tmp_path / name).write_text("X = 1\n")
+    assert byte_compile(1, [tmp_path / "pkg"]) == 4
+    assert len(list((tmp_path / "pkg").rglob("__pycache__/*.pyc"))) == 4
+    assert byte_compile(1, [tmp_path / "pkg"]) == 0
+
+
+def test_lean_numba_start_hides_only_while_numba_imports():
+    """The command-line start imports numba without SciPy, cffi or YAML, and each of
+    them imports normally afterwards."""
+    code = (
+        "import sys, rawsim.engine as e; e.lean_start = True; e.available(); "
+        "print(sorted(m for m in ('scipy', 'cffi', 'yaml') if m in sys.modules)); "
+        "import scipy.linalg, cffi, yaml; print('ok')"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout.split()
+    assert out == ["[]", "ok"]
+
+
 @numba.njit(parallel=True)
 def _take_all(n, threads):
     counter = np.zeros(1, np.int64)

@@ -39,18 +39,23 @@ def available() -> bool:
 
 
 def _import_numba_lean() -> None:
-    """Import numba with ``scipy.linalg`` and ``cffi`` hidden, once, if nothing
-    imported them before.
+    """Import numba with what it imports only to probe or check hidden, once, if
+    nothing imported numba or those modules before.
 
-    numba probes for BLAS (for ``np.dot`` in compiled code) by importing
-    ``scipy.linalg``: 0.15 s of a cold start, for functions the engine does not
-    use. Hidden, the probe fails and numba marks BLAS absent in this process;
-    ``scipy.linalg`` itself imports normally afterwards. Likewise numba's typing of
-    cffi functions builds a C parser (pycparser, 0.04 s) when the first cached
-    kernel loads; the engine passes no cffi function, and ``cffi`` itself imports
-    normally afterwards.
+    * ``scipy.linalg``: numba probes for BLAS (for ``np.dot`` in compiled code) by
+      importing it, 0.15 s of a cold start, for functions the engine does not use.
+      Hidden, the probe fails and numba marks BLAS absent in this process.
+    * ``scipy``: imported to check its version (8 ms).
+    * ``cffi``: numba's typing of cffi functions builds a C parser (pycparser,
+      0.04 s) when the first cached kernel loads; the engine passes none.
+    * ``yaml`` (7 ms), read only for a ``.numba_config.yaml`` in the working
+      folder: hidden only where there is none.
+
+    Each imports normally afterwards.
     """
-    hidden = ("scipy.linalg", "cffi")
+    hidden = ["scipy", "scipy.linalg", "cffi"]
+    if not os.path.exists(".numba_config.yaml"):
+        hidden.append("yaml")
     if "numba" in sys.modules or any(name in sys.modules for name in hidden):
         return
     for name in hidden:
