@@ -32,9 +32,22 @@ region's pixels of every image:
   pixels in every mode) whose hue turned magenta (hue 290°–345°, chroma > 15,
   where the truth's is not within 30° of that hue range).
 
+Then a real raw (``--real``, default the tests' Canon EOS 60D DNG of a cloudy
+sky, whose brightest site is at 14 % of its white level): its mosaic as
+recorded is the truth, and copies of it clipped as a sensor with less headroom
+would clip it, their white level set 0.5, 1 and 2 stops below the brightest
+green site and every site above it cut to it, are scored the same way (the
+clipped DNGs are rawsim's writing of the camera's mosaic, levels, matrix and
+white balance). Real noise, a real CFA and real colours; the clip is the one
+thing simulated. ``--pictures DIR`` writes the docs' crops of it
+(``highlights_real.png``): the truth, then clip, LibRaw -H 5, darktable and
+reconstruct at 1 stop, each matched to the truth by its gain, shown in sRGB with
+the truth's brightest at white (what a sensor with more headroom would show).
+
 The machine is printed first. Usage::
 
     python benchmarks/bench_highlights.py [--images DIR] [--profile NAME] [--keep DIR]
+        [--real RAW] [--pictures DIR]
 """
 
 from __future__ import annotations
@@ -44,6 +57,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -253,41 +267,49 @@ def score(render: np.ndarray, truth: np.ndarray, region: np.ndarray) -> dict:
     }
 
 
-def run(images: list[Path], profile: str, keep: Path | None) -> dict:
-    work = keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
-    darktable = Darktable(work / "darktable") if shutil.which("darktable-cli") else None
-    if darktable is None:
-        print("darktable-cli is not installed: its row is left out")
-    for line in describe():
-        print(line)
+def truth_renders(dng: Path, darktable: Darktable | None) -> dict:
+    """The truth through each pipeline: rawsim's (unclip), LibRaw's (-H 0), darktable's."""
+    return {
+        "rawsim": rawsim_render(dng, "unclip"),
+        "libraw": libraw_render(dng, 0),
+        "darktable": darktable.render(dng) if darktable else None,
+    }
+
+
+def compare(dng: Path, truths: dict, region: np.ndarray, darktable: Darktable | None) -> dict:
+    """Each row's render of ``dng`` scored against its pipeline's truth in ``region``
+    (rows whose pipeline cannot render it are left out), with the render: {row:
+    score}, each score holding its ``render``."""
+    out = {}
+    for mode in MODES:
+        render = rawsim_render(dng, mode)
+        out[f"rawsim {mode}"] = {**score(render, truths["rawsim"], region), "render": render}
+    for h in LIBRAW_MODES:
+        render = libraw_render(dng, h) if truths["libraw"] is not None else None
+        if render is not None:
+            out[f"libraw -H {h}"] = {**score(render, truths["libraw"], region), "render": render}
+    if truths["darktable"] is not None:
+        render = darktable.render(dng)
+        if render is not None:
+            out["darktable"] = {**score(render, truths["darktable"], region), "render": render}
+    return out
+
+
+def run(images: list[Path], profile: str, work: Path, darktable: Darktable | None) -> dict:
     print(f"profile {profile}; images: {', '.join(p.name for p in images)}")
     results: dict = {ev: {row: [] for row in ROWS} for ev in EVS}
     for exr in images:
         truth_dng = unprocess(exr, work / exr.stem, TRUTH_EV, profile)
         assert not clipped_region(truth_dng).any(), f"{exr.name}: the truth clips"
-        truths = {
-            "rawsim": rawsim_render(truth_dng, "unclip"),
-            "libraw": libraw_render(truth_dng, 0),
-            "darktable": darktable.render(truth_dng) if darktable else None,
-        }
+        truths = truth_renders(truth_dng, darktable)
         for ev in EVS:
             dng = unprocess(exr, work / exr.stem, ev, profile)
             region = clipped_region(dng)
             if region.sum() < 50:
                 print(f"{exr.name} +{ev} EV: {region.sum()} clipped pixels, left out")
                 continue
-            for mode in MODES:
-                results[ev][f"rawsim {mode}"].append(
-                    score(rawsim_render(dng, mode), truths["rawsim"], region)
-                )
-            for h in LIBRAW_MODES:
-                render = libraw_render(dng, h) if truths["libraw"] is not None else None
-                if render is not None:
-                    results[ev][f"libraw -H {h}"].append(score(render, truths["libraw"], region))
-            if truths["darktable"] is not None:
-                render = darktable.render(dng)
-                if render is not None:
-                    results[ev]["darktable"].append(score(render, truths["darktable"], region))
+            for row, result in compare(dng, truths, region, darktable).items():
+                results[ev][row].append(result)
             share = 100 * region.mean()
             print(
                 f"{exr.name} +{ev} EV: {region.sum()} pixels in the clipped region ({share:.1f} %)"
@@ -295,9 +317,100 @@ def run(images: list[Path], profile: str, keep: Path | None) -> dict:
     return results
 
 
-def table(results: dict) -> None:
+#: How far below the real raw's brightest green site its copies clip (stops).
+REAL_STOPS = (0.5, 1, 2)
+
+
+def clipped_copies(raw_path: Path, work: Path) -> tuple[Path, dict[float, Path]]:
+    """The real raw as a DNG (the truth) and its copies clipped ``REAL_STOPS`` below
+    its brightest green site: {stops: DNG}."""
+    from rawsim.io.dng import DngInfo, write_dng
+    from rawsim.io.raw import read_raw
+
+    raw = read_raw(raw_path)
+    if raw.cfa is None or not raw.cfa.is_bayer or raw.as_shot_wb is None:
+        sys.exit(f"{raw_path}: a Bayer raw with camera white balance is needed")
+    black = float(np.max(raw.black_level))
+    green = np.array(raw.cfa.colors).reshape(2, 2) == 1
+    top = max(float(raw.data[i::2, j::2].max()) for i, j in zip(*np.nonzero(green), strict=True))
+    info = DngInfo(
+        cfa=raw.cfa,
+        black_level=black,
+        white_level=raw.white_level,
+        xyz_to_camera=tuple(tuple(float(v) for v in row) for row in raw.xyz_to_camera),
+        as_shot_neutral=tuple(1 / float(g) for g in raw.as_shot_wb),
+        make=raw.make,
+        model=raw.model,
+        unique_model=raw.model,
+        iso=raw.iso or 100,
+    )
+    work.mkdir(parents=True, exist_ok=True)
+    truth = work / "truth.dng"
+    write_dng(truth, raw.data.astype(np.uint16), info)
+    copies = {}
+    for stops in REAL_STOPS:
+        white = round(black + (top - black) / 2**stops)
+        copies[stops] = work / f"clipped_{stops:g}.dng"
+        clipped = np.minimum(raw.data, white).astype(np.uint16)
+        write_dng(copies[stops], clipped, replace(info, white_level=white))
+    return truth, copies
+
+
+def real(raw_path: Path, work: Path, darktable: Darktable | None, pictures: Path | None) -> dict:
+    """Scores of every row on the real raw's clipped copies: {stops: {row: [score]}}."""
+    truth_dng, copies = clipped_copies(raw_path, work / "real")
+    truths = truth_renders(truth_dng, darktable)
+    print(f"\nreal raw {raw_path.name}, clipped 0.5, 1 and 2 stops below its brightest green")
+    results: dict = {}
+    for stops, dng in copies.items():
+        region = clipped_region(dng)
+        print(f"  {stops:g} stops: {region.sum()} pixels in the clipped region")
+        scored = compare(dng, truths, region, darktable)
+        results[stops] = {row: [scored[row]] if row in scored else [] for row in ROWS}
+        if pictures is not None and stops == 1:
+            crops(scored, truths, region, pictures / "highlights_real.png")
+    return results
+
+
+def crops(scored: dict, truths: dict, region: np.ndarray, path: Path) -> None:
+    """The docs' strip: the truth, then clip, LibRaw -H 5, darktable and reconstruct,
+    cropped around the clipped region's densest window, each times its gain, with
+    the truth's brightest (99.9th percentile of luminance) at white, sRGB-encoded."""
+    import OpenImageIO as oiio
+    from scipy.ndimage import uniform_filter
+
+    h, w = region.shape
+    ch, cw = min(h, 240), min(w, 320)
+    density = uniform_filter(region.astype(np.float64), size=(ch, cw), mode="constant")
+    cy, cx = np.unravel_index(np.argmax(density), density.shape)
+    y0, x0 = min(max(cy - ch // 2, 0), h - ch), min(max(cx - cw // 2, 0), w - cw)
+    window = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+
+    bright = float(np.percentile(truths["rawsim"][window] @ _SRGB_TO_XYZ[1], 99.9))
+
+    def shown(rgb: np.ndarray) -> np.ndarray:
+        v = np.clip(rgb[window] / bright, 0, 1)
+        return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+
+    panels = [shown(truths["rawsim"])]
+    for row in ("rawsim clip", "libraw -H 5", "darktable", "rawsim reconstruct"):
+        if row in scored:
+            panels.append(shown(scored[row]["render"] * scored[row]["gain"]))
+    strip = np.concatenate(
+        [np.pad(p, ((0, 0), (0, 4), (0, 0)), constant_values=1) for p in panels], 1
+    )
+    strip = strip[:, :-4]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = oiio.ImageBuf(oiio.ImageSpec(strip.shape[1], strip.shape[0], 3, oiio.UINT8))
+    buf.set_pixels(oiio.ROI(), strip.astype(np.float32))
+    assert buf.write(str(path)), oiio.geterror()
+    print(f"  wrote {path} (window rows {y0}–{y0 + ch}, columns {x0}–{x0 + cw})")
+
+
+def table(results: dict, unit: str = "EV") -> None:
     for ev, rows in results.items():
-        print(f"\n+{ev} EV (clipped regions of every image; mean over their pixels)")
+        where = f"+{ev} EV" if unit == "EV" else f"{ev:g} stops below the brightest green"
+        print(f"\n{where} (clipped regions of every image; mean over their pixels)")
         print(
             f"{'':18s} {'ΔE00':>7s} {'log-lum':>8s} {'magenta %':>10s} {'(px)':>6s}  per image ΔE00"
         )
@@ -319,12 +432,23 @@ def main() -> None:
     parser.add_argument("--images", type=Path, default=default if default.is_dir() else None)
     parser.add_argument("--profile", default="sony_a7s2")
     parser.add_argument("--keep", type=Path, help="keep the DNGs and renders here")
+    parser.add_argument(
+        "--real", type=Path, default=HERE / "tests" / "data" / "raw" / "canon_eos60d_mlv.dng"
+    )
+    parser.add_argument("--pictures", type=Path, help="write the docs' crops of the real raw here")
     args = parser.parse_args()
     folder = args.images or HERE / "tests" / "data" / "exr"
     images = sorted(folder.glob("*.exr"))
     if not images:
         sys.exit(f"no EXR images in {folder}")
-    table(run(images, args.profile, args.keep))
+    work = args.keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
+    darktable = Darktable(work / "darktable") if shutil.which("darktable-cli") else None
+    if darktable is None:
+        print("darktable-cli is not installed: its row is left out")
+    for line in describe():
+        print(line)
+    table(run(images, args.profile, work, darktable))
+    table(real(args.real, work, darktable, args.pictures), unit="stops")
 
 
 if __name__ == "__main__":
