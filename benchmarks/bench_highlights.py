@@ -1,10 +1,15 @@
 """Highlight recovery against a known truth: rawsim's highlight modes beside LibRaw's
 ``-H 0/1/2/5`` and darktable's default reconstruction, measured in the same run.
 
-Each scene-linear EXR (default: /work/shared/data/exr, else tests/data/exr) is
-unprocessed by ``rawsim unprocess --clean --exposure EV --wb-inverse exact`` at
-+1, +2 and +3 EV (``--profile``, default sony_a7s2), so the sensor clips as a
-real one does, and once at −3 EV, where nothing clips: the truth. The noise-free
+Each scene-linear EXR (``--images``, one folder or more; default tests/data/exr)
+is unprocessed by ``rawsim unprocess --clean --exposure EV --wb-inverse exact``
+at +1, +2 and +3 EV (``--profile``, default sony_a7s2) over the exposure that
+puts its brightest value (the 99.99th percentile of each pixel's largest
+channel) at white, so the sensor clips as a real one does, and once at −3 EV,
+or lower where the image's largest value would still clip (a lamp, the sun),
+so that nothing clips: the truth (an image whose largest value lies more than 2
+stops above its brightest 0.01 % is left out: its truth would need more than the
+DNG's 14 bits). The tables are per folder, then for all. The noise-free
 DNGs (``*.clean.dng``) are rendered scene-linear (sRGB primaries, no tone
 curve) by
 
@@ -69,6 +74,9 @@ from machine import describe  # noqa: E402
 HERE = Path(__file__).resolve().parents[1]
 EVS = (1, 2, 3)
 TRUTH_EV = -3
+#: Images whose largest value is more stops than this above their brightest 0.01 %
+#: are left out: their truth, put wholly below white, would be quantised coarsely.
+TRUTH_RANGE = 2.0
 MODES = ("clip", "unclip", "blend", "reconstruct")
 LIBRAW_MODES = (0, 1, 2, 5)
 #: Rows of the table, in order.
@@ -143,8 +151,21 @@ def _magenta(lab_: np.ndarray, margin: float = 0.0) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ inputs
+def brightest(exr: Path) -> tuple[float, float]:
+    """Stops that put ``exr``'s brightest value (99.99th percentile of each pixel's
+    largest channel) at 1, and stops that put its largest value at 1."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(exr))
+    pixels = buf.get_pixels(oiio.FLOAT)
+    if buf.has_error or pixels is None:
+        sys.exit(f"{exr}: OpenImageIO cannot read it ({buf.geterror()})")
+    largest = pixels[..., :3].max(-1)
+    return -float(np.log2(np.percentile(largest, 99.99))), -float(np.log2(largest.max()))
+
+
 def unprocess(exr: Path, out: Path, ev: float, profile: str) -> Path:
-    """The noise-free DNG of ``exr`` at ``ev`` stops."""
+    """The noise-free DNG of ``exr`` at ``ev`` stops (its own scale)."""
     folder = out / f"ev{ev:+g}"
     subprocess.run(
         [
@@ -299,11 +320,18 @@ def run(images: list[Path], profile: str, work: Path, darktable: Darktable | Non
     print(f"profile {profile}; images: {', '.join(p.name for p in images)}")
     results: dict = {ev: {row: [] for row in ROWS} for ev in EVS}
     for exr in images:
-        truth_dng = unprocess(exr, work / exr.stem, TRUTH_EV, profile)
+        offset, whole = brightest(exr)  # the truth: every value below white
+        if offset - whole > TRUTH_RANGE:
+            print(
+                f"{exr.name}: left out, its largest value is {offset - whole:.1f} stops above its "
+                f"brightest 0.01 %: a truth below white would need more than the DNG's 14 bits"
+            )
+            continue
+        truth_dng = unprocess(exr, work / exr.stem, min(TRUTH_EV + offset, whole - 0.5), profile)
         assert not clipped_region(truth_dng).any(), f"{exr.name}: the truth clips"
         truths = truth_renders(truth_dng, darktable)
         for ev in EVS:
-            dng = unprocess(exr, work / exr.stem, ev, profile)
+            dng = unprocess(exr, work / exr.stem, ev + offset, profile)
             region = clipped_region(dng)
             if region.sum() < 50:
                 print(f"{exr.name} +{ev} EV: {region.sum()} clipped pixels, left out")
@@ -428,8 +456,7 @@ def table(results: dict, unit: str = "EV") -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    default = Path("/work/shared/data/exr")
-    parser.add_argument("--images", type=Path, default=default if default.is_dir() else None)
+    parser.add_argument("--images", type=Path, nargs="+", default=[HERE / "tests" / "data" / "exr"])
     parser.add_argument("--profile", default="sony_a7s2")
     parser.add_argument("--keep", type=Path, help="keep the DNGs and renders here")
     parser.add_argument(
@@ -437,17 +464,27 @@ def main() -> None:
     )
     parser.add_argument("--pictures", type=Path, help="write the docs' crops of the real raw here")
     args = parser.parse_args()
-    folder = args.images or HERE / "tests" / "data" / "exr"
-    images = sorted(folder.glob("*.exr"))
-    if not images:
-        sys.exit(f"no EXR images in {folder}")
+    sets = {folder: sorted(folder.glob("*.exr")) for folder in args.images}
+    for folder, images in sets.items():
+        if not images:
+            sys.exit(f"no EXR images in {folder}")
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
     darktable = Darktable(work / "darktable") if shutil.which("darktable-cli") else None
     if darktable is None:
         print("darktable-cli is not installed: its row is left out")
     for line in describe():
         print(line)
-    table(run(images, args.profile, work, darktable))
+    merged: dict = {ev: {row: [] for row in ROWS} for ev in EVS}
+    for folder, images in sets.items():
+        results = run(images, args.profile, work, darktable)
+        print(f"\n== {folder}")
+        table(results)
+        for ev, rows in results.items():
+            for row, scores in rows.items():
+                merged[ev][row] += scores
+    if len(sets) > 1:
+        print("\n== every folder")
+        table(merged)
     table(real(args.real, work, darktable, args.pictures), unit="stops")
 
 

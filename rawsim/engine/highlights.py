@@ -15,7 +15,9 @@ with it, so the kernels read the same linear values to rounding.
 Work: one pass over the mosaic for each block's colour means and clip flags
 (parallel over block rows); nothing else when nothing clipped. Otherwise the hue
 fields live on the band of block rows that holds clipped blocks (plus the border),
-as summed-area tables in float64, read only at clipped blocks.
+as summed-area tables in float64, read only at clipped blocks; each clipped block
+keeps its hue and least level, and its clipped sites are rebuilt from their 3 × 3
+neighbourhoods twice (once for the largest code needed, once to write).
 """
 
 from __future__ import annotations
@@ -157,8 +159,9 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
 
 
 @njit(parallel=True, **_JIT)
-def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, headroom, sigma, est):
-    """Each clipped block's rebuilt colour values into ``est`` (3, band, Wb)."""
+def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, sigma, shares, lows):
+    """Each clipped block's hue into ``shares`` (3, band, Wb) and the least level its
+    clipped colours allow into ``lows`` (band, Wb) (see :func:`_site_value`)."""
     hb, wb = flags.shape
     third = np.float32(1.0 / 3.0)
     for i in prange(r1 - r0):
@@ -204,24 +207,123 @@ def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, he
                 elif trust < 1:
                     h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
                 share[c] = max(h, floor)
-            num, den, low = np.float32(0.0), np.float32(0.0), np.float32(0.0)
+            low = np.float32(0.0)
             for c in range(3):
+                shares[c, i, j] = share[c]
                 if f >> c & 1:
                     low = max(low, means[c, y, j] / share[c])
-                else:
-                    num += means[c, y, j]
-                    den += share[c]
-            level = num / den if den > 0 else np.float32(0.0)
-            level = max(level, low)
-            for c in range(3):
-                est[c, i, j] = min(share[c] * level, headroom * gains[c])
+            lows[i, j] = low
+
+
+@njit(inline="always", **_JIT)
+def _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, gain):
+    """The rebuilt value of colour ``c`` at site (y, x) of a block with clip flags ``f``,
+    hue ``share`` (3) and least level ``low``: the block's hue at the brightness of
+    the site's 3 × 3 neighbourhood, the means there of the colours the block did not
+    clip over their shares (float64), raised to ``low``, at most ``headroom`` × the
+    colour's clip level ``gain`` (the reference's ``_site_estimates``)."""
+    h, w = raw.shape
+    ph, pw = cmap.shape
+    sums = np.zeros(3, np.float64)
+    counts = np.zeros(3, np.float64)
+    for yy in range(max(y - 1, 0), min(y + 2, h)):
+        for xx in range(max(x - 1, 0), min(x + 2, w)):
+            k = cmap[yy % ph, xx % pw]
+            v = _mosaic_value(
+                np.float32(raw[yy, xx]), slots[yy % ph, xx % pw], k, yy, xx, 0.0, 0.0, ops, opf
+            )
+            sums[k] += v
+            counts[k] += 1
+    num, den = 0.0, 0.0
+    for k in range(3):
+        if not f >> k & 1 and counts[k] > 0:
+            num += sums[k] / counts[k]
+            den += np.float64(share[k])
+    level = num / den if den > 0 else 0.0
+    level = max(level, np.float64(low))
+    return np.float32(min(np.float64(share[c]) * level, np.float64(headroom * gain)))
 
 
 @njit(parallel=True, **_JIT)
-def _write(raw, out, cmap, slots, ops, opf, flags, est, r0, r1, b, scale, black, span, applied):
+def _top(
+    raw,
+    cmap,
+    slots,
+    ops,
+    opf,
+    flags,
+    shares,
+    lows,
+    r0,
+    r1,
+    b,
+    headroom,
+    gains,
+    black,
+    span,
+    applied,
+):
+    """The largest code (DN) a rebuilt site needs, over every slot."""
+    h, w = raw.shape
+    hb, wb = flags.shape
+    ph, pw = cmap.shape
+    rows = np.zeros(h, np.float64)
+    for y in prange(h):
+        by = min(y // b, hb - 1)
+        if not r0 <= by < r1:
+            continue
+        top = 0.0
+        for x in range(w):
+            bx = min(x // b, wb - 1)
+            c = cmap[y % ph, x % pw]
+            f = flags[by, bx]
+            if f >> c & 1:
+                e = _site_value(
+                    raw,
+                    cmap,
+                    slots,
+                    ops,
+                    opf,
+                    y,
+                    x,
+                    c,
+                    f,
+                    shares[:, by - r0, bx],
+                    lows[by - r0, bx],
+                    headroom,
+                    gains[c],
+                )
+                slot = slots[y % ph, x % pw]
+                top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
+        rows[y] = top
+    return rows.max()
+
+
+@njit(parallel=True, **_JIT)
+def _write(
+    raw,
+    out,
+    cmap,
+    slots,
+    ops,
+    opf,
+    flags,
+    shares,
+    lows,
+    r0,
+    r1,
+    b,
+    headroom,
+    gains,
+    scale,
+    black,
+    span,
+    applied,
+):
     """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
-    clipped block takes max(its value, the estimate). ``scale`` < 1: every site is
-    first scaled about its black level (``span``: the levels' divisor per slot)."""
+    clipped block takes max(its value, its rebuilt value, :func:`_site_value`).
+    ``scale`` < 1: every site is first scaled about its black level (``span``: the
+    levels' divisor per slot)."""
     h, w = raw.shape
     hb, wb = flags.shape
     ph, pw = cmap.shape
@@ -236,9 +338,24 @@ def _write(raw, out, cmap, slots, ops, opf, flags, est, r0, r1, b, scale, black,
                 dn = black[slot] + (dn - black[slot]) * scale
             if banded:
                 bx = min(x // b, wb - 1)
-                if flags[by, bx] >> c & 1:
+                f = flags[by, bx]
+                if f >> c & 1:
                     v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
-                    e = est[c, by - r0, bx]
+                    e = _site_value(
+                        raw,
+                        cmap,
+                        slots,
+                        ops,
+                        opf,
+                        y,
+                        x,
+                        c,
+                        f,
+                        shares[:, by - r0, bx],
+                        lows[by - r0, bx],
+                        headroom,
+                        gains[c],
+                    )
                     if e > v:
                         dn = black[slot] + e / applied[c] * span[slot] * scale
             out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
@@ -297,7 +414,8 @@ def reconstruct_mosaic(
     fields, near = _fields(means, flags, g, r0, r1, HIGHLIGHT_BORDER)
     sat = _sat(fields, near, r0, r1, hb, wb, HIGHLIGHT_BORDER)
     del fields
-    est = np.zeros((3, r1 - r0, wb), np.float32)
+    shares = np.zeros((3, r1 - r0, wb), np.float32)
+    lows = np.zeros((r1 - r0, wb), np.float32)
     scales = np.array(HIGHLIGHT_SCALES, dtype=np.int64)
     _estimates(
         means,
@@ -310,26 +428,22 @@ def reconstruct_mosaic(
         HIGHLIGHT_SCALE_WEIGHT,
         HIGHLIGHT_NEUTRAL,
         np.float32(HIGHLIGHT_RATIO_FLOOR),
-        np.float32(HIGHLIGHT_HEADROOM),
         np.float32(HIGHLIGHT_HUE_SIGMA),
-        est,
+        shares,
+        lows,
     )
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
+    headroom = np.float32(HIGHLIGHT_HEADROOM)
+    site = (cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, g)
     # The largest code a rebuilt value needs: fit it under 65535 by scaling every site.
-    top = max(
-        float(black[k]) + float(est[c].max() / applied[c] * span[k]) for k, c in _slot_colours(cfa)
-    )
-    scale = min(1.0, (65535.0 - float(black.max())) / (top - float(black.max())))
+    top = _top(data, *site, black, span, applied)
+    bmax = float(black.max())
+    scale = 1.0 if top <= 65535.0 else (65535.0 - bmax) / (top - bmax)
     out = np.empty_like(data)
     scale = np.float32(scale)
-    _write(data, out, cmap, slots, ops, opf, flags, est, r0, r1, b, scale, black, span, applied)
+    _write(data, out, *site, scale, black, span, applied)
     if scale < 1:
         opf = opf.copy()
         opf[0, 4:8] = (span * scale).astype(np.float64)
     return out, opf
-
-
-def _slot_colours(cfa: CFA):
-    slots = _slots(cfa).ravel().tolist()
-    return sorted(set(zip(slots, cfa.colors, strict=True)))

@@ -107,10 +107,11 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     core of a large blown area is white (on the benchmark, white light at depth is
     the better guess).
 
-    The block's level is then fitted to its unclipped colours' means, or raised to
-    the largest clipped mean over its share where that is higher, and each site of
-    a clipped colour becomes max(its value, share × level). Differentiable almost
-    everywhere; support: (largest scale + border + 2) blocks.
+    Each site of a clipped colour then becomes max(its value, share × level): the
+    level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
+    colours its block did not clip (on RGB, the pixel's own), or raised to the
+    block's largest clipped mean over its share where that is higher. Differentiable
+    almost everywhere; support: (largest scale + border + 2) blocks.
     """
     check_image(x, "image")
     g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
@@ -133,8 +134,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     anyclip = clipped.any(1, keepdim=True)
     if not bool(anyclip.any()):
         return x
-    est = _estimates(means, clipped, anyclip, g)
+    share, floor = _estimates(means, clipped, anyclip, g)
     if cmap is None:
+        est = _level_estimates(means, share, floor, ~clipped, g)
         return torch.where(clipped, torch.maximum(x, est), x)
     # Each site takes its block's value (edge rows/columns beyond whole blocks the last).
     pad = (0, w - wb * b, 0, h - hb * b)
@@ -142,7 +144,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
         t.repeat_interleave(b, -2).repeat_interleave(b, -1), pad, mode="replicate"
     )
     index = cmap.expand(x.shape[0], 1, h, w)
-    est_site = grow(est).gather(1, index)
+    local = _local_means(x, cmap)
+    free = grow((~clipped).to(x.dtype)) > 0
+    est_site = _level_estimates(local, grow(share), grow(floor), free, g).gather(1, index)
     clip_site = grow(clipped.to(x.dtype)).gather(1, index) > 0
     return torch.where(clip_site, torch.maximum(x, est_site), x)
 
@@ -180,7 +184,8 @@ def _box(a: torch.Tensor, s: int) -> torch.Tensor:
 
 
 def _estimates(means, clipped, anyclip, g):
-    """Each colour's rebuilt value per block (B, 3, Hb, Wb) (used where it clipped)."""
+    """Per block: each colour's share of the light, the hue rebuilt values take
+    (B, 3, Hb, Wb), and the least level the clipped colours allow (B, 1, Hb, Wb)."""
     dtype = means.dtype
     near = F.max_pool2d(anyclip.to(dtype), 3, stride=1, padding=1) > 0
     k = HIGHLIGHT_BORDER
@@ -208,13 +213,31 @@ def _estimates(means, clipped, anyclip, g):
     tested = trust * hue + (1 - trust) / 3
     share = torch.where(blown, kappa * hue + (1 - kappa) / 3, torch.where(single, tested, hue))
     share = share.clamp_min(HIGHLIGHT_RATIO_FLOOR)
-    free = ~clipped
-    num = torch.where(free, means, 0.0).sum(1, keepdim=True)
-    den = torch.where(free, share, 0.0).sum(1, keepdim=True)
-    level = torch.where(den > 0, num / torch.where(den > 0, den, 1.0), 0.0)
     floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
-    level = torch.maximum(level, floor)
-    return torch.minimum(share * level, HIGHLIGHT_HEADROOM * g.reshape(1, 3, 1, 1))
+    return share, floor
+
+
+def _local_means(x: torch.Tensor, cmap: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W): each colour's mean over each site's 3 × 3 neighbourhood of the
+    mosaic ``x`` (B, 1, H, W) (sites inside the image; NaN where a colour has none)."""
+    onehot = (cmap == torch.arange(3, device=x.device).reshape(1, 3, 1, 1)).to(x.dtype)
+    sums = F.avg_pool2d(onehot * x, 3, stride=1, padding=1)
+    counts = F.avg_pool2d(onehot, 3, stride=1, padding=1).expand_as(sums)
+    return torch.where(counts > 0, sums / torch.where(counts > 0, counts, 1.0), torch.nan)
+
+
+def _level_estimates(seen, share, floor, free, g):
+    """Each colour's rebuilt value (B, 3, …) where its hue is ``share`` (B, 3, …): the
+    colours seen unclipped (``free``; ``seen`` their measured means, NaN where none
+    was seen) over their shares give the level, raised to ``floor`` (the least level
+    the clipped colours allow), at most ``HIGHLIGHT_HEADROOM`` × each clip level."""
+    use = free & ~seen.isnan()
+    num = torch.where(use, seen, 0.0).double().sum(1, keepdim=True)
+    den = torch.where(use, share, 0.0).double().sum(1, keepdim=True)
+    level = torch.where(den > 0, num / torch.where(den > 0, den, 1.0), 0.0)
+    level = torch.maximum(level, floor.double())
+    top = HIGHLIGHT_HEADROOM * g.double().reshape(1, 3, 1, 1)
+    return torch.minimum(share.double() * level, top).to(share.dtype)
 
 
 def _hue_or_white(means, seen, hue, clipped):
