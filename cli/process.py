@@ -52,6 +52,12 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "others become icd, rawsim's X-Trans interpolation.",
 )
 @click.option(
+    "--demosaic-domain",
+    type=click.Choice(["sqrt", "linear"]),
+    help="What the demosaic interpolates: sqrt (default: square roots, squared back, "
+    "so its errors fall where the output's gamma hides them) or linear (as LibRaw).",
+)
+@click.option(
     "--half-size",
     is_flag=True,
     help="Half the width and height, no demosaic: one pixel per 2×2 block of the "
@@ -193,6 +199,7 @@ def command(
     wb,
     white_level,
     demosaic,
+    demosaic_domain,
     half_size,
     highlights,
     denoise,
@@ -251,13 +258,15 @@ def command(
 
     # Every usage error first, before the pipeline (and numba) is imported.
     config = IspConfig.load(config_path) if config_path else IspConfig.default()
-    if half_size and demosaic:
-        raise click.UsageError("--half-size replaces the demosaic: drop --demosaic", ctx)
+    if half_size and (demosaic or demosaic_domain):
+        flag = "--demosaic" if demosaic else "--demosaic-domain"
+        raise click.UsageError(f"--half-size replaces the demosaic: drop {flag}", ctx)
     demosaic = "half" if half_size else demosaic
     config = config.override(
         wb=wb,
         white_level=white_level,
         demosaic=demosaic,
+        demosaic_domain=demosaic_domain,
         highlights=highlights,
         denoise=denoise,
         denoise_strength=denoise_strength,

@@ -261,6 +261,7 @@ def test_config_places_reconstruct_before_demosaic():
 #: 150) with clip and blend, engine and torch reference, measured before reconstruct
 #: and unclip were added: those modes' bytes must not change. (X-Trans: measured again
 #: when the ``icd`` demosaic gained its median refinement, before anything else changed.)
+#: On linear values: the default root domain came later and moved every render.
 CLIP_BLEND_BYTES = {
     ("RGGB", "clip"): ("e9b39081f3394c4e", "b06304353fd8a0ba"),
     ("RGGB", "blend"): ("a02f04cf877f0d1c", "88bae5bf6d696d29"),
@@ -273,7 +274,8 @@ CLIP_BLEND_BYTES = {
 def test_clip_and_blend_bytes_unchanged(key):
     pattern, mode = key
     raw = synthetic_raw(pattern, h=84, w=150)
-    ours, ref = _both(raw, override(default_config(), highlights=mode))
+    config = override(default_config(), highlights=mode, demosaic_domain="linear")
+    ours, ref = _both(raw, config)
     digest = lambda a: hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]  # noqa: E731
     assert (digest(ours), digest(ref)) == CLIP_BLEND_BYTES[key]
 
@@ -315,7 +317,7 @@ def _engine_and_reference_mosaics(raw, config):
         ph, pw = raw.cfa.period
         tile = np.array(raw.cfa.colors).reshape(ph, pw)
         slot = np.tile(tile, (-(-h // ph), -(-w // pw)))[:h, :w]
-    table = mosaic_table(colours, plan.pre_ops, numbers)
+    table = mosaic_table(colours, plan.pre_ops[:at], numbers)  # levels, white balance
     return table[slot, data], x[0, 0].numpy(), data
 
 
@@ -344,12 +346,13 @@ def test_engine_scales_the_mosaic_when_codes_run_out():
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_engine_render_equals_the_reference(pattern):
-    """Whole renders: 16-bit codes within 8 (the rebuilt sites' rounding through the
-    demosaic); unclip exactly as the reference (to the usual one code)."""
+    """Whole renders: 16-bit codes within 10 (the rebuilt sites' rounding through the
+    demosaic: 9 on X-Trans through the root domain); unclip exactly as the reference
+    (to the usual one code)."""
     raw = synthetic_raw(pattern, h=84, w=150)
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"))
     diff = np.abs(ours.astype(np.int64) - ref)
-    assert diff.max() <= 8 and (diff > 1).mean() < 1e-3
+    assert diff.max() <= 10 and (diff > 1).mean() < 1e-3
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"), "exr", 32)
     assert np.abs(ours - ref).max() <= 2e-3
     _assert_close(*_both(raw, override(default_config(), highlights="unclip")))

@@ -30,6 +30,8 @@ from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr
 
 RAW = DATA / "raw"
+#: rawsim's demosaic as LibRaw's: bilinear, on linear values.
+AS_LIBRAW = {"demosaic": "bilinear", "demosaic_domain": "linear"}
 LIBRAW_MATCHED = dict(
     use_camera_wb=True,
     demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR,
@@ -162,7 +164,7 @@ def test_overrides_and_blend_moves_after_demosaic():
 @pytest.mark.parametrize("name", ["canon_eos60d_mlv.dng", "synthetic_colorchecker_bggr.dng"])
 def test_agrees_with_libraw_srgb(name):
     raw = read_raw(RAW / name)
-    ours, _ = render(raw, override(default_config(), demosaic="bilinear"))
+    ours, _ = render(raw, override(default_config(), **AS_LIBRAW))
     with rawpy.imread(str(RAW / name)) as r:
         ref = (
             r.postprocess(output_color=rawpy.ColorSpace.sRGB, gamma=(2.4, 12.92), **LIBRAW_MATCHED)
@@ -175,7 +177,7 @@ def test_agrees_with_libraw_in_camera_space_for_kodak():
     """LibRaw applies a Kodak matrix that rawpy does not expose; the camera data agree."""
     raw = read_raw(RAW / "kodak_dc50_grbg.kdc")
     cfg = override(
-        default_config(), demosaic="bilinear", wb="1,1,1", output_space="camera", transfer="linear"
+        default_config(), **AS_LIBRAW, wb="1,1,1", output_space="camera", transfer="linear"
     )
     ours, _ = render(raw, cfg)
     with rawpy.imread(str(RAW / "kodak_dc50_grbg.kdc")) as r:
@@ -196,7 +198,7 @@ def test_colour_agrees_with_libraw_on_every_raw(name, wb):
     settings: its white-balance rules and scaling, its matrices (also those rawpy
     does not show), for --wb camera, daylight and auto."""
     raw = read_raw(RAW / name)
-    matched = {"demosaic": "bilinear", "wb": wb, "baseline_exposure": "ignore"}  # as LibRaw
+    matched = {**AS_LIBRAW, "wb": wb, "baseline_exposure": "ignore"}
     ours, info = render(raw, override(default_config(), **matched))
     with rawpy.imread(str(RAW / name)) as r:
         ref = r.postprocess(
@@ -234,7 +236,7 @@ def test_default_render_agrees_with_libraw_ahd_in_colour(name):
 def test_white_level_auto_is_libraws_default_render():
     name = "synthetic_colorchecker_bggr.dng"  # maximum 14731 of 16383: LibRaw lowers white
     raw = read_raw(RAW / name)
-    ours, info = render(raw, override(default_config(), demosaic="bilinear", white_level="auto"))
+    ours, info = render(raw, override(default_config(), **AS_LIBRAW, white_level="auto"))
     assert info["white_level"] == raw.data.max() < raw.white_level
     with rawpy.imread(str(RAW / name)) as r:
         matched = LIBRAW_MATCHED | {"adjust_maximum_thr": 0.75}

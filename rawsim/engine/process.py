@@ -35,6 +35,7 @@ from numba import njit, prange
 from rawsim.engine import configure
 from rawsim.engine import xtrans as xt
 from rawsim.engine.tiles import next_tile
+from rawsim.isp.config import DEMOSAIC_ROOT_EPS
 
 configure()
 
@@ -55,12 +56,18 @@ HALO = 12
 #: Demosaic codes.
 DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3}
 #: Pointwise op codes (mosaic and RGB stages).
-OP_LEVELS, OP_SHADING, OP_WB, OP_CLIP, OP_BLEND, OP_MATRIX, OP_EXPOSURE = range(7)
+#: OP_ROOT/OP_SQUARE: into and out of the demosaic's root domain (the reference's
+#: ``rawsim.isp.demosaic.to_root``/``from_root``), the last mosaic op and the first RGB op.
+OP_LEVELS, OP_SHADING, OP_WB, OP_CLIP, OP_BLEND, OP_MATRIX, OP_EXPOSURE, OP_ROOT, OP_SQUARE = range(
+    9
+)
 #: Transfer codes of the output: table (tone ∘ transfer on [0, 1]), power law, none.
 OUT_TABLE, OUT_GAMMA, OUT_FLOAT = range(3)
 LUT_SIZE = 65536
 
 _EPS = np.float32(1e-10)
+_ROOT_EPS = np.float32(DEMOSAIC_ROOT_EPS)  # as rawsim.isp.demosaic.ROOT_EPS
+_ROOT_SQRT_EPS = np.sqrt(_ROOT_EPS)
 _HALF = np.float32(0.5)
 _QUARTER = np.float32(-0.25)
 _THIRD = np.float32(1 / 3)
@@ -113,7 +120,22 @@ def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
             v = min(v, np.float32(1.0))
         elif op == OP_SHADING:
             v = v * _shading_gain(y, x, cy, cx, opf[k])
+        elif op == OP_ROOT:
+            v = _to_root(v)
     return v
+
+
+@njit(inline="always", **_JIT)
+def _to_root(v):
+    """sign(v)·(√(|v| + ε) − √ε), float32 (``rawsim.isp.demosaic.to_root``)."""
+    return np.float32(np.copysign(np.sqrt(abs(v) + _ROOT_EPS) - _ROOT_SQRT_EPS, v))
+
+
+@njit(inline="always", **_JIT)
+def _from_root(y):
+    """sign(y)·((|y| + √ε)² − ε), float32 (``rawsim.isp.demosaic.from_root``)."""
+    t = abs(y) + _ROOT_SQRT_EPS
+    return np.float32(np.copysign(t * t - _ROOT_EPS, y))
 
 
 @njit(**_JIT)
@@ -731,6 +753,9 @@ def _rgb_stage(op, p, r, g, b, y, x0, h, w):
     elif op == OP_BLEND:
         for q in range(r.size):
             r[q], g[q], b[q] = _blend(p, r[q], g[q], b[q])
+    elif op == OP_SQUARE:
+        for q in range(r.size):
+            r[q], g[q], b[q] = _from_root(r[q]), _from_root(g[q]), _from_root(b[q])
 
 
 @njit(**_JIT)

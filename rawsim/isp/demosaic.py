@@ -20,17 +20,23 @@ Methods (``DEMOSAIC_METHODS``):
 All are linear or piecewise linear in the input, differentiable, and keep the
 input's values at its own CFA sites (before Menon's refining step). Borders are
 handled by mirror padding, which keeps the CFA phase. No clipping.
+
+The stage interpolates square roots by default (:class:`RootDomain`, the config's
+``domain = "sqrt"``): :func:`to_root` before any method, :func:`from_root` after,
+so that errors fall where a display's gamma hides them; ``linear`` interpolates
+the linear values as they are.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.errors import check_choice, check_image
-from rawsim.isp.config import DEMOSAIC_METHODS
+from rawsim.isp.config import DEMOSAIC_METHODS, DEMOSAIC_ROOT_EPS
 from rawsim.isp.planes import correlate
 
 
@@ -265,6 +271,47 @@ def demosaic(mosaic: torch.Tensor, cfa: CFA, method: str = "wcd") -> torch.Tenso
     if method == "menon":
         return demosaic_menon(mosaic, cfa)
     return demosaic_wcd(mosaic, cfa)
+
+
+#: float32 constants of the root domain, shared with the engine (its OP_ROOT/OP_SQUARE).
+ROOT_EPS = np.float32(DEMOSAIC_ROOT_EPS)
+ROOT_SQRT_EPS = np.sqrt(ROOT_EPS)
+
+
+def to_root(x: torch.Tensor) -> torch.Tensor:
+    """The odd root sign(x)·(√(|x| + ε) − √ε) of linear values (any shape, any range):
+    the domain the demosaic interpolates in; :func:`from_root` inverts it."""
+    eps, sqrt_eps = (torch.tensor(float(v), dtype=x.dtype) for v in (ROOT_EPS, ROOT_SQRT_EPS))
+    # The root in float64, rounded once: correctly rounded, as the engine's float32
+    # sqrt is (torch's float32 sqrt on the CPU is not, by 1 ulp in 1 value of 6).
+    root = torch.sqrt((x.abs() + eps).double()).to(x.dtype)
+    return torch.copysign(root - sqrt_eps, x)
+
+
+def from_root(y: torch.Tensor) -> torch.Tensor:
+    """Linear values of root-domain ``y``: sign(y)·((|y| + √ε)² − ε)."""
+    eps, sqrt_eps = (torch.tensor(float(v), dtype=y.dtype) for v in (ROOT_EPS, ROOT_SQRT_EPS))
+    t = y.abs() + sqrt_eps
+    return torch.copysign(t * t - eps, y)
+
+
+class RootDomain(nn.Module):
+    """A demosaic stage ``inner`` that interpolates square roots: ``forward`` is
+    from_root ∘ inner ∘ to_root; ``reverse`` (sampling, pointwise) is inner's."""
+
+    def __init__(self, inner: nn.Module) -> None:
+        super().__init__()
+        self.inner = inner
+
+    @property
+    def radius(self) -> int:
+        return self.inner.radius
+
+    def forward(self, mosaic: torch.Tensor) -> torch.Tensor:
+        return from_root(self.inner(to_root(mosaic)))
+
+    def reverse(self, rgb: torch.Tensor) -> torch.Tensor:
+        return self.inner.reverse(rgb)
 
 
 class Demosaic(nn.Module):

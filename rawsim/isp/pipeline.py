@@ -47,7 +47,7 @@ from rawsim.isp.config import (
     resolve,
 )
 from rawsim.isp.dead_pixel import DeadPixelCorrection
-from rawsim.isp.demosaic import Demosaic
+from rawsim.isp.demosaic import Demosaic, RootDomain
 from rawsim.isp.exposure import Exposure
 from rawsim.isp.filters import AntiAliasing, Denoise
 from rawsim.isp.half_size import HalfSize
@@ -174,7 +174,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     HighlightsStage: lambda s, r: Highlights(
         s.mode, r.info.get("white_balance", (1.0, 1.0, 1.0)), r.raw.cfa
     ),
-    DemosaicStage: lambda s, r: _demosaic(r.raw.cfa, s.method),
+    DemosaicStage: lambda s, r: _demosaic(r.raw.cfa, s.method, s.domain),
     DenoiseStage: lambda s, r: Denoise(
         r.raw.cfa if r.config.before_demosaic(s) else None,
         s.method,
@@ -194,15 +194,15 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
 }
 
 
-def _demosaic(cfa: CFA, method: str) -> nn.Module:
+def _demosaic(cfa: CFA, method: str, domain: str = "sqrt") -> nn.Module:
     """The demosaic stage of ``cfa``: a Bayer method as configured, or for other
-    patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`); for
-    ``half``, half-size binning."""
+    patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`), on
+    square roots where ``domain`` is ``sqrt`` (:class:`RootDomain`); for ``half``,
+    half-size binning."""
     if method == HALF_SIZE:
         return HalfSize(cfa)
-    if cfa.is_bayer:
-        return Demosaic(cfa, method)
-    return XTransDemosaic(cfa, XTRANS_METHOD[method])
+    inner = Demosaic(cfa, method) if cfa.is_bayer else XTransDemosaic(cfa, XTRANS_METHOD[method])
+    return RootDomain(inner) if domain == "sqrt" else inner
 
 
 def _black_map(raw):

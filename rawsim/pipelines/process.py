@@ -271,6 +271,9 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         if isinstance(stage, DemosaicStage):
             bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
             method = stage.method if bayer else XTRANS_METHOD[stage.method]
+            if stage.method != HALF_SIZE and stage.domain == "sqrt":
+                pre.append((ep.OP_ROOT, []))  # the kernel interpolates the roots
+                post.append((ep.OP_SQUARE, []))
             continue
         if isinstance(stage, OrientationStage):
             orientation = raw.orientation
