@@ -240,11 +240,14 @@ class XTransDemosaic(nn.Module):
     :func:`demosaic_xtrans`.
     """
 
-    def __init__(self, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS) -> None:
+    def __init__(
+        self, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS, linear: bool = True
+    ) -> None:
         super().__init__()
         self.cfa = cfa
         self.method = check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
         self.iterations = iterations
+        self.linear = linear  # icd on square roots (see demosaic_xtrans)
 
     @property
     def radius(self) -> int:
@@ -258,14 +261,16 @@ class XTransDemosaic(nn.Module):
             and mosaic.dtype == torch.float32
         )
         if not compiled:
-            return demosaic_xtrans(mosaic, self.cfa, self.method, self.iterations)
+            return demosaic_xtrans(mosaic, self.cfa, self.method, self.iterations, self.linear)
         from rawsim.engine import xtrans as kernels
 
         _check(mosaic, self.cfa, self.method, self.iterations)
         return torch.stack(
             [
                 torch.from_numpy(
-                    kernels.demosaic_xtrans(m[0].numpy(), self.cfa, self.method, self.iterations)
+                    kernels.demosaic_xtrans(
+                        m[0].numpy(), self.cfa, self.method, self.iterations, self.linear
+                    )
                 )
                 for m in mosaic
             ]
