@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -34,16 +33,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from machine import describe  # noqa: E402
+from photos import centre, linked, rawsim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = "nikon_d850"
 METHODS = ("wcd", "menon", "malvar", "bilinear")
 LIBRAW = ("AHD", "AAHD", "DHT", "VNG")
-
-
-def _rawsim(*args) -> None:
-    cmd = [sys.executable, "-m", "rawsim_cli.main", *map(str, args), "-q"]
-    subprocess.run(cmd, check=True)
 
 
 def _png(path: Path) -> np.ndarray:
@@ -62,24 +57,26 @@ def _encoded(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
 
 
+def _score(render: np.ndarray, photo: np.ndarray) -> float:
+    """CPSNR of ``render`` (:func:`_matched`) against ``photo``, on their common size
+    (a DNG keeps whole CFA periods: an odd side loses its last row or column)."""
+    h, w = min(render.shape[0], photo.shape[0]), min(render.shape[1], photo.shape[1])
+    render, photo = render[:h, :w], photo[:h, :w]
+    return _cpsnr(_matched(render, photo), photo)
+
+
 def _matched(render: np.ndarray, photo: np.ndarray) -> np.ndarray:
     """``render`` after the 3 × 3 matrix, in linear light, that best maps it onto
     ``photo`` (least squares over the central 90 %): what differs in colour between
     the pipelines (matrices, white balance, scaling) is taken out, and what is left
     is the demosaic's structure."""
-    a, b = (_linear(_centre(x)).reshape(-1, 3) for x in (render, photo))
+    a, b = (_linear(centre(x)).reshape(-1, 3) for x in (render, photo))
     m, *_ = np.linalg.lstsq(a, b, rcond=None)
     return _encoded(_linear(render) @ m)
 
 
-def _centre(a: np.ndarray, share: float = 0.9) -> np.ndarray:
-    h, w = a.shape[:2]
-    mh, mw = round(h * (1 - share) / 2), round(w * (1 - share) / 2)
-    return a[mh : h - mh, mw : w - mw]
-
-
 def _cpsnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10 * np.log10(1 / np.mean((_centre(a) - _centre(b)) ** 2)))
+    return float(10 * np.log10(1 / np.mean((centre(a) - centre(b)) ** 2)))
 
 
 def _libraw(dng: Path, algorithm: str) -> np.ndarray:
@@ -102,25 +99,21 @@ def run(images: list[Path]) -> dict[str, list[float]]:
     rows: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        src = work / "src"
-        src.mkdir()
-        for p in images:
-            (src / p.name).symlink_to(p.resolve())
+        src = linked(images, work / "src")
         unprocess = ["-p", PROFILE, "--iso", 100, "--noise", "none"]
-        _rawsim("unprocess", src, "-o", work / "dng", *unprocess)
+        rawsim("unprocess", src, "-o", work / "dng", *unprocess)
         for method in METHODS:
             for domain in ("sqrt", "linear"):
                 out = work / f"{method}-{domain}"
                 flags = ["--demosaic", method, "--demosaic-domain", domain, "--bits", 16]
-                _rawsim("process", work / "dng", "-o", out, *flags)
+                rawsim("process", work / "dng", "-o", out, *flags)
                 rows[f"rawsim {method}, {domain}"] = [
-                    _cpsnr(_matched(_png(out / p.with_suffix(".png").name), _png(p)), _png(p))
-                    for p in images
+                    _score(_png(out / p.with_suffix(".png").name), _png(p)) for p in images
                 ]
         for algorithm in LIBRAW:
             dngs = [work / "dng" / p.with_suffix(".dng").name for p in images]
             rows[f"LibRaw {algorithm}"] = [
-                _cpsnr(_matched(_libraw(dng, algorithm), _png(p)), _png(p))
+                _score(_libraw(dng, algorithm), _png(p))
                 for dng, p in zip(dngs, images, strict=True)
             ]
     return rows

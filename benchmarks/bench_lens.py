@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -31,6 +30,7 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from machine import describe  # noqa: E402
+from photos import centre, linked, rawsim  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = "canon_eos_700d"
@@ -38,20 +38,9 @@ LENS = "Canon EF-S 18-55mm f/3.5-5.6 IS STM"
 FOCAL, APERTURE = 18.0, 3.5
 
 
-def _rawsim(*args) -> None:
-    cmd = [sys.executable, "-m", "rawsim_cli.main", *map(str, args), "-q"]
-    subprocess.run(cmd, check=True)
-
-
 def _png(path: Path) -> np.ndarray:
     with Image.open(path) as im:
         return np.asarray(im.convert("RGB"), np.float64) / 255
-
-
-def _centre(a: np.ndarray, share: float = 0.9) -> np.ndarray:
-    h, w = a.shape[:2]
-    mh, mw = round(h * (1 - share) / 2), round(w * (1 - share) / 2)
-    return a[mh : h - mh, mw : w - mw]
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -63,19 +52,16 @@ def quality(images: list[Path]) -> None:
     common = ["-p", PROFILE, "--iso", 100, "--noise", "none"]
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        src = work / "src"
-        src.mkdir()
-        for p in images:
-            (src / p.name).symlink_to(p.resolve())
-        _rawsim("unprocess", src, "-o", work / "plain", *common)
-        _rawsim("unprocess", src, "-o", work / "lens", *common, *lens)
-        _rawsim("process", work / "plain", "-o", work / "back-plain")
-        _rawsim("process", work / "lens", "-o", work / "back-lens", "--lens-correction", "auto")
+        src = linked(images, work / "src")
+        rawsim("unprocess", src, "-o", work / "plain", *common)
+        rawsim("unprocess", src, "-o", work / "lens", *common, *lens)
+        rawsim("process", work / "plain", "-o", work / "back-plain")
+        rawsim("process", work / "lens", "-o", work / "back-lens", "--lens-correction", "auto")
         rows = []
         for p in images:
             name = p.with_suffix(".png").name
             plain, corrected = (_png(work / d / name) for d in ("back-plain", "back-lens"))
-            rows.append((p.stem, _psnr(_centre(corrected), _centre(plain))))
+            rows.append((p.stem, _psnr(centre(corrected), centre(plain))))
     print(f"\nlens round trip ({LENS} at {FOCAL:g} mm f/{APERTURE:g}, {PROFILE}, no noise),")
     print("PSNR against the same photo round-tripped without a lens, central 90 %:")
     for name, db in rows:

@@ -244,55 +244,34 @@ def _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, ga
     return np.float32(min(np.float64(share[c]) * level, np.float64(headroom * gain)))
 
 
+@njit(inline="always", **_JIT)
+def _rebuilt(raw, site, y, x, c):
+    """The rebuilt value of colour ``c`` at (y, x) (:func:`_site_value`), or −1 where the
+    site's block did not clip ``c``. ``site``: (cmap, slots, ops, opf, flags, shares,
+    lows, r0, r1, b, headroom, gains), as :func:`reconstruct_mosaic` builds it."""
+    cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, gains = site
+    hb, wb = flags.shape
+    by, bx = min(y // b, hb - 1), min(x // b, wb - 1)
+    f = flags[by, bx]
+    if not (r0 <= by < r1 and f >> c & 1):
+        return np.float32(-1.0)
+    share, low = shares[:, by - r0, bx], lows[by - r0, bx]
+    return _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, gains[c])
+
+
 @njit(parallel=True, **_JIT)
-def _top(
-    raw,
-    cmap,
-    slots,
-    ops,
-    opf,
-    flags,
-    shares,
-    lows,
-    r0,
-    r1,
-    b,
-    headroom,
-    gains,
-    black,
-    span,
-    applied,
-):
+def _top(raw, site, black, span, applied):
     """The largest code (DN) a rebuilt site needs, over every slot."""
     h, w = raw.shape
-    hb, wb = flags.shape
+    cmap, slots = site[0], site[1]
     ph, pw = cmap.shape
     rows = np.zeros(h, np.float64)
     for y in prange(h):
-        by = min(y // b, hb - 1)
-        if not r0 <= by < r1:
-            continue
         top = 0.0
         for x in range(w):
-            bx = min(x // b, wb - 1)
             c = cmap[y % ph, x % pw]
-            f = flags[by, bx]
-            if f >> c & 1:
-                e = _site_value(
-                    raw,
-                    cmap,
-                    slots,
-                    ops,
-                    opf,
-                    y,
-                    x,
-                    c,
-                    f,
-                    shares[:, by - r0, bx],
-                    lows[by - r0, bx],
-                    headroom,
-                    gains[c],
-                )
+            e = _rebuilt(raw, site, y, x, c)
+            if e >= 0:
                 slot = slots[y % ph, x % pw]
                 top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
         rows[y] = top
@@ -300,64 +279,26 @@ def _top(
 
 
 @njit(parallel=True, **_JIT)
-def _write(
-    raw,
-    out,
-    cmap,
-    slots,
-    ops,
-    opf,
-    flags,
-    shares,
-    lows,
-    r0,
-    r1,
-    b,
-    headroom,
-    gains,
-    scale,
-    black,
-    span,
-    applied,
-):
+def _write(raw, out, site, scale, black, span, applied):
     """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
-    clipped block takes max(its value, its rebuilt value, :func:`_site_value`).
+    clipped block takes max(its value, its rebuilt value, :func:`_rebuilt`).
     ``scale`` < 1: every site is first scaled about its black level (``span``: the
     levels' divisor per slot)."""
     h, w = raw.shape
-    hb, wb = flags.shape
+    cmap, slots, ops, opf = site[0], site[1], site[2], site[3]
     ph, pw = cmap.shape
     for y in prange(h):
-        by = min(y // b, hb - 1)
-        banded = r0 <= by < r1
         for x in range(w):
             p, q = y % ph, x % pw
             slot, c = slots[p, q], cmap[p, q]
             dn = np.float32(raw[y, x])
             if scale != 1.0:
                 dn = black[slot] + (dn - black[slot]) * scale
-            if banded:
-                bx = min(x // b, wb - 1)
-                f = flags[by, bx]
-                if f >> c & 1:
-                    v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
-                    e = _site_value(
-                        raw,
-                        cmap,
-                        slots,
-                        ops,
-                        opf,
-                        y,
-                        x,
-                        c,
-                        f,
-                        shares[:, by - r0, bx],
-                        lows[by - r0, bx],
-                        headroom,
-                        gains[c],
-                    )
-                    if e > v:
-                        dn = black[slot] + e / applied[c] * span[slot] * scale
+            e = _rebuilt(raw, site, y, x, c)
+            if e >= 0:
+                v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
+                if e > v:
+                    dn = black[slot] + e / applied[c] * span[slot] * scale
             out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
 
 
@@ -437,12 +378,12 @@ def reconstruct_mosaic(
     headroom = np.float32(HIGHLIGHT_HEADROOM)
     site = (cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, g)
     # The largest code a rebuilt value needs: fit it under 65535 by scaling every site.
-    top = _top(data, *site, black, span, applied)
+    top = _top(data, site, black, span, applied)
     bmax = float(black.max())
     scale = 1.0 if top <= 65535.0 else (65535.0 - bmax) / (top - bmax)
     out = np.empty_like(data)
     scale = np.float32(scale)
-    _write(data, out, *site, scale, black, span, applied)
+    _write(data, out, site, scale, black, span, applied)
     if scale < 1:
         opf = opf.copy()
         opf[0, 4:8] = (span * scale).astype(np.float64)
