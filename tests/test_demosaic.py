@@ -173,3 +173,26 @@ def test_root_domain_beats_linear_values_on_linear_photos():
             assert gain >= 1.0, (path.name, method, gain)
             gains.append(gain)
     assert np.mean(gains) >= 3.0, gains
+
+
+def test_cli_demosaic_domain_reaches_the_render_and_the_sidecar(tmp_path):
+    """``--demosaic-domain linear`` renders as the config's ``domain = "linear"`` does
+    (the sidecar records it) and differs from the default square roots."""
+    import json
+
+    from click.testing import CliRunner
+
+    from rawsim_cli.main import cli
+
+    path = DATA / "raw" / "canon_eos60d_mlv.dng"
+    renders = {}
+    for domain in ("sqrt", "linear"):
+        out = tmp_path / domain
+        args = ["process", str(path), "-o", str(out), "--demosaic-domain", domain]
+        done = CliRunner().invoke(cli, args)
+        assert done.exit_code == 0, done.output
+        sidecar = json.loads((out / "canon_eos60d_mlv.process.json").read_text())
+        (stage,) = [s for s in sidecar["config"] if s["name"] == "demosaic"]
+        assert stage["domain"] == domain
+        renders[domain] = oiio.ImageBuf(str(out / "canon_eos60d_mlv.png")).get_pixels(oiio.UINT8)
+    assert not np.array_equal(renders["sqrt"], renders["linear"])

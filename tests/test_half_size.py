@@ -88,3 +88,6 @@ def test_cli(tmp_path):
     flags = ["--half-size", "--demosaic", "menon"]
     bad = CliRunner().invoke(cli, ["process", str(path), "-o", str(tmp_path), *flags])
     assert bad.exit_code == 2 and "--half-size replaces the demosaic" in bad.output
+    flags = ["--half-size", "--demosaic-domain", "linear"]
+    bad = CliRunner().invoke(cli, ["process", str(path), "-o", str(tmp_path), *flags])
+    assert bad.exit_code == 2 and "drop --demosaic-domain" in bad.output
