@@ -259,7 +259,14 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
                     bar.update(1)
         except Interrupted as stop:
             interrupted = stop
-            results_iter.close()  # a generator: stops its workers, if not yet done
+            try:  # a generator: stops its workers, if not yet done, collecting what they
+                results_iter.throw(stop)  # finished and it had not given out yet
+            except Interrupted as again:
+                interrupted = again
+            except StopIteration:
+                pass
+            for result in interrupted.finished:
+                report(result)
         except Exception:
             if signal_received() is None:
                 raise

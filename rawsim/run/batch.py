@@ -24,6 +24,7 @@ from rawsim.io.atomic import remove_stale_temporaries
 from rawsim.io.task import Task
 from rawsim.noise.seeds import derive_seed
 from rawsim.run.jobs import (
+    Interrupted,
     Result,
     _init_worker,
     _run_one,
@@ -296,15 +297,24 @@ def _run_pool(tasks, job, jobs, overwrite, debug, kwargs) -> Iterator[Result]:
         initializer=_init_worker,
         initargs=(threads, os.getpid()),
     )
+    futures: dict = {}
+    given = set()
     try:
         futures = {pool.submit(_run_one, job, t, overwrite, debug, kwargs): t for t in tasks}
         for fut in as_completed(futures):
+            given.add(fut)
             try:
                 yield fut.result()
             except Exception as err:  # the worker died (killed, out of memory)
                 task = futures[fut]
                 yield Result(task, "failed", f"{task.source}: worker failed: {err}")
-    except BaseException:  # interrupted (or the consumer stopped): no file starts any more
+    except BaseException as stop:  # interrupted (or the consumer stopped): no file starts
+        if isinstance(stop, Interrupted):  # what workers finished before it, not yet given
+            stop.finished = [
+                f.result()
+                for f in futures
+                if f not in given and f.done() and not f.cancelled() and f.exception() is None
+            ]
         _terminate(pool)
         raise
     pool.shutdown()

@@ -34,12 +34,15 @@ class Interrupted(BaseException):
     """SIGINT or SIGTERM stopped the job; exit status 128 + ``signum`` (130, 143).
 
     A BaseException, like KeyboardInterrupt: no ``except Exception`` swallows it,
-    and on its way out every atomic write removes its temporary file.
+    and on its way out every atomic write removes its temporary file. ``finished``:
+    the results of files that workers had finished and the batch had not yet given
+    out when it came (:func:`rawsim.run.batch.run`), for the summary to count.
     """
 
     def __init__(self, signum: int):
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
+        self.finished: list = []
 
     @property
     def exit_code(self) -> int:
