@@ -68,6 +68,7 @@ LUT_SIZE = 65536
 _EPS = np.float32(1e-10)
 _ROOT_EPS = np.float32(DEMOSAIC_ROOT_EPS)  # as rawsim.isp.demosaic.ROOT_EPS
 _ROOT_SQRT_EPS = np.sqrt(_ROOT_EPS)
+_ROOT_TWICE_SQRT_EPS = np.float32(2 * _ROOT_SQRT_EPS)
 _HALF = np.float32(0.5)
 _QUARTER = np.float32(-0.25)
 _THIRD = np.float32(1 / 3)
@@ -127,15 +128,16 @@ def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
 
 @njit(inline="always", **_JIT)
 def _to_root(v):
-    """sign(v)·(√(|v| + ε) − √ε), float32 (``rawsim.isp.demosaic.to_root``)."""
-    return np.float32(np.copysign(np.sqrt(abs(v) + _ROOT_EPS) - _ROOT_SQRT_EPS, v))
+    """sign(v)·(√(|v| + ε) − √ε) as v / (√(|v| + ε) + √ε), float32
+    (``rawsim.isp.demosaic.to_root``)."""
+    return np.float32(v / (np.sqrt(abs(v) + _ROOT_EPS) + _ROOT_SQRT_EPS))
 
 
 @njit(inline="always", **_JIT)
 def _from_root(y):
-    """sign(y)·((|y| + √ε)² − ε), float32 (``rawsim.isp.demosaic.from_root``)."""
-    t = abs(y) + _ROOT_SQRT_EPS
-    return np.float32(np.copysign(t * t - _ROOT_EPS, y))
+    """sign(y)·((|y| + √ε)² − ε) as y·(|y| + 2√ε), float32
+    (``rawsim.isp.demosaic.from_root``)."""
+    return np.float32(y * (abs(y) + _ROOT_TWICE_SQRT_EPS))
 
 
 @njit(**_JIT)

@@ -280,19 +280,20 @@ ROOT_SQRT_EPS = np.sqrt(ROOT_EPS)
 
 def to_root(x: torch.Tensor) -> torch.Tensor:
     """The odd root sign(x)·(√(|x| + ε) − √ε) of linear values (any shape, any range):
-    the domain the demosaic interpolates in; :func:`from_root` inverts it."""
+    the domain the demosaic interpolates in; :func:`from_root` inverts it. Computed as
+    x / (√(|x| + ε) + √ε): no cancellation near 0, and the gradient there is 1/(2√ε)."""
     eps, sqrt_eps = (torch.tensor(float(v), dtype=x.dtype) for v in (ROOT_EPS, ROOT_SQRT_EPS))
     # The root in float64, rounded once: correctly rounded, as the engine's float32
     # sqrt is (torch's float32 sqrt on the CPU is not, by 1 ulp in 1 value of 6).
     root = torch.sqrt((x.abs() + eps).double()).to(x.dtype)
-    return torch.copysign(root - sqrt_eps, x)
+    return x / (root + sqrt_eps)
 
 
 def from_root(y: torch.Tensor) -> torch.Tensor:
-    """Linear values of root-domain ``y``: sign(y)·((|y| + √ε)² − ε)."""
-    eps, sqrt_eps = (torch.tensor(float(v), dtype=y.dtype) for v in (ROOT_EPS, ROOT_SQRT_EPS))
-    t = y.abs() + sqrt_eps
-    return torch.copysign(t * t - eps, y)
+    """Linear values of root-domain ``y``: sign(y)·((|y| + √ε)² − ε), computed as
+    y·(|y| + 2√ε) (the gradient at 0 is 2√ε)."""
+    twice = torch.tensor(float(2 * ROOT_SQRT_EPS), dtype=y.dtype)
+    return y * (y.abs() + twice)
 
 
 class RootDomain(nn.Module):
