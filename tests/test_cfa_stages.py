@@ -274,8 +274,9 @@ def test_strips_equal_the_whole_image(tmp_path, pattern, demosaic):
             whole = isp(x).detach()
         # float32 (a reach outside the halo would differ by far more): X-Trans and
         # its 3×3 kin are filtered tap by tap, the same bits in a strip; the Bayer
-        # bilateral sums in an order torch picks by size
-        assert torch.allclose(strips, whole, atol=1e-6)
+        # bilateral sums in an order torch picks by size, ulps that the demosaic's
+        # square roots magnify near black (slope 50 at 0: 1.5e-6 measured)
+        assert torch.allclose(strips, whole, atol=1e-5)
 
 
 # ------------------------------------------------------------------ odd raws
