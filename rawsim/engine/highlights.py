@@ -17,7 +17,8 @@ Work: one pass over the mosaic for each block's colour means and clip flags
 fields live on the band of block rows that holds clipped blocks (plus the border),
 as summed-area tables in float64, read only at clipped blocks; each clipped block
 keeps its hue and least level, and its clipped sites are rebuilt from their 3 × 3
-neighbourhoods twice (once for the largest code needed, once to write).
+neighbourhoods as they are written (again, scaled, in the rare case where rebuilt
+values need codes above 65535).
 """
 
 from __future__ import annotations
@@ -260,34 +261,18 @@ def _rebuilt(raw, site, y, x, c):
 
 
 @njit(parallel=True, **_JIT)
-def _top(raw, site, black, span, applied):
-    """The largest code (DN) a rebuilt site needs, over every slot."""
-    h, w = raw.shape
-    cmap, slots = site[0], site[1]
-    ph, pw = cmap.shape
-    rows = np.zeros(h, np.float64)
-    for y in prange(h):
-        top = 0.0
-        for x in range(w):
-            c = cmap[y % ph, x % pw]
-            e = _rebuilt(raw, site, y, x, c)
-            if e >= 0:
-                slot = slots[y % ph, x % pw]
-                top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
-        rows[y] = top
-    return rows.max()
-
-
-@njit(parallel=True, **_JIT)
 def _write(raw, out, site, scale, black, span, applied):
     """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
     clipped block takes max(its value, its rebuilt value, :func:`_rebuilt`).
     ``scale`` < 1: every site is first scaled about its black level (``span``: the
-    levels' divisor per slot)."""
+    levels' divisor per slot). Returns the largest code a rebuilt value needs,
+    unscaled: above 65535, the caller writes again with a scale that fits it."""
     h, w = raw.shape
     cmap, slots, ops, opf = site[0], site[1], site[2], site[3]
     ph, pw = cmap.shape
+    tops = np.zeros(h, np.float64)
     for y in prange(h):
+        top = 0.0
         for x in range(w):
             p, q = y % ph, x % pw
             slot, c = slots[p, q], cmap[p, q]
@@ -296,10 +281,13 @@ def _write(raw, out, site, scale, black, span, applied):
                 dn = black[slot] + (dn - black[slot]) * scale
             e = _rebuilt(raw, site, y, x, c)
             if e >= 0:
+                top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
                 v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
                 if e > v:
                     dn = black[slot] + e / applied[c] * span[slot] * scale
             out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+        tops[y] = top
+    return tops.max()
 
 
 def _slots(cfa: CFA) -> np.ndarray:
@@ -377,13 +365,13 @@ def reconstruct_mosaic(
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
     site = (cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, g)
-    # The largest code a rebuilt value needs: fit it under 65535 by scaling every site.
-    top = _top(data, site, black, span, applied)
-    bmax = float(black.max())
-    scale = 1.0 if top <= 65535.0 else (65535.0 - bmax) / (top - bmax)
     out = np.empty_like(data)
-    scale = np.float32(scale)
-    _write(data, out, site, scale, black, span, applied)
+    top = _write(data, out, site, np.float32(1.0), black, span, applied)
+    scale = np.float32(1.0)
+    if top > 65535.0:  # rebuilt values need more codes: scale every site to fit them
+        bmax = float(black.max())
+        scale = np.float32((65535.0 - bmax) / (top - bmax))
+        _write(data, out, site, scale, black, span, applied)
     if scale < 1:
         opf = opf.copy()
         opf[0, 4:8] = (span * scale).astype(np.float64)
