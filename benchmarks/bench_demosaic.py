@@ -35,6 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import describe  # noqa: E402
 from photos import centre, linked, rawsim  # noqa: E402
 
+from rawsim.colorspaces import SRGB_CURVE  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = "nikon_d850"
 METHODS = ("wcd", "menon", "malvar", "bilinear")
@@ -46,15 +48,6 @@ def _png(path: Path) -> np.ndarray:
     import OpenImageIO as oiio
 
     return oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)[..., :3].astype(np.float64)
-
-
-def _linear(v: np.ndarray) -> np.ndarray:
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
-def _encoded(v: np.ndarray) -> np.ndarray:
-    v = np.clip(v, 0, 1)
-    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
 
 
 def _score(render: np.ndarray, photo: np.ndarray) -> float:
@@ -70,9 +63,9 @@ def _matched(render: np.ndarray, photo: np.ndarray) -> np.ndarray:
     ``photo`` (least squares over the central 90 %): what differs in colour between
     the pipelines (matrices, white balance, scaling) is taken out, and what is left
     is the demosaic's structure."""
-    a, b = (_linear(centre(x)).reshape(-1, 3) for x in (render, photo))
+    a, b = (SRGB_CURVE.decode(centre(x)).reshape(-1, 3) for x in (render, photo))
     m, *_ = np.linalg.lstsq(a, b, rcond=None)
-    return _encoded(_linear(render) @ m)
+    return SRGB_CURVE.encode(np.clip(SRGB_CURVE.decode(render) @ m, 0, 1))
 
 
 def _cpsnr(a: np.ndarray, b: np.ndarray) -> float:

@@ -397,20 +397,10 @@ def figures(out: Path) -> None:
     lifted 2 stops (noisy, bilateral, profiled), rendered by rawsim's default ISP."""
     from dataclasses import replace
 
-    import OpenImageIO as oiio
+    from photos import save_strip
 
     from rawsim.isp.config import IspConfig
     from rawsim.pipelines.process import render_samples
-
-    out.mkdir(parents=True, exist_ok=True)
-
-    def save(panels, name):
-        strip = np.concatenate(
-            [np.pad(p, ((0, 0), (0, 4), (0, 0)), constant_values=1.0) for p in panels], axis=1
-        )[:, :-4]
-        buf = oiio.ImageBuf(oiio.ImageSpec(strip.shape[1], strip.shape[0], 3, oiio.UINT8))
-        buf.set_pixels(oiio.ROI(), np.clip(strip, 0, 1).astype(np.float32))
-        buf.write(str(out / name))
 
     with tempfile.TemporaryDirectory() as tmp:
         noisy_path, clean_path = [
@@ -429,7 +419,7 @@ def figures(out: Path) -> None:
             panels.append(render(noisy, bm3d_planes(noisy))[crop])
         except ImportError:
             pass
-        save([*panels, render(clean)[crop]], "denoise_kodak.png")
+        save_strip([*panels, render(clean)[crop]], out / "denoise_kodak.png")
     real = read_raw(HERE / "tests" / "data" / "raw" / "canon_eos60d_mlv.dng")
     config = IspConfig.default().override(exposure=2.0)
     gain, offset = model_of(real, estimated=True)
@@ -453,7 +443,7 @@ def figures(out: Path) -> None:
         render_samples(replace(real, data=d), config, "png", 16)[0][crop] / 65535
         for d in (real.data, as_dn(real, blurred), ours)
     ]
-    save(panels, "denoise_real.png")
+    save_strip(panels, out / "denoise_real.png")
     print(f"wrote {out / 'denoise_kodak.png'} and {out / 'denoise_real.png'}")
 
 

@@ -70,6 +70,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from machine import describe  # noqa: E402
+from photos import save_strip  # noqa: E402
 
 HERE = Path(__file__).resolve().parents[1]
 EVS = (1, 2, 3)
@@ -404,8 +405,9 @@ def crops(scored: dict, truths: dict, region: np.ndarray, path: Path) -> None:
     """The docs' strip: the truth, then clip, LibRaw -H 5, darktable and reconstruct,
     cropped around the clipped region's densest window, each times its gain, with
     the truth's brightest (99.9th percentile of luminance) at white, sRGB-encoded."""
-    import OpenImageIO as oiio
     from scipy.ndimage import uniform_filter
+
+    from rawsim.colorspaces import SRGB_CURVE
 
     h, w = region.shape
     ch, cw = min(h, 240), min(w, 320)
@@ -417,21 +419,13 @@ def crops(scored: dict, truths: dict, region: np.ndarray, path: Path) -> None:
     bright = float(np.percentile(truths["rawsim"][window] @ _SRGB_TO_XYZ[1], 99.9))
 
     def shown(rgb: np.ndarray) -> np.ndarray:
-        v = np.clip(rgb[window] / bright, 0, 1)
-        return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+        return SRGB_CURVE.encode(np.clip(rgb[window] / bright, 0, 1))
 
     panels = [shown(truths["rawsim"])]
     for row in ("rawsim clip", "libraw -H 5", "darktable", "rawsim reconstruct"):
         if row in scored:
             panels.append(shown(scored[row]["render"] * scored[row]["gain"]))
-    strip = np.concatenate(
-        [np.pad(p, ((0, 0), (0, 4), (0, 0)), constant_values=1) for p in panels], 1
-    )
-    strip = strip[:, :-4]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = oiio.ImageBuf(oiio.ImageSpec(strip.shape[1], strip.shape[0], 3, oiio.UINT8))
-    buf.set_pixels(oiio.ROI(), strip.astype(np.float32))
-    assert buf.write(str(path)), oiio.geterror()
+    save_strip(panels, path)
     print(f"  wrote {path} (window rows {y0}–{y0 + ch}, columns {x0}–{x0 + cw})")
 
 

@@ -493,9 +493,9 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
 
 def srgb_8bit(linear: np.ndarray) -> np.ndarray:
     """Linear values → sRGB-coded 8-bit levels (float), clipped to [0, 1] first."""
-    x = np.clip(linear, 0, 1)
-    coded = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-    return np.round(coded * 255)
+    from rawsim.colorspaces import SRGB_CURVE
+
+    return np.round(SRGB_CURVE.encode(np.clip(linear, 0, 1)) * 255)
 
 
 def cpsnr(path: Path, truth: np.ndarray, border: int = 12) -> float:
