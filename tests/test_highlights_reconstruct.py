@@ -405,6 +405,8 @@ def test_real_sky_clipped_a_stop_lower_comes_back_closer_than_clip():
     against 0.077 in chromaticity, 0.014 against 0.25 stops), and its lit pixels are
     not pushed towards magenta: their median G/(R+B) within 10 % of the truth's.
     """
+    from scipy.ndimage import binary_dilation
+
     from rawsim.io.raw import read_raw
     from rawsim.pipelines.process import render_float
     from tests.conftest import DATA
@@ -415,10 +417,7 @@ def test_real_sky_clipped_a_stop_lower_comes_back_closer_than_clip():
     white = round(black + (top - black) / 2)
     clipped = replace_raw(raw, data=np.minimum(raw.data, white), white_level=white)
     sites = raw.data >= black + 0.99 * (white - black)
-    region = np.zeros_like(sites)
-    for dy in (-1, 0, 1):  # the pixels next to a clipped site
-        for dx in (-1, 0, 1):
-            region |= np.roll(np.roll(sites, dy, 0), dx, 1)
+    region = binary_dilation(sites, np.ones((3, 3), bool))  # and the pixels next to one
     assert 0.2 < region.mean() < 0.8
 
     def linear(r, mode):
