@@ -13,8 +13,8 @@ Speed: a 6000×4000 mosaic, ours on ``--threads`` numba threads vs LibRaw 3-pass
 
     python benchmarks/bench_xtrans.py --images /path/to/kodak --repeats 3
 
-Ours runs ``icd`` with ``linear`` set as the data are (its square-root domain for
-linearised images, the values as they are for display-coded ones).
+Ours runs ``icd`` as the pipeline does: on square roots for linearised images
+(:func:`rawsim.isp.demosaic.to_root`), on the values as they are for display-coded ones.
 """
 
 from __future__ import annotations
@@ -28,11 +28,13 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import rawpy
+import torch
 
 from rawsim.cfa import CFA
 from rawsim.engine import set_threads
 from rawsim.engine.xtrans import demosaic_xtrans
 from rawsim.io.dng import DngInfo, write_dng
+from rawsim.isp.demosaic import from_root, to_root
 
 XT = CFA("XTRANS")
 INFO = DngInfo(XT, 0, 65535, ((1, 0, 0), (0, 1, 0), (0, 0, 1)), (1, 1, 1), "t", "t", "t", 100)
@@ -87,8 +89,13 @@ def quality(paths: list[Path], linear: bool) -> None:
             row = {n: cpsnr(libraw(dng, q), x) for n, q in QUALITIES.items()}
             m = m.astype(np.float32)
             row["ours bilinear"] = cpsnr(demosaic_xtrans(m, XT, "bilinear"), x)
-            # icd takes linear data in its square-root domain, display-coded data as is
-            row["ours icd"] = cpsnr(demosaic_xtrans(m, XT, "icd", linear=linear), x)
+            # on linear data the pipeline demosaics square roots, display-coded data as is
+            if linear:
+                root = to_root(torch.from_numpy(m)).numpy()
+                icd = from_root(torch.from_numpy(demosaic_xtrans(root, XT, "icd"))).numpy()
+            else:
+                icd = demosaic_xtrans(m, XT, "icd")
+            row["ours icd"] = cpsnr(icd, x)
             for n in names:
                 scores[n].append(row[n])
             print(path.name, "  ".join(f"{n} {row[n]:.2f}" for n in names), flush=True)

@@ -258,16 +258,16 @@ def test_config_places_reconstruct_before_demosaic():
 
 # -------------------------------------------------------------- the render
 #: sha256 (first 16 hex digits) of the 16-bit TIFF samples of ``synthetic_raw`` (84 ×
-#: 150) with clip and blend, engine and torch reference, measured before reconstruct
-#: and unclip were added: those modes' bytes must not change. (X-Trans: measured again
-#: when the ``icd`` demosaic gained its median refinement, before anything else changed.)
-#: Bayer on linear values: its default square-root domain came later and moved its
-#: renders (X-Trans icd always took its own square roots).
+#: 150) with clip and blend, engine and torch reference, demosaicked on linear values,
+#: measured before reconstruct and unclip were added: those modes' bytes must not
+#: change. X-Trans pinned again when its ``icd`` stopped taking its own square roots
+#: (the demosaic domain became one stage option for every CFA); before that, its
+#: bytes were those of its own square-root curve.
 CLIP_BLEND_BYTES = {
     ("RGGB", "clip"): ("e9b39081f3394c4e", "b06304353fd8a0ba"),
     ("RGGB", "blend"): ("a02f04cf877f0d1c", "88bae5bf6d696d29"),
-    ("XTRANS", "clip"): ("dcd922e7a44e3162", "0ce59714573dd4f6"),
-    ("XTRANS", "blend"): ("a76ea0315a58aab3", "ba5763713756dfbf"),
+    ("XTRANS", "clip"): ("4b9e4d89ed30101d", "420846791b8fa1d2"),
+    ("XTRANS", "blend"): ("9dbe982ce03a14cb", "f38203a29595588d"),
 }
 
 
@@ -275,8 +275,7 @@ CLIP_BLEND_BYTES = {
 def test_clip_and_blend_bytes_unchanged(key):
     pattern, mode = key
     raw = synthetic_raw(pattern, h=84, w=150)
-    domain = "linear" if pattern == "RGGB" else "sqrt"  # what each did then: X-Trans icd
-    config = override(default_config(), highlights=mode, demosaic_domain=domain)
+    config = override(default_config(), highlights=mode, demosaic_domain="linear")
     ours, ref = _both(raw, config)
     digest = lambda a: hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]  # noqa: E731
     assert (digest(ours), digest(ref)) == CLIP_BLEND_BYTES[key]

@@ -37,8 +37,6 @@ from rawsim.isp.xtrans_stencils import (
     INV_DIST_5,
     NEIGHBOURS_3,
     NEIGHBOURS_5,
-    SQRT_KNEE,
-    SQRT_SLOPE,
     XTRANS_DEMOSAIC_METHODS,
     padding,
 )
@@ -52,10 +50,6 @@ _K5 = np.array(INV_DIST_5).astype(np.float32)
 _EPS = np.float32(GRAD_EPS)
 _HALF = np.float32(0.5)
 _ONE = np.float32(1.0)
-_KNEE = np.float32(SQRT_KNEE)
-_ROOT_KNEE = np.float32(SQRT_KNEE * SQRT_SLOPE)
-_SLOPE = np.float32(SQRT_SLOPE)
-_INV_SLOPE = np.float32(1 / SQRT_SLOPE)
 
 #: Output rows and columns of a tile in whole periods (6×6: 96 × 504 sites).
 TILE_PERIODS = (16, 84)
@@ -65,21 +59,18 @@ METHOD_CODES = {"bilinear": 0, "icd": 1}
 # ------------------------------------------------------------- the geometry
 class Planes:
     """The phase-plane geometry of one CFA for one demosaic: neighbour tables,
-    same-colour lists and the halo, as the kernels take them (see :meth:`args`).
-    ``linear``: as in :func:`rawsim.isp.xtrans.demosaic_xtrans`."""
+    same-colour lists and the halo, as the kernels take them (see :meth:`args`)."""
 
     def __init__(
         self,
         cfa: CFA,
         method: str = "icd",
         iterations: int = ICD_ITERATIONS,
-        linear: bool = True,
     ) -> None:
         check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
         if iterations < 1:
             raise ParameterError(f"iterations must be at least 1, got {iterations}")
         self.cfa, self.method, self.iterations = cfa, method, iterations
-        self.root = method == "icd" and linear
         ph, pw = cfa.period
         self.cmap = np.array(cfa.colors, np.int64).reshape(ph, pw)
         self.nb3 = _plane_offsets(ph, pw, NEIGHBOURS_3)
@@ -113,7 +104,6 @@ class Planes:
             np.array(self.margin, np.int64),
             METHOD_CODES[self.method],
             self.iterations,
-            self.root,
         )
 
     def tile_shape(self, periods: tuple[int, int] = TILE_PERIODS) -> tuple[int, int]:
@@ -194,28 +184,6 @@ def _weight_sums(lists, counts, weights) -> np.ndarray:
 def _row(p, c, qr, qc, y, x0, n):
     """Plane (qr, qc) of channel ``c`` of ``p``, row ``y``, columns [x0, x0 + n)."""
     return p[c, qr, qc, y, x0 : x0 + n]
-
-
-@njit(**_JIT)
-def _to_sqrt(p):
-    """:func:`rawsim.isp.xtrans.to_sqrt` of every value of ``p``, in place."""
-    flat = p.reshape(-1)
-    for i in range(flat.size):
-        x = flat[i]
-        a = abs(x)
-        root = np.sqrt(max(a, _KNEE))
-        root = root if x >= 0 else -root
-        flat[i] = root if a >= _KNEE else x * _SLOPE
-
-
-@njit(**_JIT)
-def _from_sqrt(p):
-    """:func:`rawsim.isp.xtrans.from_sqrt` of every value of ``p``, in place."""
-    flat = p.reshape(-1)
-    for i in range(flat.size):
-        y = flat[i]
-        a = abs(y)
-        flat[i] = y * a if a >= _ROOT_KNEE else y * _INV_SLOPE
 
 
 @njit(**_JIT)
@@ -444,9 +412,7 @@ def _refine(m, est, out, cmap, nb3, margin, rows):
 def demosaic_planes(m, est, out, scratch, geometry):
     """Demosaic the tile in ``m`` (1, ph, pw, NY, NX); returns the buffer holding the
     result (``est`` or ``out``, each (3, ph, pw, NY, NX)). ``scratch``: (28, NX) rows."""
-    cmap, nb3, nb5, lists3, counts3, lists5, counts5, den3, margin, method, rounds, root = geometry
-    if root:
-        _to_sqrt(m)
+    cmap, nb3, nb5, lists3, counts3, lists5, counts5, den3, margin, method, rounds = geometry
     init_own(m, est, out, cmap)
     _bilinear(m, est, cmap, nb3, lists3, counts3, den3, margin)
     if method == 0:
@@ -457,10 +423,7 @@ def demosaic_planes(m, est, out, scratch, geometry):
         _red_blue(m, out, cmap, nb5, lists5, counts5, margin, num, den)
         est, out = out, est
     _refine(m, est, out, cmap, nb3, margin, scratch[10:28])
-    est = out
-    if root:
-        _from_sqrt(est)
-    return est
+    return out
 
 
 @njit(**_JIT)
@@ -536,7 +499,6 @@ def demosaic_xtrans(
     cfa: CFA,
     method: str = "icd",
     iterations: int = ICD_ITERATIONS,
-    linear: bool = True,
 ) -> np.ndarray:
     """Demosaic a (H, W) float32 mosaic on ``cfa`` → (3, H, W) float32.
 
@@ -545,7 +507,7 @@ def demosaic_xtrans(
     """
     import numba
 
-    geo = Planes(cfa, method, iterations, linear)
+    geo = Planes(cfa, method, iterations)
     mosaic = np.ascontiguousarray(mosaic, dtype=np.float32)
     if mosaic.ndim != 2:
         raise ParameterError(f"mosaic must be (H, W), got shape {mosaic.shape}")

@@ -197,16 +197,12 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
 def _demosaic(cfa: CFA, method: str, domain: str = "sqrt") -> nn.Module:
     """The demosaic stage of ``cfa``: a Bayer method as configured, or for other
     patterns (X-Trans) the X-Trans method it maps to (:data:`XTRANS_METHOD`), on
-    square roots where ``domain`` is ``sqrt`` (:class:`RootDomain`; X-Trans ``icd``
-    takes its own square roots, :func:`rawsim.isp.xtrans.to_sqrt`); for ``half``,
+    square roots where ``domain`` is ``sqrt`` (:class:`RootDomain`); for ``half``,
     half-size binning."""
     if method == HALF_SIZE:
         return HalfSize(cfa)
-    root = domain == "sqrt"
-    if not cfa.is_bayer and XTRANS_METHOD[method] == "icd":
-        return XTransDemosaic(cfa, "icd", linear=root)
     inner = Demosaic(cfa, method) if cfa.is_bayer else XTransDemosaic(cfa, XTRANS_METHOD[method])
-    return RootDomain(inner) if root else inner
+    return RootDomain(inner) if domain == "sqrt" else inner
 
 
 def _black_map(raw):

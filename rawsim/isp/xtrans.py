@@ -12,11 +12,12 @@ Methods (:data:`XTRANS_DEMOSAIC_METHODS`):
   LibRaw normalises in integers (weights × ⌊256 / Σw⌋ / 256, then truncates),
   which darkens by up to 1.6 % (Σw = 6, 7); this normalises exactly, so a flat
   field stays flat.
-* ``icd`` (default): iterated, edge-weighted colour differences, on the
-  signed square root of linear data (:func:`to_sqrt`: there shot noise has
-  one spread at every level and equal steps look nearly equal, so one
-  gradient scale fits dark and bright areas; on linear Kodak images this
-  gains 1.8 dB). Starting from ``bilinear``, each of ``iterations`` (3) rounds
+* ``icd`` (default): iterated, edge-weighted colour differences. On linear data
+  (a raw's) the pipeline runs it on square roots, as every demosaic
+  (:class:`rawsim.isp.demosaic.RootDomain`: there shot noise has one spread at
+  every level and equal steps look nearly equal, so one gradient scale fits
+  dark and bright areas; on linear Kodak images this gains 1.8 dB). Starting
+  from ``bilinear``, each of ``iterations`` (3) rounds
 
   1. re-estimates green at the red and blue sites as the sample minus the mean
      colour difference (its colour − green) of its 8 neighbours, weighted by
@@ -61,8 +62,6 @@ from rawsim.isp.xtrans_stencils import (
     INV_DIST_5,
     NEIGHBOURS_3,
     NEIGHBOURS_5,
-    SQRT_KNEE,
-    SQRT_SLOPE,
     WINDOW_3,
     XTRANS_DEMOSAIC_METHODS,
     min_size,
@@ -171,41 +170,23 @@ def _refine(m: torch.Tensor, est: torch.Tensor, masks: torch.Tensor) -> torch.Te
     return torch.cat([r, green, b], dim=1)
 
 
-def to_sqrt(x: torch.Tensor) -> torch.Tensor:
-    """The signed square root, linear below :data:`SQRT_KNEE` (see there). Any real x."""
-    a = x.abs()
-    # torch's float32 square root is not always correctly rounded; through float64 it
-    # is (and equals the compiled twin's)
-    root = torch.sign(x) * torch.sqrt(a.clamp(min=SQRT_KNEE).double()).to(x.dtype)
-    return torch.where(a >= SQRT_KNEE, root, x * SQRT_SLOPE)
-
-
-def from_sqrt(y: torch.Tensor) -> torch.Tensor:
-    """The inverse of :func:`to_sqrt`: y·|y|, linear below √knee."""
-    a = y.abs()
-    return torch.where(a >= SQRT_KNEE * SQRT_SLOPE, y * a, y * (1 / SQRT_SLOPE))
-
-
 def demosaic_xtrans(
     mosaic: torch.Tensor,
     cfa: CFA,
     method: str = "icd",
     iterations: int = ICD_ITERATIONS,
-    linear: bool = True,
 ) -> torch.Tensor:
     """Demosaic (B, 1, H, W) on ``cfa`` (any period; written for X-Trans) → (B, 3, H, W).
 
-    Nothing is clipped; the output is in the input's domain. ``iterations``
-    applies to ``icd`` only. ``linear``: the mosaic is linear light (a camera raw),
-    so ``icd`` works on its square root (:func:`to_sqrt`); False for data already
-    coded for display (e.g. sRGB test images), which it takes as they are.
+    Nothing is clipped; the output is in the input's domain (the pipeline gives
+    linear data as square roots, :class:`rawsim.isp.demosaic.RootDomain`).
+    ``iterations`` applies to ``icd`` only.
     """
     check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
     _check(mosaic, cfa, method, iterations)
     pad = padding(cfa, method, iterations)
     h, w = mosaic.shape[-2:]
-    root = method == "icd" and linear
-    m = extend(to_sqrt(mosaic) if root else mosaic, cfa, pad)
+    m = extend(mosaic, cfa, pad)
     masks = cfa.masks(h + 2 * pad, w + 2 * pad, device=m.device, dtype=m.dtype)[:, None, None]
     est = _bilinear(m, masks)
     if method == "icd":
@@ -215,7 +196,7 @@ def demosaic_xtrans(
     elif method != "bilinear":
         raise ParameterError(f"unknown method {method!r}")  # check_choice above
     est = est[..., pad : pad + h, pad : pad + w]
-    return from_sqrt(est) if root else est
+    return est
 
 
 def demosaic_xtrans_bilinear(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
@@ -240,14 +221,11 @@ class XTransDemosaic(nn.Module):
     :func:`demosaic_xtrans`.
     """
 
-    def __init__(
-        self, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS, linear: bool = True
-    ) -> None:
+    def __init__(self, cfa: CFA, method: str = "icd", iterations: int = ICD_ITERATIONS) -> None:
         super().__init__()
         self.cfa = cfa
         self.method = check_choice("X-Trans demosaic method", method, XTRANS_DEMOSAIC_METHODS)
         self.iterations = iterations
-        self.linear = linear  # icd on square roots (see demosaic_xtrans)
 
     @property
     def radius(self) -> int:
@@ -261,16 +239,14 @@ class XTransDemosaic(nn.Module):
             and mosaic.dtype == torch.float32
         )
         if not compiled:
-            return demosaic_xtrans(mosaic, self.cfa, self.method, self.iterations, self.linear)
+            return demosaic_xtrans(mosaic, self.cfa, self.method, self.iterations)
         from rawsim.engine import xtrans as kernels
 
         _check(mosaic, self.cfa, self.method, self.iterations)
         return torch.stack(
             [
                 torch.from_numpy(
-                    kernels.demosaic_xtrans(
-                        m[0].numpy(), self.cfa, self.method, self.iterations, self.linear
-                    )
+                    kernels.demosaic_xtrans(m[0].numpy(), self.cfa, self.method, self.iterations)
                 )
                 for m in mosaic
             ]

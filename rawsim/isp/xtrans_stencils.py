@@ -14,12 +14,6 @@ XTRANS_DEMOSAIC_METHODS = ("icd", "bilinear")
 ICD_ITERATIONS = 3
 #: Added to every gradient before the inverse square (float32 in both backends).
 GRAD_EPS = 1e-4
-#: ``icd`` on linear data works on the signed square root of the mosaic (shot noise
-#: is even there, and steps closer to even in lightness), which is linear with slope
-#: ``SQRT_SLOPE`` for magnitudes below ``SQRT_KNEE`` (√knee = knee · slope), so its
-#: gradient stays finite. Powers of two: both backends compute the same bits.
-SQRT_KNEE = 2.0**-20
-SQRT_SLOPE = 2.0**10
 #: The 3×3 neighbours in the order both backends sum them, and their weights.
 NEIGHBOURS_3 = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 EDGE_WEIGHTS_3 = tuple(2.0 if dy == 0 or dx == 0 else 1.0 for dy, dx in NEIGHBOURS_3)

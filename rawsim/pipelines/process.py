@@ -166,9 +166,6 @@ class EnginePlan:
     #: ``highlights reconstruct``: (white-balance gains, the count of mosaic ops before
     #: the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
     highlights: tuple | None = None
-    #: X-Trans ``icd`` on square roots (its own, :class:`rawsim.engine.xtrans.Planes`'s
-    #: ``linear``): the demosaic stage's ``domain = "sqrt"``.
-    icd_root: bool = True
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -250,7 +247,6 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     method = "bilinear"
     lens, lens_at = None, 0
     denoise = highlights = None
-    icd_root = True
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
             learned = resolved.info["raw_denoise"] == "learned"
@@ -275,10 +271,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         if isinstance(stage, DemosaicStage):
             bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
             method = stage.method if bayer else XTRANS_METHOD[stage.method]
-            root = stage.domain == "sqrt"
-            if method == "icd":
-                icd_root = root  # icd takes its own square roots
-            elif method != HALF_SIZE and root:
+            if method != HALF_SIZE and stage.domain == "sqrt":
                 pre.append((ep.OP_ROOT, []))  # the kernel interpolates the roots
                 post.append((ep.OP_SQUARE, []))
             continue
@@ -315,7 +308,6 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         lens_at,
         denoise,
         highlights,
-        icd_root,
     )
 
 
@@ -464,7 +456,7 @@ def engine_render(
     else:
         from rawsim.engine import xtrans
 
-        geo = xtrans.Planes(raw.cfa, plan.method, linear=plan.icd_root)
+        geo = xtrans.Planes(raw.cfa, plan.method)
         tile = tile or geo.tile_shape()
         rows, cols = geo.index(h, 0, tile[0]), geo.index(w, 1, tile[1])
         ep.periodic_kernel(
