@@ -393,12 +393,14 @@ def tune(profiles: list[str], isos: list[int]) -> None:
 
 def figures(out: Path) -> None:
     """The docs' before-and-after crops: a Kodak crop unprocessed at ISO 25600 (noisy,
-    bilateral, profiled, BM3D, clean) and the real raw in the tests, its shadows
-    lifted 2 stops (noisy, bilateral, profiled), rendered by rawsim's default ISP."""
+    bilateral, profiled, learned, BM3D, clean) and the real raw in the tests, its
+    shadows lifted 2 stops (noisy, bilateral, profiled, learned), rendered by
+    rawsim's default ISP."""
     from dataclasses import replace
 
     from photos import save_strip
 
+    from rawsim.denoise.learned import refine_mosaic
     from rawsim.isp.config import IspConfig
     from rawsim.pipelines.process import render_samples
 
@@ -414,6 +416,7 @@ def figures(out: Path) -> None:
             render(noisy)[crop],
             render(noisy, bilateral(noisy, normalised(clean))[0])[crop],
             render(noisy, profiled(noisy))[crop],
+            render(noisy, learned(noisy))[crop],
         ]
         try:
             panels.append(render(noisy, bm3d_planes(noisy))[crop])
@@ -425,6 +428,7 @@ def figures(out: Path) -> None:
     gain, offset = model_of(real, estimated=True)
     black = np.asarray(real.black_level, np.float64)
     ours = denoise_mosaic(real.data, real.cfa, black, real.white_level, gain, offset)
+    refined = refine_mosaic(real.data, ours, real.cfa, black, real.white_level, gain, offset)
     x = normalised(real)
     import torch
 
@@ -441,7 +445,7 @@ def figures(out: Path) -> None:
     crop = (slice(150, 310), slice(180, 420))
     panels = [
         render_samples(replace(real, data=d), config, "png", 16)[0][crop] / 65535
-        for d in (real.data, as_dn(real, blurred), ours)
+        for d in (real.data, as_dn(real, blurred), ours, refined)
     ]
     save_strip(panels, out / "denoise_real.png")
     print(f"wrote {out / 'denoise_kodak.png'} and {out / 'denoise_real.png'}")

@@ -1,10 +1,11 @@
 """Learned raw denoising: a small network that refines the profiled estimate.
 
-The network (:class:`RefineNet`, 0.13 M parameters) works on a Bayer mosaic's
-packed planes (R, G, G, B; half size). Its input, 12 channels: the noisy planes,
-the profiled method's estimate of them (:mod:`rawsim.denoise.profiled`), and the
-noise model's σ at that estimate, site by site (the noise-level map, so that one
-set of weights serves every camera and ISO). Everything is divided by the
+The network (:class:`RefineNet`, a three-scale U-Net of 0.61 M parameters) works
+on a Bayer mosaic's packed planes (R, G, G, B; half size). Its input, 12
+channels: the noisy planes, the profiled method's estimate of them
+(:mod:`rawsim.denoise.profiled`), and the noise model's σ at that estimate, site
+by site (the noise-level map, so that one set of weights serves every camera and
+ISO). Everything is divided by the
 model's σ at 10 % of white, so the network sees noise of about the same size at
 every ISO. Its output, added to the estimate, is the denoised planes.
 
@@ -12,7 +13,7 @@ It was trained only on pairs rawsim made (``rawsim unprocess --randomize
 --clean``) from photos outside the Kodak set, across the bundled Bayer profiles
 and their ISO ranges: :mod:`rawsim.denoise.training` holds the script, the image
 list with sources and licences, the seeds and the time it took. The weights ship
-in the package (``weights/refine_bayer.safetensors``, safetensors, 0.5 MB) and
+in the package (``weights/refine_bayer.safetensors``, safetensors, 2.4 MB) and
 are loaded on first use.
 
 Inference runs in tiles of :data:`TILE` packed pixels with :data:`OVERLAP` of
@@ -38,39 +39,42 @@ from rawsim.denoise.profiled import profiled_denoise
 WEIGHTS = "refine_bayer.safetensors"
 #: Packed pixels per tile side, and the context read around each tile.
 TILE = 256
-OVERLAP = 16
-#: Rows (packed pixels) an output pixel depends on, each side: 2 + 2·(1 + 3) + 2 + 1.
-REACH = 13
+OVERLAP = 32
+#: Rows (packed pixels) an output pixel depends on, each side, at most (measured: the
+#: 3 × 3 convolutions at full, half and quarter resolution, and the grid's phase).
+REACH = 24
 #: The level (white = 1) whose noise σ scales the network's inputs.
 REFERENCE_LEVEL = 0.1
 
 
 class RefineNet(nn.Module):
-    """Two-scale convolutional network: (B, 12, h, w) → (B, 4, h, w), h and w even."""
+    """Three-scale convolutional network (a small U-Net): (B, 12, h, w) → (B, 4, h, w),
+    h and w multiples of 4. Full, half and quarter resolution, ``width``, 2× and 4×
+    that many channels; each coarser scale is upsampled and joined to the finer."""
 
     def __init__(self, width: int = 32) -> None:
         super().__init__()
-        w, w2 = width, 2 * width
-        act = nn.ReLU(inplace=True)
-        self.head = nn.Sequential(
-            nn.Conv2d(12, w, 3, padding=1), act, nn.Conv2d(w, w, 3, padding=1), act
-        )
-        self.down = nn.Sequential(
-            nn.Conv2d(w, w2, 3, stride=2, padding=1),
-            act,
-            nn.Conv2d(w2, w2, 3, padding=1),
-            act,
-            nn.Conv2d(w2, w2, 3, padding=1),
-            act,
-        )
+        w, w2, w4 = width, 2 * width, 4 * width
+
+        def convs(n_in, n_out, n, stride=1):  # n 3 × 3 convolutions, each with a ReLU
+            layers = [nn.Conv2d(n_in, n_out, 3, stride=stride, padding=1), nn.ReLU(inplace=True)]
+            for _ in range(n - 1):
+                layers += [nn.Conv2d(n_out, n_out, 3, padding=1), nn.ReLU(inplace=True)]
+            return nn.Sequential(*layers)
+
+        self.head = convs(12, w, 2)
+        self.down = convs(w, w2, 3, stride=2)
+        self.down2 = convs(w2, w4, 3, stride=2)
+        self.up2 = nn.ConvTranspose2d(w4, w2, 2, stride=2)
+        self.join2 = convs(2 * w2, w2, 1)
         self.up = nn.ConvTranspose2d(w2, w, 2, stride=2)
-        self.tail = nn.Sequential(
-            nn.Conv2d(2 * w, w, 3, padding=1), act, nn.Conv2d(w, 4, 3, padding=1)
-        )
+        self.tail = nn.Sequential(*convs(2 * w, w, 1), nn.Conv2d(w, 4, 3, padding=1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         full = self.head(x)
-        return self.tail(torch.cat([full, self.up(self.down(full))], 1))
+        half = self.down(full)
+        half = self.join2(torch.cat([half, self.up2(self.down2(half))], 1))
+        return self.tail(torch.cat([full, self.up(half)], 1))
 
 
 def network_input(noisy, estimate, gain, offset) -> tuple[torch.Tensor, float]:
@@ -112,7 +116,7 @@ def _delta(net: RefineNet, noisy, estimate, gain, offset) -> torch.Tensor:
     """The network's correction of one tile's estimate (B, 4, h, w), in its units."""
     x, scale = network_input(noisy, estimate, gain, offset)
     h, w = x.shape[-2:]
-    x = nn.functional.pad(x, (0, w % 2, 0, h % 2), mode="replicate")  # even sides
+    x = nn.functional.pad(x, (0, -w % 4, 0, -h % 4), mode="replicate")  # sides of 4k
     return net(x)[..., :h, :w] * scale
 
 
