@@ -272,11 +272,17 @@ class Darktable:
 
 
 # ------------------------------------------------------------------ the table
-def run(images: Path, profiles: list[str], isos: list[int], thresholds: list[float]) -> None:
+def run(
+    images: Path, profiles: list[str], isos: list[int], thresholds: list[float], dt: bool = True
+) -> None:
     import shutil
 
-    darktable = Darktable(Path(tempfile.mkdtemp())) if shutil.which("darktable-cli") else None
-    if darktable is None:
+    darktable = None
+    if not dt:
+        print("darktable left out (--no-darktable)")
+    elif shutil.which("darktable-cli"):
+        darktable = Darktable(Path(tempfile.mkdtemp()))
+    else:
         print("darktable-cli is not installed (apt-get install darktable): its column is left out")
     try:
         import bm3d  # noqa: F401
@@ -506,6 +512,9 @@ def main(argv=None) -> None:
     ap.add_argument("--tune", action="store_true", help="sweep the threshold on non-Kodak photos")
     ap.add_argument("--figures", type=Path, help="write the docs' before-and-after crops here")
     ap.add_argument("--speed", action="store_true", help="seconds per 24 MP raw")
+    ap.add_argument(
+        "--no-darktable", action="store_true", help="leave darktable out (4 renders per image)"
+    )
     args = ap.parse_args(argv)
     print("\n".join(describe()), flush=True)
     profiles = args.profiles.split(",")
@@ -520,7 +529,7 @@ def main(argv=None) -> None:
         speed()
         return
     thresholds = [float(v) for v in args.libraw_thresholds.split(",")]
-    run(args.images, profiles, isos, thresholds)
+    run(args.images, profiles, isos, thresholds, not args.no_darktable)
 
 
 if __name__ == "__main__":
