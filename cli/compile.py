@@ -135,7 +135,8 @@ def command(ctx, jobs):
         _inputs(folders["in"])
         for done, (what, seconds, kernels) in enumerate(_schedule(folders, jobs), 1):
             compiled += len(kernels)
-            news = f"{len(kernels)} kernels compiled" if kernels else "cached already"
+            n = len(kernels)
+            news = f"{n} kernel{'s' * (n != 1)} compiled" if kernels else "cached already"
             if not quiet:
                 click.echo(
                     f"rawsim: [{done}/{len(TASKS)}] {what}: {news} ({seconds:.1f} s)", err=True
