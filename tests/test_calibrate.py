@@ -146,6 +146,7 @@ def _unprocess(photos: Path, out: Path, profile: str, iso: float, noise: str) ->
     return truth["gain_dn_per_electron"], math.sqrt(truth["read_std_dn"] ** 2 - rows**2)
 
 
+@pytest.mark.slow  # unprocesses and fits photos: accuracy, not a unit
 @pytest.mark.parametrize(
     ("profile", "noise"), [("sony_a7s2", "physics"), ("canon_eos_70d", "poisson-gaussian")]
 )

@@ -26,6 +26,9 @@ from rawsim.api import unprocess
 from rawsim.calibrate import calibrate_iso, frame_stats
 from tests.test_calibrate_coverage import SENSOR, _camera_photo, _raw
 
+#: Coverage over many fits of unprocessed photos: an acceptance test, in the slow tier.
+pytestmark = pytest.mark.slow
+
 PHOTOS = tuple(f"kodak/kodim{i:02d}_crop.png" for i in range(2, 25, 2))
 SETS = (PHOTOS[0:4], PHOTOS[4:8], PHOTOS[8:12])
 ISOS = (800, 3200)
