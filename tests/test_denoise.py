@@ -195,7 +195,7 @@ def test_real_noise_is_removed_and_nothing_else():
     model = noise_model_for(raw)
     assert model.source == "estimate"
     gain, offset = model.normalised(raw.white_level - float(np.mean(raw.black_level)))
-    out = _denoised("profiled", raw, np.asarray(raw.black_level, np.float64), gain, offset)
+    out = denoise_mosaic(raw.data, raw.cfa, raw.black_level, raw.white_level, gain, offset)
     x, y = _normalised(raw), _normalised(raw, out)
     residual = x - y
     edges = np.quantile(y, np.linspace(0.02, 0.98, 9))

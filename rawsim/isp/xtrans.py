@@ -195,8 +195,7 @@ def demosaic_xtrans(
         est = _refine(m, est, masks)
     elif method != "bilinear":
         raise ParameterError(f"unknown method {method!r}")  # check_choice above
-    est = est[..., pad : pad + h, pad : pad + w]
-    return est
+    return est[..., pad : pad + h, pad : pad + w]
 
 
 def demosaic_xtrans_bilinear(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
