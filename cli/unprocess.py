@@ -267,9 +267,9 @@ def command(
         ctx, inputs, IMAGE_EXTENSIONS, "input images", out_dir, shard, jobs, executor, address
     )
 
-    # Then the pipeline (torch, numba).
+    # Then the pipeline (numba; torch only where a stage needs it).
     from rawsim.device import resolve_device
-    from rawsim.isp.transfer import TransferSpec
+    from rawsim.isp.curves import TransferSpec
     from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
 
     try:

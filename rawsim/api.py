@@ -23,7 +23,7 @@ from rawsim.isp.config import IspConfig
 from rawsim.isp.pipeline import build_isp
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.process import render_float
-from rawsim.pipelines.unprocess import INTEGER_DTYPES, UnprocessOptions, simulate
+from rawsim.pipelines.unprocess import INTEGER_TYPES, UnprocessOptions, element_type, simulate
 from rawsim.sensors import MonoSensor, ProfileSensor
 
 
@@ -120,7 +120,7 @@ def unprocess(
         sensor="mono" if isinstance(sensor, MonoSensor) else "rgb",
         lens=lens,
     )
-    if grad and images.dtype in INTEGER_DTYPES:
+    if grad and element_type(images) in INTEGER_TYPES:
         raise ParameterError("gradients need float images")
     noisy, clean, metadata = [], [], []
     if not grad:  # written in place by each sample's kernel: no copies, no concatenation

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-
-import torch
+from typing import TYPE_CHECKING
 
 from rawsim.errors import ParameterError
 from rawsim.profiles import SensorProfile
+
+if TYPE_CHECKING:
+    import torch
 
 #: Brooks et al.'s four XYZ → camera matrices, mixed by random convex weights.
 BROOKS_XYZ_TO_CAMERA = (
@@ -95,13 +97,18 @@ def sample_params(
     With it, the matrix is a random convex mix of Brooks's four, the red and blue
     gains and the brightness are drawn from Brooks's ranges. ISO is ``iso``, or
     log-uniform in ``iso_range``. Each value is checked against the profile.
+    Only draws need torch (its generator): a fixed ISO without ``randomize``
+    returns without importing it.
 
     Args:
         fixed: further :class:`UnprocessParams` fields (tone, transfer, …).
     """
     if (iso is None) == (iso_range is None):
         raise ParameterError("give exactly one of an ISO or an ISO range")
-    g = generator if generator is not None else torch.Generator().manual_seed(0)
+    if iso_range is not None or randomize:
+        import torch
+
+        g = generator if generator is not None else torch.Generator().manual_seed(0)
 
     def uniform(lo: float, hi: float) -> float:
         return lo + (hi - lo) * float(torch.rand((), generator=g, dtype=torch.float64))

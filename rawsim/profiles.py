@@ -30,6 +30,7 @@ from rawsim.noise.spec import (
     DEFAULT_SPREAD,
     GainCurve,
     LambdaCurve,
+    NoiseLevels,
     NoiseSpec,
     SeedGaussian,
     SigmaCurve,
@@ -128,6 +129,10 @@ class SensorProfile:
                 "give an ISO within it, or another profile"
             )
         return iso
+
+    def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
+        """The noise parameters of ``model`` at ``iso``; the ISO must lie in the range."""
+        return self.noise.levels(model, self.check_iso(iso))
 
     def to_dict(self) -> dict:
         """A JSON-ready summary (rawsim's format)."""

@@ -143,7 +143,7 @@ class ProfileSensor(Sensor):
 
     def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
         """Noise parameters at ``iso``; the ISO must lie in the profile's range."""
-        return self.profile.noise.levels(model, self.profile.check_iso(iso))
+        return self.profile.noise_levels(iso, model)
 
     def simu_noise(
         self,

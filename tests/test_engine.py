@@ -2,11 +2,15 @@
 bit, the noise bit for bit, the fused unprocess kernel within one code value, for every
 noise model, option (a lens too), CFA pattern, input kind, strip split and thread count."""
 
+import json
+import subprocess
+import sys
 from dataclasses import replace
 
 import numba
 import numpy as np
 import pytest
+import rawpy
 import torch
 from numba import njit
 from scipy import stats
@@ -33,9 +37,9 @@ from rawsim.noise.poisson_table import (
     poisson_table,
     poisson_weights,
 )
-from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
+from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, code_table, simulate
 from rawsim.profiles import load_profile, profile_from_dict
-from rawsim.sensors import MonoSensor, RGBSensor
+from rawsim.sensors import MonoSensor, RGBSensor, display_to_linear
 from tests.conftest import DATA
 from tests.test_dark_shading import dark_profile
 
@@ -410,3 +414,44 @@ def test_engine_output_does_not_depend_on_threads(dark, tmp_path):
         outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     assert np.array_equal(*outputs)
+
+
+@pytest.mark.parametrize("tone", ["none", "smoothstep", "reinhard"])
+@pytest.mark.parametrize("transfer", ["srgb", "bt2020", "romm", "linear", "gamma:2.2"])
+def test_code_table_is_the_display_decode_rounded_once(tone, transfer):
+    """Integer inputs read through one float32 table: the torch decode of code / top
+    in float64, rounded once (the NumPy path for the toe curves gives the same bits)."""
+    for top in (255, 65535):
+        codes = torch.arange(top + 1, dtype=torch.float64) / top
+        expected = display_to_linear(codes, tone, transfer).float().numpy()
+        table = code_table(top, tone, transfer)
+        assert table.dtype == np.float32 and np.array_equal(table, expected)
+
+
+def test_one_file_unprocess_imports_no_torch(tmp_path):
+    """The installed command unprocesses an 8-bit photo on the engine without importing
+    torch (a second of a one-file run) or numba's BLAS probe (``scipy.linalg``). Its
+    DNG holds the mosaic that :func:`simulate` gives with the torch sensor object:
+    the torch-free :class:`SensorLayout` stands for it exactly."""
+    out = tmp_path / "out"
+    code = (
+        "import sys\n"
+        "from importlib.metadata import entry_points\n"
+        "(script,) = entry_points(group='console_scripts', name='rawsim')\n"
+        f"sys.argv = ['rawsim', '-q', 'unprocess', {str(DATA / 'srgb' / 'chelsea.png')!r}, "
+        f"'-o', {str(out)!r}, '-p', 'sony_a7s2', '--iso', '3200', '--seed', '4']\n"
+        "sys.exit(script.load()())\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines()}
+    assert "rawsim.engine.unprocess" in imported
+    assert "torch" not in imported and "scipy.linalg" not in imported
+    sidecar = json.loads((out / "chelsea.json").read_text())
+    options = UnprocessOptions(profile=load_profile("sony_a7s2"), iso=3200)
+    pixels = read_image(DATA / "srgb" / "chelsea.png").pixels
+    expected = simulate(RGBSensor(options.profile), pixels, options, sidecar["file_seed"])
+    with rawpy.imread(str(out / "chelsea.dng")) as raw:
+        assert np.array_equal(raw.raw_image_visible, Simulation.codes(expected.noisy))

@@ -33,7 +33,7 @@ from rawsim.noise.kernels import (
     tukey_lambda_row,
     tukey_table,
 )
-from rawsim.noise.models import EXACT_POISSON_BELOW
+from rawsim.noise.poisson_table import EXACT_POISSON_BELOW
 
 configure()
 

@@ -47,6 +47,12 @@ from rawsim.isp.curves import TransferSpec
 if TYPE_CHECKING:
     from rawsim.io.raw import RawImage
 
+#: Unprocessing's inverse white balance, ``safe`` mode: the grey level above which it
+#: blends the gains towards 1 (:func:`rawsim.isp.white_balance.safe_invert_white_balance`).
+SAFE_WB_THRESHOLD = 0.9
+#: The radial lens-shading model's coefficients (:func:`rawsim.isp.lens_shading.radial_gain`),
+#: the vignetting that ``unprocess --vignetting`` adds.
+DEFAULT_K = (0.3, 0.15, 0.05)
 DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
 #: What each demosaic method becomes on an X-Trans (6×6) mosaic: ``bilinear`` stays
 #: LibRaw's same-colour average; the Bayer interpolations all become ``icd``

@@ -14,8 +14,7 @@ import torch
 from torch import nn
 
 from rawsim.errors import ParameterError, check_image
-
-DEFAULT_K = (0.3, 0.15, 0.05)
+from rawsim.isp.config import DEFAULT_K
 
 
 def radial_gain(

@@ -11,6 +11,7 @@ from torch import nn
 
 from rawsim.cfa import CFA, apply_tile
 from rawsim.errors import ParameterError, check_image
+from rawsim.isp.config import SAFE_WB_THRESHOLD
 
 
 def _gains(x: torch.Tensor, gains) -> torch.Tensor:
@@ -41,10 +42,6 @@ def invert_white_balance(x: torch.Tensor, gains, cfa: CFA | None = None) -> torc
     """Exact inverse of :func:`apply_white_balance` (divide by the gains)."""
     check_image(x, "image")
     return _scale(x, gains, cfa, torch.div)
-
-
-#: Grey level above which the safe inverse white balance blends towards 1.
-SAFE_WB_THRESHOLD = 0.9
 
 
 def safe_invert_white_balance(

@@ -34,7 +34,7 @@ import torch
 from rawsim.errors import ParameterError
 from rawsim.noise.dark_shading import check_fits, crop_offset
 from rawsim.noise.exact_math import LOGISTIC_LAMBDA
-from rawsim.noise.poisson_table import POISSON_MEANS
+from rawsim.noise.poisson_table import EXACT_POISSON_BELOW
 from rawsim.noise.reference import (
     ieee_sqrt,
     normal,
@@ -56,10 +56,9 @@ from rawsim.noise.spec import (  # noqa: F401  (re-exported)
     NoiseSpec,
     SeedGaussian,
     SigmaCurve,
+    bias_tile,
     tukey_lambda_variance,
 )
-
-EXACT_POISSON_BELOW = float(POISSON_MEANS)
 
 
 def tukey_lambda_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
@@ -209,34 +208,14 @@ def dark_field(levels: NoiseLevels, draw, top: int, h: int, w: int, device="cpu"
     return (k * float(levels.iso) + b) + draw.offset
 
 
-def bias_tile(levels: NoiseLevels, cfa, device="cpu"):
-    """The channel bias of each site of one CFA period: (ph, pw) float64, or None when
-    there is none, or a number for a monochrome sensor (``cfa`` None: the mean of the
-    four biases).
-
-    ``channel_bias`` is (R, Gr, Gb, B) DN. A Bayer pattern places the four at its
-    R, Gr, Gb and B sites; any other layout (X-Trans) has no Gr/Gb distinction, so
-    its R and B sites get those biases and every G site the mean of Gr and Gb.
-    """
-    if levels.model != "physics" or not any(levels.channel_bias):
-        return None
-    if cfa is None:  # monochrome: one mean offset
-        return sum(levels.channel_bias) / len(levels.channel_bias)
-    r, gr, gb, b = levels.channel_bias
-    if cfa.is_bayer:
-        bias = torch.tensor(levels.channel_bias, dtype=torch.float64, device=device)
-        return cfa.unpack(bias.reshape(1, 4, 1, 1))[0, 0]
-    per_colour = torch.tensor([r, (gr + gb) / 2, b], dtype=torch.float64, device=device)
-    return cfa.tile(per_colour)[0]
-
-
 def site_bias(levels: NoiseLevels, cfa, top: int, h: int, w: int, device):
     """(h, w) float64 channel bias of rows ``top`` … ``top + h`` (the tile of
     :func:`bias_tile` laid from the image's top-left site), a number for a
     monochrome sensor, or None when there is none."""
-    tile = bias_tile(levels, cfa, device)
+    tile = bias_tile(levels, cfa)
     if tile is None or cfa is None:
         return tile
+    tile = torch.from_numpy(tile).to(device)
     ph, pw = tile.shape
     return tile.roll(-(top % ph), 0).repeat(-(-h // ph) + 1, -(-w // pw))[:h, :w]
 

@@ -26,6 +26,9 @@ import numpy as np
 
 #: Tables for means 0 … POISSON_MEANS − 1; draws take λ < POISSON_MEANS.
 POISSON_MEANS = 100
+#: Shot noise is drawn exactly (Poisson) below this many electrons, as one normal above
+#: (:mod:`rawsim.noise.models`).
+EXACT_POISSON_BELOW = float(POISSON_MEANS)
 #: Bits of a draw's uniform integer A (the engine's and the reference's 52-bit uniforms).
 UNIFORM_BITS = 52
 #: Terms of the residual Poisson(δ) search: P(count > 20 | δ < 1) < 1/21! ≈ 2·10⁻²⁰.

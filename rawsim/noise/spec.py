@@ -14,6 +14,8 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from rawsim.errors import ParameterError, check_choice
 from rawsim.noise.dark_shading import BlackLevelError, DarkShading
 from rawsim.noise.exact_math import LOGISTIC_LAMBDA
@@ -353,3 +355,27 @@ class NoiseLevels:
                 "iso_gain": self.iso_gain,
             }
         return out
+
+
+def bias_tile(levels: NoiseLevels, cfa) -> np.ndarray | float | None:
+    """The channel bias of each site of one CFA period: (ph, pw) float64, or None when
+    there is none, or a number for a monochrome sensor (``cfa`` None: the mean of the
+    four biases). Both backends lay it out from here.
+
+    ``channel_bias`` is (R, Gr, Gb, B) DN. A Bayer pattern places the four at its
+    R, Gr, Gb and B sites (:attr:`~rawsim.cfa.CFA.packed_sites`); any other layout
+    (X-Trans) has no Gr/Gb distinction, so its R and B sites get those biases and
+    every G site the mean of Gr and Gb.
+    """
+    if levels.model != "physics" or not any(levels.channel_bias):
+        return None
+    if cfa is None:  # monochrome: one mean offset
+        return sum(levels.channel_bias) / len(levels.channel_bias)
+    r, gr, gb, b = levels.channel_bias
+    tile = np.empty(cfa.period, np.float64)
+    if cfa.is_bayer:
+        for value, site in zip(levels.channel_bias, cfa.packed_sites, strict=True):
+            tile[site] = value
+        return tile
+    per_colour = np.array([r, (gr + gb) / 2, b], np.float64)
+    return per_colour[np.array(cfa.colors)].reshape(cfa.period)

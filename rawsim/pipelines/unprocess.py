@@ -9,7 +9,10 @@ temporaries stay small and cache-resident. The noise is drawn per pixel from a
 counter-based generator (:mod:`rawsim.noise.reference`), so any strip height,
 device, job count or run split gives the same bits.
 Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
-and fused (:func:`simulate` chooses).
+and fused (:func:`simulate` chooses). That path, and the files job around it, import
+no torch where nothing needs it (8/16-bit inputs through the toe-curve transfers, a
+fixed ISO, no drawn parameters, no dark-shading maps): a one-file command does not
+pay the second that importing torch takes.
 """
 
 from __future__ import annotations
@@ -17,11 +20,10 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from rawsim import memory
 from rawsim._version import __version__
 from rawsim.cfa import PACKED_PLANES
 from rawsim.color import camera_from_srgb
@@ -37,64 +39,107 @@ from rawsim.io.progress import DecodeProgress
 from rawsim.io.readahead import ReadAhead
 from rawsim.io.spare import Spare
 from rawsim.io.task import Task
-from rawsim.isp.lens_shading import DEFAULT_K, radial_gain
-from rawsim.isp.levels import quantize, saturate
-from rawsim.isp.white_balance import SAFE_WB_THRESHOLD
+from rawsim.isp.config import DEFAULT_K, SAFE_WB_THRESHOLD
+from rawsim.isp.curves import TransferSpec
 from rawsim.noise.dark_shading import check_fits
-from rawsim.noise.models import NOISE_MODELS, NoiseLevels, bias_tile, dark_draw
 from rawsim.noise.seeds import derive_seed
+from rawsim.noise.spec import NOISE_MODELS, NoiseLevels, bias_tile
 from rawsim.params import UnprocessParams, sample_params
 from rawsim.profiles import SensorProfile
-from rawsim.sensors import MonoSensor, ProfileSensor, RGBSensor, display_to_linear
+
+if TYPE_CHECKING:
+    import torch
+
+    from rawsim.cfa import CFA
+    from rawsim.sensors import ProfileSensor
 
 STRIP_ROWS = 128
 #: ``planes`` of an npz whose mosaic is kept whole, (1, H, W): a CFA that is not Bayer.
 MOSAIC_PLANE = "CFA"
-INTEGER_DTYPES = (torch.uint8, torch.uint16, torch.int32)
+#: The integer element types taken as display codes (:func:`element_type`'s names).
+INTEGER_TYPES = ("uint8", "uint16", "int32")
 SENSOR_KINDS = ("rgb", "mono")
 
 
-def _reads_every_value(dtype: torch.dtype, code_max: int | None) -> bool:
-    """Whether :func:`_prepare` reads every value of an image of ``dtype``: floats
-    (checked finite), integer types that can hold codes outside [0, ``code_max``],
-    and types it refuses; not the codes a type itself keeps in range (uint8 at 255)."""
-    if dtype not in INTEGER_DTYPES:
+def element_type(image) -> str:
+    """The name of the element type of a NumPy array or a torch tensor, the same for
+    both (``uint8``, ``float32``, …), found without importing torch."""
+    return str(image.dtype).removeprefix("torch.")
+
+
+def _reads_every_value(kind: str, code_max: int | None) -> bool:
+    """Whether :func:`_prepare` reads every value of an image whose elements are of
+    type ``kind`` (:func:`element_type`): floats (checked finite), integer types
+    that can hold codes outside [0, ``code_max``], and types it refuses; not the
+    codes a type itself keeps in range (uint8 at 255)."""
+    if kind not in INTEGER_TYPES:
         return True
-    info = torch.iinfo(dtype)
+    info = np.iinfo(kind)
     return info.min < 0 or (code_max or info.max) < info.max
+
+
+def code_table(top: int, tone: str = "none", transfer: str = "srgb") -> np.ndarray:
+    """The linear light of each display code 0 … ``top``: float32 (top + 1,), code / top
+    through :func:`rawsim.sensors.display_to_linear` (the inverse tone curve, then
+    the transfer's decoding), evaluated in float64 and rounded once, so that every
+    machine gets the same table. Both backends read integer images through it.
+
+    Without a tone curve, the toe-curve transfers (sRGB, BT.2020, ROMM) and
+    ``linear`` are evaluated in NumPy; a tone curve or a power gamma through the
+    torch functions (importing torch).
+    """
+    codes = np.arange(top + 1, dtype=np.float64) / top
+    spec = TransferSpec.parse(transfer)
+    if tone == "none" and (spec.curve is not None or spec.kind == "linear"):
+        linear = codes if spec.curve is None else spec.curve.decode(codes)
+    else:
+        import torch
+
+        from rawsim.sensors import display_to_linear
+
+        linear = display_to_linear(torch.from_numpy(codes), tone, transfer).numpy()
+    return linear.astype(np.float32)
 
 
 def _prepare(sensor, image, params, noise, display_referred, code_max):
     """Checks shared by the reference and the engine: ``image`` is (B, 3, H, W) as a
     tensor or (H, W, 3) as an array. Returns the noise levels and the lookup table
-    of integer codes (float32 linear values), or None for float images."""
+    of integer codes (float32 linear values, :func:`code_table`; a tensor on the
+    image's device for a tensor), or None for float images."""
     if not isinstance(noise, NoiseLevels):
         check_choice("noise model", noise, NOISE_MODELS)
         noise = sensor.noise_levels(params.iso, noise)  # validates the ISO before any work
-    h, w = image.shape[-2:] if isinstance(image, torch.Tensor) else image.shape[:2]
+    array = isinstance(image, np.ndarray)
+    h, w = image.shape[:2] if array else image.shape[-2:]
     if h % 2 or w % 2:
         raise ParameterError(f"image height and width must be even, got {h}×{w}")
     if noise.has_dark and noise.dark_shading is not None:
         check_fits(noise.dark_shading, h, w)
-    array = isinstance(image, np.ndarray)
-    dtype = torch.from_numpy(image[:0]).dtype if array else image.dtype
-    if dtype in INTEGER_DTYPES:
-        if dtype == torch.int32 and code_max is None:
+    kind = element_type(image)
+    if kind in INTEGER_TYPES:
+        if kind == "int32" and code_max is None:
             raise ParameterError("int32 codes need code_max (e.g. 255 or 65535)")
-        top = code_max or int(torch.iinfo(dtype).max)
-        if _reads_every_value(dtype, code_max) and (int(image.min()) < 0 or int(image.max()) > top):
+        top = code_max or int(np.iinfo(kind).max)
+        if _reads_every_value(kind, code_max) and (int(image.min()) < 0 or int(image.max()) > top):
             raise ParameterError(f"integer codes must lie in [0, {top}]")
-        device = "cpu" if array else image.device
-        codes = torch.arange(top + 1, dtype=torch.float32, device=device) / top
-        return noise, display_to_linear(codes, params.tone, params.transfer)
-    if dtype.is_floating_point:
-        tensor = torch.from_numpy(image).permute(2, 0, 1)[None] if array else image
-        check_image(tensor, "image", channels=3)
+        lut = code_table(top, params.tone, params.transfer)
+        if array:
+            return noise, lut
+        import torch
+
+        return noise, torch.from_numpy(lut).to(image.device)
+    if kind.startswith("float") or kind == "bfloat16":
+        if array:  # a sum of float32 values in float64 is finite when each one is
+            if image.ndim != 3 or image.shape[2] != 3:
+                raise ParameterError(f"image must have shape (H, W, 3), got {image.shape}")
+            if not np.isfinite(image.sum(dtype=np.float64)):
+                raise ParameterError("image contains NaN or infinite values")
+        else:
+            check_image(image, "image", channels=3)
         return noise, None
-    raise ParameterError(f"unsupported image dtype {dtype}")
+    raise ParameterError(f"unsupported image dtype {kind}")
 
 
-@torch.no_grad()
 def unprocess_tensor(
     sensor: ProfileSensor,
     image: torch.Tensor,
@@ -137,6 +182,11 @@ def unprocess_tensor(
         ``clean`` None unless asked for. Not differentiable (see
         :func:`rawsim.api.unprocess` for gradients).
     """
+    import torch
+
+    from rawsim import memory
+    from rawsim.isp.lens_shading import radial_gain
+
     if image.ndim != 4 or image.shape[1] != 3:
         raise ParameterError(f"image must have shape (B, 3, H, W), got {tuple(image.shape)}")
     b, _, h, w = image.shape
@@ -149,7 +199,7 @@ def unprocess_tensor(
         clean_out = memory.empty((b, 1, h, w), torch.float32, image.device) if clean else None
     else:
         noisy, clean_out = out[0], out[1] if clean else None
-    with values_checked(False):
+    with values_checked(False), torch.no_grad():
         _run_strips(
             sensor,
             image,
@@ -170,13 +220,16 @@ def strip_rows(sensor: ProfileSensor) -> int:
     """Rows of a reference strip: :data:`STRIP_ROWS` cut to whole CFA periods, so that
     each strip's mosaic starts on the period's first row (128 for Bayer, 126 for
     X-Trans)."""
-    period = 1 if isinstance(sensor, MonoSensor) else sensor.cfa.period[0]
+    cfa = getattr(sensor, "cfa", None)  # a MonoSensor has none
+    period = 1 if cfa is None else cfa.period[0]
     return STRIP_ROWS - STRIP_ROWS % period
 
 
 def _run_strips(
     sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out, lens
 ) -> None:
+    from rawsim.isp.levels import quantize, saturate
+
     h = image.shape[-2]
     step = h if lens is not None else strip_rows(sensor)  # the lens samples the whole frame
     for top_row in range(0, h, step):
@@ -195,8 +248,38 @@ def _run_strips(
         noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, key, top_row, h)
 
 
+@dataclass(frozen=True)
+class SensorLayout:
+    """What the compiled engine needs of a sensor, without torch: its ``profile`` and
+    whether it is ``mono`` (no colour filter). :meth:`UnprocessOptions.layout` gives
+    the options' one; a :class:`~rawsim.sensors.ProfileSensor` has the same
+    attributes (``profile``, ``cfa`` for a colour one, the levels and
+    ``noise_levels``), so either serves :func:`engine_unprocess`."""
+
+    profile: SensorProfile
+    mono: bool = False
+
+    @property
+    def cfa(self) -> CFA | None:
+        """The profile's CFA, or None for a monochrome sensor."""
+        return None if self.mono else self.profile.cfa
+
+    @property
+    def black_level(self) -> float:
+        return self.profile.black_level
+
+    @property
+    def white_level(self) -> float:
+        return self.profile.white_level
+
+    def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
+        """Noise parameters at ``iso`` (:meth:`ProfileSensor.noise_levels
+        <rawsim.sensors.ProfileSensor.noise_levels>`)."""
+        return self.profile.noise_levels(iso, model)
+
+
 def engine_unprocess(
-    sensor: ProfileSensor,
+    sensor: ProfileSensor | SensorLayout,
     pixels: np.ndarray,
     params: UnprocessParams,
     *,
@@ -229,25 +312,29 @@ def engine_unprocess(
     from rawsim.engine import unprocess as kernels
     from rawsim.noise.kernels import np_key
 
-    if bands is not None and (
-        lens is not None or _reads_every_value(torch.from_numpy(pixels[:0]).dtype, code_max)
-    ):
+    whole_first = lens is not None or _reads_every_value(element_type(pixels), code_max)
+    if bands is not None and whole_first:
         for _ in bands:  # every row decoded before any is read
             pass
         bands = None
     noise, lut = _prepare(sensor, pixels, params, noise, display_referred, code_max)
     if lut is None and display_referred:  # display-referred floats: decode first
+        import torch
+
+        from rawsim.sensors import display_to_linear
+
         pixels = display_to_linear(torch.from_numpy(pixels), params.tone, params.transfer).numpy()
-    mono = isinstance(sensor, MonoSensor)
+    cfa = getattr(sensor, "cfa", None)  # None: monochrome (a MonoSensor has no cfa)
+    mono = cfa is None
     h, w = pixels.shape[:2]
-    period = (2, 2) if mono else sensor.cfa.period
-    bias = bias_tile(noise, None if mono else sensor.cfa)
+    period = (2, 2) if mono else cfa.period
+    bias = bias_tile(noise, cfa)
     bias = np.zeros(period) + (0.0 if bias is None else np.asarray(bias, np.float64))
-    dark = dark_draw(noise, key, h, w, None if mono else sensor.cfa)
+    dark = _dark_draw(noise, key, h, w, cfa)
     noisy, clean_out = out if out is not None else (np.empty((h, w), np.uint16), None)
     if clean_out is None:
         clean_out = np.empty((h, w) if clean else (0, 0), noisy.dtype)
-    lut = np.zeros(0, np.float32) if lut is None else lut.numpy()
+    lut = np.zeros(0, np.float32) if lut is None else lut
     scale = params.linear_scale
     ccm_bias = np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0,) * 3, float)
     matrix = camera_from_srgb(params.xyz_to_camera)
@@ -263,7 +350,7 @@ def engine_unprocess(
         params.safe_white_balance,
         SAFE_WB_THRESHOLD,
         mono,
-        np.zeros(period, np.int64) if mono else np.array(sensor.cfa.colors).reshape(period),
+        np.zeros(period, np.int64) if mono else np.array(cfa.colors).reshape(period),
         np.array([params.vignetting, *DEFAULT_K], np.float64),
         np.array([sensor.black_level, sensor.white_level], np.float64),
         kernels.MODEL_CODES[noise.model],
@@ -279,6 +366,17 @@ def engine_unprocess(
             pixels[rows], *run, start, h, noisy[rows], clean_out[rows] if clean else clean_out
         )
     return noisy, clean_out if clean else None
+
+
+def _dark_draw(levels: NoiseLevels, key: int, h: int, w: int, cfa):
+    """:func:`rawsim.noise.models.dark_draw` (the physics model's per-file dark terms,
+    drawn by the torch reference's generator), or None where ``levels`` have none:
+    then torch is not imported."""
+    if not levels.has_dark:
+        return None
+    from rawsim.noise.models import dark_draw
+
+    return dark_draw(levels, key, h, w, cfa)
 
 
 @dataclass(frozen=True)
@@ -343,9 +441,17 @@ class UnprocessOptions:
         return replace(self, profile=self.profile.with_cfa(cfa))
 
     def make_sensor(self) -> ProfileSensor:
-        """The sensor simulated: :class:`RGBSensor` or :class:`MonoSensor`."""
+        """The sensor simulated, for the torch reference: :class:`~rawsim.sensors.RGBSensor`
+        or :class:`~rawsim.sensors.MonoSensor`."""
+        from rawsim.sensors import MonoSensor, RGBSensor
+
         check_choice("sensor", self.sensor, SENSOR_KINDS)
         return (MonoSensor if self.sensor == "mono" else RGBSensor)(self.profile)
+
+    def layout(self) -> SensorLayout:
+        """The same sensor for the compiled engine (no torch)."""
+        check_choice("sensor", self.sensor, SENSOR_KINDS)
+        return SensorLayout(self.profile, mono=self.sensor == "mono")
 
     def check_isos(self) -> None:
         """Before any file is read: the ISO, or both ends of the ISO range, must lie in
@@ -372,6 +478,8 @@ def image_tensor(pixels: np.ndarray, device="cpu") -> torch.Tensor:
 
     uint16 codes become int32 (few kernels take uint16; the codes fit).
     """
+    import torch
+
     image = torch.from_numpy(pixels).to(device).permute(2, 0, 1).unsqueeze(0)
     return image.to(torch.int32) if image.dtype == torch.uint16 else image
 
@@ -380,20 +488,22 @@ def image_tensor(pixels: np.ndarray, device="cpu") -> torch.Tensor:
 class Simulation:
     """One simulated capture: mosaics (1, 1, H, W) of integer DN, and the values drawn.
 
-    The mosaics are uint16 from the engine (float32 where :func:`simulate` wrote
-    them into ``out``), float32 from the torch reference (same values);
-    :meth:`codes` gives either as a uint16 (H, W) array.
+    The mosaics are tensors: uint16 from the engine (float32 where :func:`simulate`
+    wrote them into ``out`` tensors), float32 from the torch reference (same values);
+    or uint16 NumPy arrays where :func:`simulate` wrote the engine's into ``out``
+    arrays (the files job, which imports no torch). :meth:`codes` gives any of
+    them as a uint16 (H, W) array.
     """
 
-    noisy: torch.Tensor
-    clean: torch.Tensor | None
+    noisy: torch.Tensor | np.ndarray
+    clean: torch.Tensor | np.ndarray | None
     params: UnprocessParams
     levels: NoiseLevels
 
     @staticmethod
-    def codes(mosaic: torch.Tensor) -> np.ndarray:
-        m = mosaic[0, 0].cpu()
-        return m.numpy() if m.dtype == torch.uint16 else m.to(torch.int32).numpy().astype(np.uint16)
+    def codes(mosaic: torch.Tensor | np.ndarray) -> np.ndarray:
+        m = mosaic[0, 0] if isinstance(mosaic, np.ndarray) else mosaic[0, 0].cpu().numpy()
+        return m if m.dtype == np.uint16 else m.astype(np.int32).astype(np.uint16)
 
 
 def use_engine(image) -> bool:
@@ -401,13 +511,13 @@ def use_engine(image) -> bool:
     needs no gradient, where numba is installed."""
     from rawsim import engine
 
-    if isinstance(image, torch.Tensor) and (image.device.type != "cpu" or image.requires_grad):
+    if not isinstance(image, np.ndarray) and (image.device.type != "cpu" or image.requires_grad):
         return False
     return engine.available()
 
 
 def simulate(
-    sensor: ProfileSensor,
+    sensor: ProfileSensor | None,
     image: torch.Tensor | np.ndarray,
     options: UnprocessOptions,
     seed: int,
@@ -415,12 +525,15 @@ def simulate(
     display_referred: bool = True,
     code_max: int | None = None,
     engine: bool | None = None,
-    out: tuple[torch.Tensor, torch.Tensor | None] | None = None,
+    out: tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray | None] | None = None,
     bands: Iterable[tuple[int, int]] | None = None,
 ) -> Simulation:
     """Simulate one image as the files job does, from its ``seed``.
 
-    ``image`` is (1, 3, H, W) on any device, or a decoded (H, W, 3) array.
+    ``sensor``: the sensor simulated, or None for the options' own (its
+    :meth:`~UnprocessOptions.layout` on the engine, which needs no torch, else
+    :meth:`~UnprocessOptions.make_sensor`). ``image`` is (1, 3, H, W) on any
+    device, or a decoded (H, W, 3) array.
     Parameters come from a generator seeded with ``derive_seed(seed, "params")``
     (then, under ``randomize``, the noise levels from the same generator), the
     noise from the counter-based generator keyed by ``derive_seed(seed, "noise")``.
@@ -431,11 +544,16 @@ def simulate(
     (channels-first, channels-last or a crop; no copy). ``out``: float32
     (1, 1, H, W) tensors on the image's device for the noisy and (with
     ``options.clean``, else None) clean mosaics, written in place and returned
-    in the :class:`Simulation` (the same values). ``bands``: the rows of an
+    in the :class:`Simulation` (the same values); on the engine also uint16
+    (1, 1, H, W) arrays. ``bands``: the rows of an
     image array still being decoded, as they are written (see
     :func:`engine_unprocess`); the torch reference waits for the last.
     """
-    params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
+    params_gen = None  # only draws need one (and torch)
+    if options.randomize or options.iso_range is not None:
+        import torch
+
+        params_gen = torch.Generator().manual_seed(derive_seed(seed, "params"))
     params = sample_params(
         options.profile,
         iso=options.iso,
@@ -451,7 +569,7 @@ def simulate(
     if options.randomize:  # drawn after the params, from the same generator
         levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
     else:
-        levels = sensor.noise_levels(params.iso, options.noise)
+        levels = (sensor or options.layout()).noise_levels(params.iso, options.noise)
     run = dict(
         noise=levels,
         key=noise_key(seed),
@@ -462,18 +580,27 @@ def simulate(
     )
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
-        arrays = None if out is None else tuple(None if t is None else t[0, 0].numpy() for t in out)
+        arrays = None if out is None else tuple(None if t is None else _plane(t) for t in out)
+        sensor = sensor or options.layout()
         noisy, clean = engine_unprocess(sensor, pixels, params, **run, out=arrays, bands=bands)
         if out is not None:
             return Simulation(out[0], out[1] if options.clean else None, params, levels)
+        import torch
+
         as_tensor = lambda m: None if m is None else torch.from_numpy(m)[None, None]  # noqa: E731
         return Simulation(as_tensor(noisy), as_tensor(clean), params, levels)
     for _ in bands or ():  # every row decoded first
         pass
     if isinstance(image, np.ndarray):
         image = image_tensor(image)
+    sensor = sensor or options.make_sensor()
     noisy, clean = unprocess_tensor(sensor, image, params, **run, out=out)
     return Simulation(noisy, clean, params, levels)
+
+
+def _plane(mosaic: torch.Tensor | np.ndarray) -> np.ndarray:
+    """The (H, W) array of a (1, 1, H, W) CPU tensor or array (no copy)."""
+    return mosaic[0, 0] if isinstance(mosaic, np.ndarray) else mosaic[0, 0].numpy()
 
 
 def noise_key(seed: int) -> int:
@@ -507,7 +634,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     if levels.has_dark:  # where the dark-shading crop lies and the black-level offset
         h, w = decoded.pixels.shape[:2]
         cfa = None if options.sensor == "mono" else options.profile.cfa
-        draw = dark_draw(levels, noise_key(task.seed), h, w, cfa)
+        draw = _dark_draw(levels, noise_key(task.seed), h, w, cfa)
         metadata["noise"]["dark_draw"] = draw.to_dict()
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
@@ -563,7 +690,7 @@ def _decode_and_simulate(task: Task, options: UnprocessOptions):
         display_referred, code_max = not decoded.is_float, decoded.code_max
     out = _mosaics(*pixels.shape[:2], options.clean) if use_engine(image) else None
     sim = simulate(
-        options.make_sensor(),
+        None,  # the options' sensor
         image,
         options,
         task.seed,
@@ -582,12 +709,12 @@ def _decode_and_simulate(task: Task, options: UnprocessOptions):
 _spare = Spare()
 
 
-def _mosaics(h: int, w: int, clean: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+def _mosaics(h: int, w: int, clean: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """uint16 (1, 1, h, w) noisy and (with ``clean``) clean mosaics for the engine to
     write: the last file's, if it was this size, else new ones."""
 
     def new():
-        mosaic = lambda: memory.empty((1, 1, h, w), torch.uint16)  # noqa: E731
+        mosaic = lambda: np.empty((1, 1, h, w), np.uint16)  # noqa: E731
         return mosaic(), mosaic() if clean else None
 
     return _spare.take((h, w, clean), new)
@@ -664,8 +791,7 @@ def npz_arrays(
 
 def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
     """(H, W) → (4, H/2, W/2) planes in R, Gr, Gb, B order (see :meth:`CFA.pack`)."""
-    planes = cfa.pack(torch.from_numpy(mosaic.astype(np.float32))[None, None])
-    return planes[0].numpy().astype(np.uint16)
+    return np.stack([mosaic[r::2, c::2] for r, c in cfa.packed_sites])
 
 
 def _photo(task: Task, options: UnprocessOptions, decoded) -> PhotoMetadata:
