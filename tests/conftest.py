@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -138,3 +140,21 @@ def simulated_raw(data: np.ndarray, profile, iso: float, path: str = "<simulated
         model=profile.model,
         path=path,
     )
+
+
+def installed_command_imports(*args: str) -> set[str]:
+    """Run ``rawsim ARGS`` through the installed console script (as a user's shell
+    does: the script enters through ``main``) under ``-X importtime``; assert it
+    succeeded and return the names of the modules it imported."""
+    code = (
+        "import sys\n"
+        "from importlib.metadata import entry_points\n"
+        "(script,) = entry_points(group='console_scripts', name='rawsim')\n"
+        f"sys.argv = ['rawsim', *{list(map(str, args))!r}]\n"
+        "sys.exit(script.load()())\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return {line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines()}

@@ -3,8 +3,6 @@ bit, the noise bit for bit, the fused unprocess kernel within one code value, fo
 noise model, option (a lens too), CFA pattern, input kind, strip split and thread count."""
 
 import json
-import subprocess
-import sys
 from dataclasses import replace
 
 import numba
@@ -40,7 +38,7 @@ from rawsim.noise.poisson_table import (
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, code_table, simulate
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor, display_to_linear
-from tests.conftest import DATA
+from tests.conftest import DATA, installed_command_imports
 from tests.test_dark_shading import dark_profile
 
 KEY = ref.split_key(0x1234_5678_9ABC_DEF0)
@@ -434,24 +432,14 @@ def test_one_file_unprocess_imports_no_torch(tmp_path):
     DNG holds the mosaic that :func:`simulate` gives with the torch sensor object:
     the torch-free :class:`SensorLayout` stands for it exactly."""
     out = tmp_path / "out"
-    code = (
-        "import sys\n"
-        "from importlib.metadata import entry_points\n"
-        "(script,) = entry_points(group='console_scripts', name='rawsim')\n"
-        f"sys.argv = ['rawsim', '-q', 'unprocess', {str(DATA / 'srgb' / 'chelsea.png')!r}, "
-        f"'-o', {str(out)!r}, '-p', 'sony_a7s2', '--iso', '3200', '--seed', '4']\n"
-        "sys.exit(script.load()())\n"
-    )
-    done = subprocess.run(
-        [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    imported = {line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines()}
+    photo = DATA / "srgb" / "chelsea.png"
+    args = ("-q", "unprocess", photo, "-o", out, "-p", "sony_a7s2", "--iso", "3200", "--seed", "4")
+    imported = installed_command_imports(*args)
     assert "rawsim.engine.unprocess" in imported
     assert "torch" not in imported and "scipy.linalg" not in imported
     sidecar = json.loads((out / "chelsea.json").read_text())
     options = UnprocessOptions(profile=load_profile("sony_a7s2"), iso=3200)
-    pixels = read_image(DATA / "srgb" / "chelsea.png").pixels
+    pixels = read_image(photo).pixels
     expected = simulate(RGBSensor(options.profile), pixels, options, sidecar["file_seed"])
     with rawpy.imread(str(out / "chelsea.dng")) as raw:
         assert np.array_equal(raw.raw_image_visible, Simulation.codes(expected.noisy))

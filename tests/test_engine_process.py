@@ -17,7 +17,7 @@ from rawsim.io.images import to_samples
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.isp.config import DEMOSAIC_METHODS, default_config, override
 from rawsim.pipelines.process import ProcessOptions, engine_plan, engine_render, render
-from tests.conftest import DATA
+from tests.conftest import DATA, installed_command_imports
 
 XYZ_TO_CAMERA = np.array(
     [[0.5271, -0.0712, -0.0347], [-0.6153, 1.4814, 0.1324], [-0.0881, 0.2174, 0.8169]]
@@ -242,20 +242,8 @@ def test_installed_command_starts_lean(tmp_path):
     """A one-file `rawsim process` through the installed console script starts without
     torch and without numba's BLAS probe (``scipy.linalg``): the script enters through
     ``main``, which sets that up, not through the bare click group."""
-    dng = str(DATA / "raw" / "canon_eos60d_mlv.dng")
-    code = (
-        "import sys\n"
-        "from importlib.metadata import entry_points\n"
-        "(script,) = entry_points(group='console_scripts', name='rawsim')\n"
-        f"sys.argv = ['rawsim', '-q', 'process', {dng!r}, '-o', {str(tmp_path)!r}, "
-        "'--format', 'tiff']\n"
-        "sys.exit(script.load()())\n"
-    )
-    done = subprocess.run(
-        [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    imported = {line.rsplit("|", 1)[-1].strip() for line in done.stderr.splitlines()}
+    dng = DATA / "raw" / "canon_eos60d_mlv.dng"
+    imported = installed_command_imports("-q", "process", dng, "-o", tmp_path, "--format", "tiff")
     assert "rawsim.engine" in imported
     assert "torch" not in imported and "scipy.linalg" not in imported
     assert (tmp_path / "canon_eos60d_mlv.tif").is_file()
