@@ -253,8 +253,8 @@ class SensorLayout:
     """What the compiled engine needs of a sensor, without torch: its ``profile`` and
     whether it is ``mono`` (no colour filter). :meth:`UnprocessOptions.layout` gives
     the options' one; a :class:`~rawsim.sensors.ProfileSensor` has the same
-    attributes (``profile``, ``cfa`` for a colour one, the levels and
-    ``noise_levels``), so either serves :func:`engine_unprocess`."""
+    attributes (``profile``, ``cfa`` for a colour one, ``noise_levels``), so
+    either serves :func:`engine_unprocess`."""
 
     profile: SensorProfile
     mono: bool = False
@@ -263,14 +263,6 @@ class SensorLayout:
     def cfa(self) -> CFA | None:
         """The profile's CFA, or None for a monochrome sensor."""
         return None if self.mono else self.profile.cfa
-
-    @property
-    def black_level(self) -> float:
-        return self.profile.black_level
-
-    @property
-    def white_level(self) -> float:
-        return self.profile.white_level
 
     def noise_levels(self, iso: float, model: str = "poisson-gaussian") -> NoiseLevels:
         """Noise parameters at ``iso`` (:meth:`ProfileSensor.noise_levels
@@ -352,9 +344,9 @@ def engine_unprocess(
         mono,
         np.zeros(period, np.int64) if mono else np.array(cfa.colors).reshape(period),
         np.array([params.vignetting, *DEFAULT_K], np.float64),
-        np.array([sensor.black_level, sensor.white_level], np.float64),
+        np.array([sensor.profile.black_level, sensor.profile.white_level], np.float64),
         kernels.MODEL_CODES[noise.model],
-        kernels.noise_vector(noise, sensor.black_level, dark),
+        kernels.noise_vector(noise, sensor.profile.black_level, dark),
         *kernels.noise_tables(noise),
         *np_key(key),
         bias,
