@@ -12,7 +12,7 @@ Without gradients on the CPU, :mod:`rawsim.engine` runs the same stages compiled
 and fused (:func:`simulate` chooses). That path, and the files job around it, import
 no torch where nothing needs it (8/16-bit inputs through the toe-curve transfers, a
 fixed ISO, no drawn parameters, no dark-shading maps): a one-file command does not
-pay the second that importing torch takes.
+pay the 0.8 s that importing torch takes.
 """
 
 from __future__ import annotations
