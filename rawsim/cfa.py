@@ -285,6 +285,26 @@ class CFA:
         _check_even(*mosaic.shape[-2:])
         return torch.cat([mosaic[:, :, r::2, c::2] for r, c in self.packed_sites], dim=1)
 
+    def pack_array(self, mosaic):
+        """:meth:`pack` of one NumPy mosaic, without torch: (H, W) → (4, H/2, W/2) in R,
+        Gr, Gb, B order, the mosaic's type. Bayer only."""
+        import numpy as np
+
+        self._require_bayer("pack (the R, Gr, Gb, B planes)")
+        _check_even(*mosaic.shape)
+        return np.stack([mosaic[r::2, c::2] for r, c in self.packed_sites])
+
+    def unpack_array(self, planes):
+        """Inverse of :meth:`pack_array`: (4, H/2, W/2) → (H, W). Bayer only."""
+        import numpy as np
+
+        self._require_bayer("unpack (the R, Gr, Gb, B planes)")
+        _, h, w = planes.shape
+        out = np.empty((2 * h, 2 * w), planes.dtype)
+        for plane, (r, c) in enumerate(self.packed_sites):
+            out[r::2, c::2] = planes[plane]
+        return out
+
     def unpack(self, planes: torch.Tensor) -> torch.Tensor:
         """Inverse of :meth:`pack`: (B, 4, H/2, W/2) → (B, 1, H, W). Bayer only."""
         self._require_bayer("unpack (the R, Gr, Gb, B planes)")

@@ -1,3 +1,4 @@
+import numpy as np
 import pytest
 import torch
 
@@ -69,6 +70,20 @@ def test_pack_unpack_round_trip(pattern, rng):
     cfa = CFA(pattern)
     m = torch.rand(3, 1, 6, 8, generator=rng)
     assert torch.equal(cfa.unpack(cfa.pack(m)), m)
+
+
+def test_numpy_pack_matches_pack(pattern, rng):
+    """pack_array / unpack_array (NumPy, no torch) give pack's planes, in the
+    mosaic's own type, and invert each other."""
+    cfa = CFA(pattern)
+    m = (torch.rand(1, 1, 6, 8, generator=rng) * 4095).round()
+    codes = m[0, 0].numpy().astype(np.uint16)
+    planes = cfa.pack_array(codes)
+    assert planes.dtype == np.uint16
+    assert np.array_equal(planes, cfa.pack(m)[0].numpy())
+    assert np.array_equal(cfa.unpack_array(planes), codes)
+    with pytest.raises(ParameterError, match="X-Trans|Bayer"):
+        CFA("XTRANS").pack_array(np.zeros((6, 6)))
 
 
 def test_bad_shapes_rejected():

@@ -494,7 +494,7 @@ class Simulation:
 
     @staticmethod
     def codes(mosaic: torch.Tensor | np.ndarray) -> np.ndarray:
-        m = mosaic[0, 0] if isinstance(mosaic, np.ndarray) else mosaic[0, 0].cpu().numpy()
+        m = _plane(mosaic)
         return m if m.dtype == np.uint16 else m.astype(np.int32).astype(np.uint16)
 
 
@@ -541,6 +541,7 @@ def simulate(
     image array still being decoded, as they are written (see
     :func:`engine_unprocess`); the torch reference waits for the last.
     """
+    layout = options.layout()  # the engine's sensor where none is given
     params_gen = None  # only draws need one (and torch)
     if options.randomize or options.iso_range is not None:
         import torch
@@ -561,7 +562,7 @@ def simulate(
     if options.randomize:  # drawn after the params, from the same generator
         levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
     else:
-        levels = (sensor or options.layout()).noise_levels(params.iso, options.noise)
+        levels = (sensor or layout).noise_levels(params.iso, options.noise)
     run = dict(
         noise=levels,
         key=noise_key(seed),
@@ -573,7 +574,7 @@ def simulate(
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
         arrays = None if out is None else tuple(None if t is None else _plane(t) for t in out)
-        sensor = sensor or options.layout()
+        sensor = sensor or layout
         noisy, clean = engine_unprocess(sensor, pixels, params, **run, out=arrays, bands=bands)
         if out is not None:
             return Simulation(out[0], out[1] if options.clean else None, params, levels)
@@ -591,8 +592,8 @@ def simulate(
 
 
 def _plane(mosaic: torch.Tensor | np.ndarray) -> np.ndarray:
-    """The (H, W) array of a (1, 1, H, W) CPU tensor or array (no copy)."""
-    return mosaic[0, 0] if isinstance(mosaic, np.ndarray) else mosaic[0, 0].numpy()
+    """The (H, W) array of a (1, 1, H, W) array or tensor (no copy on the CPU)."""
+    return mosaic[0, 0] if isinstance(mosaic, np.ndarray) else mosaic[0, 0].cpu().numpy()
 
 
 def noise_key(seed: int) -> int:
@@ -769,7 +770,7 @@ def npz_arrays(
     """
     cfa = None if options.sensor == "mono" else options.profile.cfa
     whole = cfa is None or not cfa.is_bayer
-    arrange = (lambda m: m[None]) if whole else (lambda m: _pack(cfa, m))  # noqa: E731
+    arrange = (lambda m: m[None]) if whole else cfa.pack_array  # noqa: E731
     arrays = {"mosaic": arrange(noisy)}
     if clean is not None:
         arrays["clean"] = arrange(clean)
@@ -779,11 +780,6 @@ def npz_arrays(
         arrays["cfa_colors"] = np.array(cfa.colors, np.uint8).reshape(cfa.period)
     arrays["metadata"] = np.array(json.dumps(metadata))
     return arrays
-
-
-def _pack(cfa, mosaic: np.ndarray) -> np.ndarray:
-    """(H, W) → (4, H/2, W/2) planes in R, Gr, Gb, B order (see :meth:`CFA.pack`)."""
-    return np.stack([mosaic[r::2, c::2] for r, c in cfa.packed_sites])
 
 
 def _photo(task: Task, options: UnprocessOptions, decoded) -> PhotoMetadata:

@@ -86,11 +86,8 @@ def load_pairs(work: Path) -> list[dict]:
         black, white = float(np.mean(meta["black_level"])), float(meta["white_level"])
         gain, offset = meta["noise"]["noise_profile"]
         noisy, clean = z["mosaic"], z["clean"]
-        mosaic = np.empty((2 * noisy.shape[1], 2 * noisy.shape[2]), np.uint16)
-        for k, (r, c) in enumerate(cfa.packed_sites):
-            mosaic[r::2, c::2] = noisy[k]
-        est = denoise_mosaic(mosaic, cfa, black, white, [gain] * 3, [offset] * 3)
-        estimate = np.stack([est[r::2, c::2] for r, c in cfa.packed_sites])
+        est = denoise_mosaic(cfa.unpack_array(noisy), cfa, black, white, [gain] * 3, [offset] * 3)
+        estimate = cfa.pack_array(est)
         span = white - black
 
         def to(a, black=black, span=span):
