@@ -371,11 +371,8 @@ def bias_tile(levels: NoiseLevels, cfa) -> np.ndarray | float | None:
         return None
     if cfa is None:  # monochrome: one mean offset
         return sum(levels.channel_bias) / len(levels.channel_bias)
-    r, gr, gb, b = levels.channel_bias
-    tile = np.empty(cfa.period, np.float64)
     if cfa.is_bayer:
-        for value, site in zip(levels.channel_bias, cfa.packed_sites, strict=True):
-            tile[site] = value
-        return tile
+        return cfa.unpack_array(np.array(levels.channel_bias, np.float64).reshape(4, 1, 1))
+    r, gr, gb, b = levels.channel_bias
     per_colour = np.array([r, (gr + gb) / 2, b], np.float64)
     return per_colour[np.array(cfa.colors)].reshape(cfa.period)
