@@ -10,13 +10,14 @@ with the same bytes as an uninterrupted run.
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
+import OpenImageIO as oiio
 import pytest
 
 from tests.conftest import DATA
@@ -27,7 +28,7 @@ pytestmark = [
     pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc"),
 ]
 
-COPIES = 24
+COPIES = 96
 CLI = [sys.executable, "-c", "from rawsim_cli.main import cli; cli()"]
 
 
@@ -44,10 +45,17 @@ def command(inputs: Path, out: Path, jobs: int) -> list[str]:
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> Path:
+    """COPIES links to one 2 MP photo (chelsea tiled 4 x 4): a job of a few seconds, so
+    that the signal, sent once the first file is done, lands while files remain even
+    when the test process is slow to be scheduled (the engine does a file in ~0.03 s)."""
     root = tmp_path_factory.mktemp("signals") / "in"
     root.mkdir()
-    for i in range(COPIES):
-        shutil.copy(DATA / "srgb" / "chelsea.png", root / f"c{i:02d}.png")
+    photo = oiio.ImageBuf(str(DATA / "srgb" / "chelsea.png")).get_pixels(oiio.UINT8)
+    tiled = np.tile(photo, (4, 4, 1))
+    first = root / "c00.png"
+    assert oiio.ImageBuf(tiled).write(str(first)), oiio.geterror()
+    for i in range(1, COPIES):
+        os.link(first, root / f"c{i:02d}.png")
     return root
 
 
