@@ -693,14 +693,14 @@ DARK_RENDER = 1 / 8
 
 def _warn_if_dark(samples: np.ndarray, bits: int, config: IspConfig, info: dict) -> None:
     """Add a warning to ``info`` when the render's 99th percentile (brightest channel, on
-    every 4th row and column) is below ``DARK_RENDER`` of full scale in linear light,
+    the rows :func:`_sample_rows` takes) is below ``DARK_RENDER`` of full scale in linear light,
     i.e. below that level through the config's tone and transfer."""
     tail = [s for s in config.enabled if isinstance(s, _TAIL_STAGES)]
     curve = _tail_curve(tail, np.array([DARK_RENDER]), info.get("transfer"))
     if curve is None:
         return
     level = float(curve[0][0]) ** curve[1]
-    sub = samples[::4, ::4]  # channel by channel: no copy of the strided rows
+    sub = _sample_rows(samples)  # channel by channel: no copy of the strided rows
     full = 2.0**bits - 1
     if not any(_percentile_reaches(sub[..., c], full, level) for c in range(sub.shape[-1])):
         info["warnings"].append(
@@ -717,9 +717,9 @@ BLOWN_LEVEL = 250 / 255
 
 def _warn_if_blown(samples: np.ndarray, bits: int, raw: RawImage, config: IspConfig, info: dict):
     """Add a warning to ``info`` when more than ``BLOWN_SHARE`` of the render's samples
-    (every 4th row and column) reach ``BLOWN_LEVEL`` of full scale, naming what
-    brightened it: the DNG's BaselineExposure where it was applied, and --exposure."""
-    sub = samples[::4, ::4]
+    (on the rows :func:`_sample_rows` takes) reach ``BLOWN_LEVEL`` of full scale, naming
+    what brightened it: the DNG's BaselineExposure where it was applied, and --exposure."""
+    sub = _sample_rows(samples)
     full = 2.0**bits - 1
     at = int(np.ceil(BLOWN_LEVEL * full)) if sub.dtype.kind in "ui" else BLOWN_LEVEL * full
     share = float(np.count_nonzero(sub >= at)) / max(sub.size, 1)
@@ -738,6 +738,16 @@ def _warn_if_blown(samples: np.ndarray, bits: int, raw: RawImage, config: IspCon
         f"blown render: {100 * share:.0f} % of its samples are at or above "
         f"{BLOWN_LEVEL * 255:.0f}/255 of full scale; " + "; ".join(why)
     )
+
+
+def _sample_rows(samples: np.ndarray) -> np.ndarray:
+    """The rows of an (H, W, C) render that its warnings' statistics read: every 16th
+    (1.5 M samples of a 24 MP render), fewer apart below 4096 rows, keeping at least
+    256 (all of a small render). Whole rows, read in order: 2.3 ms for both warnings
+    on a 24 MP render against 12 ms for every 4th row and column (which reads every
+    cache line of those rows)."""
+    step = max(1, min(16, samples.shape[0] // 256))
+    return samples[::step]
 
 
 def _percentile_reaches(x: np.ndarray, full: float, level: float) -> bool:
