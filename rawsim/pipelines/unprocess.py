@@ -624,10 +624,10 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     decoded, sim, out = _decode_and_simulate(task, options)
     params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
-    if levels.has_dark:  # where the dark-shading crop lies and the black-level offset
-        h, w = decoded.pixels.shape[:2]
-        cfa = None if options.sensor == "mono" else options.profile.cfa
-        draw = _dark_draw(levels, noise_key(task.seed), h, w, cfa)
+    h, w = decoded.pixels.shape[:2]
+    cfa = None if options.sensor == "mono" else options.profile.cfa
+    draw = _dark_draw(levels, noise_key(task.seed), h, w, cfa)
+    if draw is not None:  # where the dark-shading crop lies and the black-level offset
         metadata["noise"]["dark_draw"] = draw.to_dict()
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
