@@ -625,8 +625,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
     h, w = decoded.pixels.shape[:2]
-    cfa = None if options.sensor == "mono" else options.profile.cfa
-    draw = _dark_draw(levels, noise_key(task.seed), h, w, cfa)
+    draw = _dark_draw(levels, noise_key(task.seed), h, w, options.layout().cfa)
     if draw is not None:  # where the dark-shading crop lies and the black-level offset
         metadata["noise"]["dark_draw"] = draw.to_dict()
     noisy_np = Simulation.codes(sim.noisy)
@@ -768,7 +767,7 @@ def npz_arrays(
     uint8 (ph, pw), the colour (R=0, G=1, B=2) of each site of one period from the
     top-left pixel. ``metadata``: the sidecar as JSON.
     """
-    cfa = None if options.sensor == "mono" else options.profile.cfa
+    cfa = options.layout().cfa
     whole = cfa is None or not cfa.is_bayer
     arrange = (lambda m: m[None]) if whole else cfa.pack_array  # noqa: E731
     arrays = {"mosaic": arrange(noisy)}
@@ -799,7 +798,7 @@ def _dng_info(
 ) -> DngInfo:
     profile = options.profile
     return DngInfo(
-        cfa=None if options.sensor == "mono" else profile.cfa,
+        cfa=options.layout().cfa,
         black_level=profile.black_level,
         white_level=profile.white_level,
         xyz_to_camera=params.xyz_to_camera,
@@ -820,7 +819,7 @@ def _dng_info(
 
 
 def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) -> dict:
-    profile = options.profile
+    profile, cfa = options.profile, options.layout().cfa
     h, w = decoded.pixels.shape[:2]
     meta = {
         "rawsim_version": __version__,
@@ -845,7 +844,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
             "noise_source": profile.source.get("noise.gain"),
         },
         "sensor": options.sensor,
-        "cfa_pattern": None if options.sensor == "mono" else profile.cfa.pattern,
+        "cfa_pattern": None if cfa is None else cfa.pattern,
         "packed_planes": list(npz_planes(options)),
         "bit_depth": profile.bit_depth,
         "black_level": profile.black_level,
