@@ -168,6 +168,30 @@ def test_a_large_region_takes_its_border_hue(pattern):
     assert abs(float(plain - want)) > 3 * abs(float(got - want))
 
 
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_blue_sky_whose_green_and_blue_clipped_stays_blue(pattern):
+    """G and B clipped over a broad dome, R far below their clip levels, so white light
+    cannot have made it: the core, 30+ px from any unclipped site, keeps the sky's
+    hue and its B/G ratio (it was faded to white: hue 150° against 114.5°, B/G 1.0
+    against 1.88)."""
+    cfa = CFA(pattern)
+    size = 240
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
+    rgb = (torch.tensor([0.3, 0.8, 1.5])[:, None, None] * lum)[None]
+    truth, cmap = mosaic_of(rgb, cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    assert sel.sum() > 10000 and not bool(sel[cmap == 0].any())  # G and B only
+    core = torch.zeros_like(sel)
+    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
+    want, got = block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
+    assert abs(float(hue_angle(got) - hue_angle(want))) < 2.0
+    assert abs(float(got[2] / got[1] / (want[2] / want[1])) - 1) < 0.05
+
+
 def test_nothing_clipped_is_the_identity_and_values_are_never_lowered():
     cfa = CFA("RGGB")
     x = torch.rand(2, 1, 32, 48) * 0.9
@@ -347,13 +371,14 @@ def test_engine_scales_the_mosaic_when_codes_run_out():
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_engine_render_equals_the_reference(pattern):
-    """Whole renders: 16-bit codes within 10 (the rebuilt sites' rounding through the
-    demosaic: 9 on X-Trans through the root domain); unclip exactly as the reference
-    (to the usual one code)."""
+    """Whole renders: 16-bit codes within 16, and all but 0.1 % within 1 (the rebuilt
+    sites agree to their rounding to whole DN, which the demosaic carries on: 13 codes
+    at one pixel of the X-Trans render, where a direction of its demosaic flips);
+    unclip exactly as the reference (to the usual one code)."""
     raw = synthetic_raw(pattern, h=84, w=150)
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"))
     diff = np.abs(ours.astype(np.int64) - ref)
-    assert diff.max() <= 10 and (diff > 1).mean() < 1e-3
+    assert diff.max() <= 16 and (diff > 1).mean() < 1e-3
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"), "exr", 32)
     assert np.abs(ours - ref).max() <= 2e-3
     _assert_close(*_both(raw, override(default_config(), highlights="unclip")))

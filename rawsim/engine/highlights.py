@@ -31,6 +31,7 @@ from rawsim.engine import configure
 from rawsim.engine.process import OP_LEVELS, OP_WB, _mosaic_value
 from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
+    HIGHLIGHT_BORDER_POWER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_SIGMA,
@@ -38,6 +39,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
+    HIGHLIGHT_WHITE_MARGIN,
     highlight_block,
 )
 
@@ -99,9 +101,10 @@ def _box(sat, k, i0, i1, j0, j1):
 
 
 @njit(**_JIT)
-def _fields(means, flags, gains, r0, r1, border):
-    """The border blocks' hue fields (4, band, Wb) in float64, and which blocks lie
-    next to a clipped one (band, Wb)."""
+def _fields(means, flags, gains, r0, r1, border, power):
+    """The border blocks' hue fields (4, band, Wb) in float64, each weighted by the
+    block's brightness to ``power``, and which blocks lie next to a clipped one
+    (band, Wb)."""
     hb, wb = flags.shape
     n = r1 - r0
     clip = np.zeros((n + 1, wb + 1), np.int64)  # summed-area table of clipped blocks
@@ -129,7 +132,7 @@ def _fields(means, flags, gains, r0, r1, border):
             bright = max(
                 means[0, y, j] / gains[0], means[1, y, j] / gains[1], means[2, y, j] / gains[2]
             )
-            bright = min(max(bright, np.float32(0.0)), np.float32(1.0))
+            bright = np.float32(min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power)
             for c in range(3):
                 fields[c, i, j] = np.float64(bright * (means[c, y, j] / total))
             fields[3, i, j] = np.float64(bright)
@@ -160,9 +163,12 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
 
 
 @njit(parallel=True, **_JIT)
-def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, sigma, shares, lows):
+def _estimates(
+    means, flags, level, sat, r0, r1, scales, lam, neutral, margin, floor, sigma, shares, lows
+):
     """Each clipped block's hue into ``shares`` (3, band, Wb) and the least level its
-    clipped colours allow into ``lows`` (band, Wb) (see :func:`_site_value`)."""
+    clipped colours allow into ``lows`` (band, Wb) (see :func:`_site_value`);
+    ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``."""
     hb, wb = flags.shape
     third = np.float32(1.0 / 3.0)
     for i in prange(r1 - r0):
@@ -191,6 +197,12 @@ def _estimates(means, flags, gains, sat, r0, r1, scales, lam, neutral, floor, si
             free = (inside - _box(sat, 4, i0, i1, j0, j1)) / np.float64((2 * s + 1) * (2 * s + 1))
             kappa = np.float32(min(2.0 * free, 1.0))
             blown = f == 3 or f >= 5  # two or three colours clipped
+            if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
+                u = 2 if f == 3 else (1 if f == 5 else 0)
+                need = max(level[(u + 1) % 3], level[(u + 2) % 3])
+                rho = min(max(means[u, y, j] / max(need, floor), np.float32(0.0)), np.float32(1.0))
+                refuted = (np.float32(1.0) - rho) / margin
+                kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
             for c in range(3):
                 hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
             trust = np.float32(1.0)
@@ -340,7 +352,7 @@ def reconstruct_mosaic(
     rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border
     r0 = max(0, int(rows[0]) - HIGHLIGHT_BORDER - 1)
     r1 = min(hb, int(rows[-1]) + HIGHLIGHT_BORDER + 2)
-    fields, near = _fields(means, flags, g, r0, r1, HIGHLIGHT_BORDER)
+    fields, near = _fields(means, flags, g, r0, r1, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER)
     sat = _sat(fields, near, r0, r1, hb, wb, HIGHLIGHT_BORDER)
     del fields
     shares = np.zeros((3, r1 - r0, wb), np.float32)
@@ -349,13 +361,14 @@ def reconstruct_mosaic(
     _estimates(
         means,
         flags,
-        g,
+        level,
         sat,
         r0,
         r1,
         scales,
         HIGHLIGHT_SCALE_WEIGHT,
         HIGHLIGHT_NEUTRAL,
+        np.float32(HIGHLIGHT_WHITE_MARGIN),
         np.float32(HIGHLIGHT_RATIO_FLOOR),
         np.float32(HIGHLIGHT_HUE_SIGMA),
         shares,

@@ -86,10 +86,20 @@ HIGHLIGHT_SCALE_WEIGHT = 0.25
 #: clipped one (and not next to one, where the mean of a colour may hold a clipped
 #: site's neighbour): the border of a clipped region, as darktable reads it.
 HIGHLIGHT_BORDER = 4
+#: ``reconstruct``: each border block's hue counts by its brightness (its brightest
+#: colour over its clip level, at most 1) to this power, so the blocks just below the
+#: clip (the same sky or lamp, a step darker) outweigh darker things beside the
+#: region (branches across a sky).
+HIGHLIGHT_BORDER_POWER = 3
 #: ``reconstruct``: where two or three colours clip, the border's hue fades to neutral
 #: with depth: it keeps κ = min(1, 2 × the unclipped share of the box of this
 #: half-width around the block), so a blown area's core, ≳ 16 blocks deep, is white.
 HIGHLIGHT_NEUTRAL = 16
+#: ``reconstruct``: where exactly two colours clip, white light would put the third at
+#: least at their clip levels. The lower it lies, the surer the light is coloured: at
+#: (1 − this) of their highest clip level or below, the border's hue is kept whole at
+#: any depth (a blue sky whose green and blue clipped stays blue).
+HIGHLIGHT_WHITE_MARGIN = 0.5
 #: ``reconstruct``: where one colour clips, the other two's ratio tests the border's
 #: hue against white light (equal shares): each is trusted by how well it predicts
 #: that ratio, a Gaussian of this width in the log of the ratio.

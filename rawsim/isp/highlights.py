@@ -27,6 +27,7 @@ from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_choice, check_image
 from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
+    HIGHLIGHT_BORDER_POWER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_SIGMA,
@@ -36,6 +37,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
     HIGHLIGHT_TRANSFORM,
+    HIGHLIGHT_WHITE_MARGIN,
     highlight_block,
 )
 
@@ -91,10 +93,11 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     Blocks within ``HIGHLIGHT_BORDER`` blocks of a clipped one, but with no clipped
     colour in their 3 × 3 neighbourhood, measure the hue: each colour's share of the
     colours' sum, weighted by the block's brightness (its brightest colour over its
-    clip level, at most 1). Box means of those shares over the ``HIGHLIGHT_SCALES``
-    (each scale weighted ``HIGHLIGHT_SCALE_WEIGHT`` times the one before), normalised
-    by the weights', carry the border's hue into clipped blocks; without any within
-    reach the hue is neutral (equal shares).
+    clip level, at most 1) to the power ``HIGHLIGHT_BORDER_POWER``. Box means of
+    those shares over the ``HIGHLIGHT_SCALES`` (each scale weighted
+    ``HIGHLIGHT_SCALE_WEIGHT`` times the one before), normalised by the weights',
+    carry the border's hue into clipped blocks; without any within reach the hue is
+    neutral (equal shares).
 
     Where one colour clipped, the other two test that hue against white light
     (equal shares): the hue is blended with neutral by the odds of each predicting
@@ -105,7 +108,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     towards neutral by how little of the box around the block is unclipped (κ =
     min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the
     core of a large blown area is white (on the benchmark, white light at depth is
-    the better guess).
+    the better guess); but where two clipped and the third lies below their clip
+    levels, white light cannot have made the block, and κ is raised to how far below
+    (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue.
 
     Each site of a clipped colour then becomes max(its value, share × level): the
     level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
@@ -194,7 +199,7 @@ def _estimates(means, clipped, anyclip, g):
     lit = total > 0
     share = means / torch.where(lit, total, 1.0)
     bright = (means / g.reshape(1, 3, 1, 1)).amax(1, keepdim=True).clamp(0.0, 1.0)
-    weight = torch.where(border & lit, bright, 0.0)
+    weight = torch.where(border & lit, bright**HIGHLIGHT_BORDER_POWER, 0.0)
     fields = torch.cat([weight * share, weight], 1).double()
     hue_sum = 0.0
     for k, s in enumerate(HIGHLIGHT_SCALES):
@@ -205,6 +210,8 @@ def _estimates(means, clipped, anyclip, g):
     s = HIGHLIGHT_NEUTRAL
     free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
     kappa = (2 * free).clamp(max=1.0).to(dtype)
+    two = clipped.sum(1, keepdim=True) == 2
+    kappa = torch.where(two, torch.maximum(kappa, _white_refuted(means, clipped, g)), kappa)
     hue = hue.to(dtype)
     blown = clipped.sum(1, keepdim=True) >= 2  # one colour left at most
     single = clipped.sum(1, keepdim=True) == 1
@@ -215,6 +222,17 @@ def _estimates(means, clipped, anyclip, g):
     share = share.clamp_min(HIGHLIGHT_RATIO_FLOOR)
     floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
     return share, floor
+
+
+def _white_refuted(means, clipped, g):
+    """Where two colours clipped: how surely (0–1) the light is not white, from the
+    third colour's mean, which white light would put at least at the clipped colours'
+    clip levels (full at (1 − ``HIGHLIGHT_WHITE_MARGIN``) of the highest or below)."""
+    level = (HIGHLIGHT_CLIPPED * g).reshape(1, 3, 1, 1)
+    seen = torch.where(clipped, 0.0, means).amax(1, keepdim=True)
+    need = torch.where(clipped, level, 0.0).amax(1, keepdim=True)
+    rho = (seen / need.clamp_min(HIGHLIGHT_RATIO_FLOOR)).clamp(0.0, 1.0)
+    return ((1 - rho) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
 
 
 def _local_means(x: torch.Tensor, cmap: torch.Tensor) -> torch.Tensor:
