@@ -6,8 +6,9 @@ defines the method).
 mosaic (DN) into one whose clipped sites hold their rebuilt values (DN, rounded),
 which the render kernels of :mod:`rawsim.engine.process` then take as any raw,
 with no highlight op of their own. The mosaic stages before the highlight stage
-(levels, white balance: the kernels' own arithmetic, :func:`_mosaic_value`) give the
-linear values the method reads; rebuilt values go back through their inverse.
+(levels, white balance: the kernels' own arithmetic, :func:`_mosaic_value`, tabulated
+once for every code at each levels slot) give the linear values the method reads;
+rebuilt values go back through their inverse.
 Values above the white level fit the uint16 codes above it; where they would not
 (a white level near 65535) the whole mosaic is scaled down, and the levels' span
 with it, so the kernels read the same linear values to rounding.
@@ -48,47 +49,65 @@ configure()
 _JIT = {"cache": True, "error_model": "numpy"}
 
 
+@njit(**_JIT)
+def _value_table(slot_colour, ops, opf):
+    """(slots, 65536) float32: the mosaic stages before the highlight stage (levels and
+    white balance, which do not depend on position) for every code at each levels
+    slot, whose colour is ``slot_colour[slot]``: the linear values the method reads."""
+    table = np.empty((slot_colour.size, 65536), np.float32)
+    for slot in range(slot_colour.size):
+        for code in range(65536):
+            table[slot, code] = _mosaic_value(
+                np.float32(code), slot, slot_colour[slot], 0, 0, 0.0, 0.0, ops, opf
+            )
+    return table
+
+
 @njit(parallel=True, **_JIT)
-def _blocks(raw, cmap, slots, ops, opf, level, b, means, flags):
+def _blocks(raw, cmap, slots, table, level, b, means, flags):
     """Each whole b × b block's colour means (3, Hb, Wb) and clip flags (bit c: colour c
-    has a site ≥ ``level[c]``); whether any block clipped."""
+    has a site ≥ ``level[c]``), the sites' values read from ``table``
+    (:func:`_value_table`); whether any block clipped."""
     hb, wb = flags.shape
     ph, pw = cmap.shape
     count = np.zeros(hb, np.int64)
     for i in prange(hb):
-        sums = np.zeros(3, np.float32)
-        n = np.zeros(3, np.float32)
+        sums = np.zeros((3, wb), np.float32)
+        n = np.zeros((3, wb), np.float32)
+        f = np.zeros(wb, np.uint8)
+        for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
+            p = y % ph
+            q, j, bq = 0, 0, 0  # x % pw, the block column, x % b
+            for x in range(wb * b):
+                c = cmap[p, q]
+                v = table[slots[p, q], raw[y, x]]
+                sums[c, j] += v
+                n[c, j] += 1
+                if v >= level[c]:
+                    f[j] |= 1 << c
+                q = q + 1 if q + 1 < pw else 0
+                bq += 1
+                if bq == b:
+                    bq, j = 0, j + 1
         for j in range(wb):
-            sums[:] = 0
-            n[:] = 0
-            f = 0
-            for y in range(i * b, i * b + b):
-                for x in range(j * b, j * b + b):
-                    c = cmap[y % ph, x % pw]
-                    v = _mosaic_value(
-                        np.float32(raw[y, x]), slots[y % ph, x % pw], c, y, x, 0.0, 0.0, ops, opf
-                    )
-                    sums[c] += v
-                    n[c] += 1
-                    if v >= level[c]:
-                        f |= 1 << c
             for c in range(3):
-                means[c, i, j] = sums[c] / n[c]
-            flags[i, j] = f
-            if f:
+                means[c, i, j] = sums[c, j] / n[c, j]
+            flags[i, j] = f[j]
+            if f[j]:
                 count[i] += 1
     return count.sum() > 0
 
 
-@njit(**_JIT)
+@njit(parallel=True, **_JIT)
 def _sat(fields, near, r0, r1, hb, wb, border):
     """Summed-area tables over block rows [r0, r1): the hue fields (weight × share of
-    R, G, B; weight) of the border blocks, and the count of blocks next to a clip."""
+    R, G, B; weight) of the border blocks, and the count of blocks next to a clip
+    (one table per thread at a time)."""
     n = r1 - r0
     sat = np.zeros((5, n + 1, wb + 1), np.float64)
-    for i in range(n):
-        for j in range(wb):
-            for k in range(5):
+    for k in prange(5):
+        for i in range(n):
+            for j in range(wb):
                 v = fields[k, i, j] if k < 4 else np.float64(near[i, j])
                 sat[k, i + 1, j + 1] = v + sat[k, i, j + 1] + sat[k, i + 1, j] - sat[k, i, j]
     return sat
@@ -100,7 +119,7 @@ def _box(sat, k, i0, i1, j0, j1):
     return sat[k, i1, j1] - sat[k, i0, j1] - sat[k, i1, j0] + sat[k, i0, j0]
 
 
-@njit(**_JIT)
+@njit(parallel=True, **_JIT)
 def _fields(means, flags, gains, r0, r1, border, power):
     """The border blocks' hue fields (4, band, Wb) in float64, each weighted by the
     block's brightness to ``power``, and which blocks lie next to a clipped one
@@ -114,7 +133,7 @@ def _fields(means, flags, gains, r0, r1, border, power):
             clip[i + 1, j + 1] = hit + clip[i, j + 1] + clip[i + 1, j] - clip[i, j]
     fields = np.zeros((4, n, wb), np.float64)
     near = np.zeros((n, wb), np.uint8)
-    for i in range(n):
+    for i in prange(n):
         y = r0 + i
         for j in range(wb):
             i0, i1 = max(i - 1, 0), min(i + 2, n)
@@ -229,7 +248,7 @@ def _estimates(
 
 
 @njit(inline="always", **_JIT)
-def _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, gain):
+def _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gain):
     """The rebuilt value of colour ``c`` at site (y, x) of a block with clip flags ``f``,
     hue ``share`` (3) and least level ``low``: the block's hue at the brightness of
     the site's 3 × 3 neighbourhood, the means there of the colours the block did not
@@ -237,67 +256,78 @@ def _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, ga
     colour's clip level ``gain`` (the reference's ``_site_estimates``)."""
     h, w = raw.shape
     ph, pw = cmap.shape
-    sums = np.zeros(3, np.float64)
-    counts = np.zeros(3, np.float64)
-    for yy in range(max(y - 1, 0), min(y + 2, h)):
-        for xx in range(max(x - 1, 0), min(x + 2, w)):
-            k = cmap[yy % ph, xx % pw]
-            v = _mosaic_value(
-                np.float32(raw[yy, xx]), slots[yy % ph, xx % pw], k, yy, xx, 0.0, 0.0, ops, opf
-            )
-            sums[k] += v
-            counts[k] += 1
+    y0, y1, x0, x1 = max(y - 1, 0), min(y + 2, h), max(x - 1, 0), min(x + 2, w)
+    s0 = s1 = s2 = 0.0  # each colour's sum and count over the neighbourhood
+    n0 = n1 = n2 = 0.0
+    p = y0 % ph
+    for yy in range(y0, y1):
+        q = x0 % pw
+        for xx in range(x0, x1):
+            k = cmap[p, q]
+            v = np.float64(table[slots[p, q], raw[yy, xx]])
+            if k == 0:
+                s0 += v
+                n0 += 1.0
+            elif k == 1:
+                s1 += v
+                n1 += 1.0
+            else:
+                s2 += v
+                n2 += 1.0
+            q = q + 1 if q + 1 < pw else 0
+        p = p + 1 if p + 1 < ph else 0
     num, den = 0.0, 0.0
-    for k in range(3):
-        if not f >> k & 1 and counts[k] > 0:
-            num += sums[k] / counts[k]
-            den += np.float64(share[k])
+    if not f & 1 and n0 > 0:
+        num += s0 / n0
+        den += np.float64(share[0])
+    if not f >> 1 & 1 and n1 > 0:
+        num += s1 / n1
+        den += np.float64(share[1])
+    if not f >> 2 & 1 and n2 > 0:
+        num += s2 / n2
+        den += np.float64(share[2])
     level = num / den if den > 0 else 0.0
     level = max(level, np.float64(low))
     return np.float32(min(np.float64(share[c]) * level, np.float64(headroom * gain)))
 
 
-@njit(inline="always", **_JIT)
-def _rebuilt(raw, site, y, x, c):
-    """The rebuilt value of colour ``c`` at (y, x) (:func:`_site_value`), or −1 where the
-    site's block did not clip ``c``. ``site``: (cmap, slots, ops, opf, flags, shares,
-    lows, r0, r1, b, headroom, gains), as :func:`reconstruct_mosaic` builds it."""
-    cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, gains = site
-    hb, wb = flags.shape
-    by, bx = min(y // b, hb - 1), min(x // b, wb - 1)
-    f = flags[by, bx]
-    if not (r0 <= by < r1 and f >> c & 1):
-        return np.float32(-1.0)
-    share, low = shares[:, by - r0, bx], lows[by - r0, bx]
-    return _site_value(raw, cmap, slots, ops, opf, y, x, c, f, share, low, headroom, gains[c])
-
-
 @njit(parallel=True, **_JIT)
 def _write(raw, out, site, scale, black, span, applied):
     """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
-    clipped block takes max(its value, its rebuilt value, :func:`_rebuilt`).
-    ``scale`` < 1: every site is first scaled about its black level (``span``: the
-    levels' divisor per slot). Returns the largest code a rebuilt value needs,
-    unscaled: above 65535, the caller writes again with a scale that fits it."""
+    clipped block takes max(its value, its rebuilt value, :func:`_site_value`).
+    ``site``: (cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, gains), as
+    :func:`reconstruct_mosaic` builds it. ``scale`` < 1: every site is first scaled
+    about its black level (``span``: the levels' divisor per slot). Returns the largest
+    code a rebuilt value needs, unscaled: above 65535, the caller writes again with a
+    scale that fits it."""
     h, w = raw.shape
-    cmap, slots, ops, opf = site[0], site[1], site[2], site[3]
+    cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, gains = site
     ph, pw = cmap.shape
+    hb, wb = flags.shape
     tops = np.zeros(h, np.float64)
     for y in prange(h):
         top = 0.0
+        p, by = y % ph, min(y // b, hb - 1)
+        band = r0 <= by < r1
+        q, bx, bq = 0, 0, 0  # x % pw, the block column, x % b
         for x in range(w):
-            p, q = y % ph, x % pw
             slot, c = slots[p, q], cmap[p, q]
             dn = np.float32(raw[y, x])
             if scale != 1.0:
                 dn = black[slot] + (dn - black[slot]) * scale
-            e = _rebuilt(raw, site, y, x, c)
-            if e >= 0:
+            f = flags[by, bx] if band else 0
+            if f >> c & 1:
+                share, low = shares[:, by - r0, bx], lows[by - r0, bx]
+                e = _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c])
                 top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
-                v = _mosaic_value(np.float32(raw[y, x]), slot, c, y, x, 0.0, 0.0, ops, opf)
-                if e > v:
+                if e > table[slot, raw[y, x]]:
                     dn = black[slot] + e / applied[c] * span[slot] * scale
             out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+            q = q + 1 if q + 1 < pw else 0
+            bq += 1
+            if bq == b:
+                bq = 0
+                bx = min(bx + 1, wb - 1)
         tops[y] = top
     return tops.max()
 
@@ -347,7 +377,10 @@ def reconstruct_mosaic(
         return data, opf
     means = np.empty((3, hb, wb), np.float32)
     flags = np.empty((hb, wb), np.uint8)
-    if not _blocks(data, cmap, slots, ops, opf, level, b, means, flags):
+    slot_colour = np.zeros(int(slots.max()) + 1, np.int64)
+    slot_colour[slots.ravel()] = cmap.ravel()
+    table = _value_table(slot_colour, ops, opf)
+    if not _blocks(data, cmap, slots, table, level, b, means, flags):
         return data, opf
     rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border
     r0 = max(0, int(rows[0]) - HIGHLIGHT_BORDER - 1)
@@ -377,7 +410,7 @@ def reconstruct_mosaic(
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
-    site = (cmap, slots, ops, opf, flags, shares, lows, r0, r1, b, headroom, g)
+    site = (cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, g)
     out = np.empty_like(data)
     top = _write(data, out, site, np.float32(1.0), black, span, applied)
     scale = np.float32(1.0)
