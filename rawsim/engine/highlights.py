@@ -108,7 +108,7 @@ def _sat(fields, near, r0, r1, hb, wb, border):
     for k in prange(5):
         for i in range(n):
             for j in range(wb):
-                v = fields[k, i, j] if k < 4 else np.float64(near[i, j])
+                v = np.float64(fields[k, i, j]) if k < 4 else np.float64(near[i, j])
                 sat[k, i + 1, j + 1] = v + sat[k, i, j + 1] + sat[k, i + 1, j] - sat[k, i, j]
     return sat
 
@@ -121,17 +121,17 @@ def _box(sat, k, i0, i1, j0, j1):
 
 @njit(parallel=True, **_JIT)
 def _fields(means, flags, gains, r0, r1, border, power):
-    """The border blocks' hue fields (4, band, Wb) in float64, each weighted by the
-    block's brightness to ``power``, and which blocks lie next to a clipped one
-    (band, Wb)."""
+    """The border blocks' hue fields (4, band, Wb), each weighted by the block's
+    brightness to ``power`` (float32 products, as the reference forms them; summed in
+    float64 by :func:`_sat`), and which blocks lie next to a clipped one (band, Wb)."""
     hb, wb = flags.shape
     n = r1 - r0
-    clip = np.zeros((n + 1, wb + 1), np.int64)  # summed-area table of clipped blocks
+    clip = np.zeros((n + 1, wb + 1), np.int32)  # summed-area table of clipped blocks
     for i in range(n):
         for j in range(wb):
             hit = 1 if flags[r0 + i, j] else 0
             clip[i + 1, j + 1] = hit + clip[i, j + 1] + clip[i + 1, j] - clip[i, j]
-    fields = np.zeros((4, n, wb), np.float64)
+    fields = np.zeros((4, n, wb), np.float32)
     near = np.zeros((n, wb), np.uint8)
     for i in prange(n):
         y = r0 + i
@@ -153,8 +153,8 @@ def _fields(means, flags, gains, r0, r1, border, power):
             )
             bright = np.float32(min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power)
             for c in range(3):
-                fields[c, i, j] = np.float64(bright * (means[c, y, j] / total))
-            fields[3, i, j] = np.float64(bright)
+                fields[c, i, j] = bright * (means[c, y, j] / total)
+            fields[3, i, j] = bright
     return fields, near
 
 
