@@ -121,9 +121,10 @@ def _box(sat, k, i0, i1, j0, j1):
 
 @njit(parallel=True, **_JIT)
 def _fields(means, flags, gains, r0, r1, border, power):
-    """The border blocks' hue fields (4, band, Wb), each weighted by the block's
-    brightness to ``power`` (float32 products, as the reference forms them; summed in
-    float64 by :func:`_sat`), and which blocks lie next to a clipped one (band, Wb)."""
+    """The border blocks' hue fields (4, band, Wb), read over each block's 3 × 3 blocks
+    and weighted by their brightness to ``power`` (float32 products, as the reference
+    forms them; summed in float64 by :func:`_sat`), and which blocks lie next to a
+    clipped one (band, Wb)."""
     hb, wb = flags.shape
     n = r1 - r0
     clip = np.zeros((n + 1, wb + 1), np.int32)  # summed-area table of clipped blocks
@@ -135,6 +136,7 @@ def _fields(means, flags, gains, r0, r1, border, power):
     near = np.zeros((n, wb), np.uint8)
     for i in prange(n):
         y = r0 + i
+        around = np.empty(3, np.float32)
         for j in range(wb):
             i0, i1 = max(i - 1, 0), min(i + 2, n)
             j0, j1 = max(j - 1, 0), min(j + 2, wb)
@@ -145,15 +147,20 @@ def _fields(means, flags, gains, r0, r1, border, power):
             near[i, j] = close
             if close or not inside:
                 continue
-            total = means[0, y, j] + means[1, y, j] + means[2, y, j]
+            for c in range(3):  # the block's 3 × 3 blocks (in the image), as avg_pool2d
+                acc = np.float32(0.0)
+                for yy in range(max(y - 1, 0), min(y + 2, hb)):
+                    for jj in range(max(j - 1, 0), min(j + 2, wb)):
+                        acc += means[c, yy, jj]
+                count = (min(y + 2, hb) - max(y - 1, 0)) * (min(j + 2, wb) - max(j - 1, 0))
+                around[c] = acc / np.float32(count)
+            total = around[0] + around[1] + around[2]
             if not total > 0:
                 continue
-            bright = max(
-                means[0, y, j] / gains[0], means[1, y, j] / gains[1], means[2, y, j] / gains[2]
-            )
+            bright = max(around[0] / gains[0], around[1] / gains[1], around[2] / gains[2])
             bright = np.float32(min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power)
             for c in range(3):
-                fields[c, i, j] = bright * (means[c, y, j] / total)
+                fields[c, i, j] = bright * (around[c] / total)
             fields[3, i, j] = bright
     return fields, near
 

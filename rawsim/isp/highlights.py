@@ -92,8 +92,8 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     colour, and which colours clipped (a site ≥ ``HIGHLIGHT_CLIPPED`` of its level).
     Blocks within ``HIGHLIGHT_BORDER`` blocks of a clipped one, but with no clipped
     colour in their 3 × 3 neighbourhood, measure the hue: each colour's share of the
-    colours' sum, weighted by the block's brightness (its brightest colour over its
-    clip level, at most 1) to the power ``HIGHLIGHT_BORDER_POWER``. Box means of
+    colours' sum over their 3 × 3 blocks, weighted by that brightness (its brightest
+    colour over its clip level, at most 1) to the power ``HIGHLIGHT_BORDER_POWER``. Box means of
     those shares over the ``HIGHLIGHT_SCALES`` (each scale weighted
     ``HIGHLIGHT_SCALE_WEIGHT`` times the one before), normalised by the weights',
     carry the border's hue into clipped blocks; without any within reach the hue is
@@ -196,11 +196,16 @@ def _estimates(means, clipped, anyclip, g):
     k = HIGHLIGHT_BORDER
     border = (F.max_pool2d(anyclip.to(dtype), 2 * k + 1, stride=1, padding=k) > 0) & ~near
     total = means.sum(1, keepdim=True)
-    lit = total > 0
-    share = means / torch.where(lit, total, 1.0)
-    bright = (means / g.reshape(1, 3, 1, 1)).amax(1, keepdim=True).clamp(0.0, 1.0)
+    share = means / torch.where(total > 0, total, 1.0)
+    # A border block's hue is read over its 3 × 3 blocks (none clipped), so that one
+    # astride an edge (a colour's sites on either side) gives no false hue.
+    around = F.avg_pool2d(means, 3, stride=1, padding=1, count_include_pad=False)
+    around_total = around.sum(1, keepdim=True)
+    lit = around_total > 0
+    bright = (around / g.reshape(1, 3, 1, 1)).amax(1, keepdim=True).clamp(0.0, 1.0)
     weight = torch.where(border & lit, bright**HIGHLIGHT_BORDER_POWER, 0.0)
-    fields = torch.cat([weight * share, weight], 1).double()
+    hue_of = around / torch.where(lit, around_total, 1.0)
+    fields = torch.cat([weight * hue_of, weight], 1).double()
     hue_sum = 0.0
     for k, s in enumerate(HIGHLIGHT_SCALES):
         box = _box(fields, s) / float((2 * s + 1) ** 2)
