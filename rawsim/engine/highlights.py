@@ -6,9 +6,9 @@ defines the method).
 mosaic (DN) into one whose clipped sites hold their rebuilt values (DN, rounded),
 which the render kernels of :mod:`rawsim.engine.process` then take as any raw,
 with no highlight op of their own. The mosaic stages before the highlight stage
-(levels, white balance: the kernels' own arithmetic, :func:`_mosaic_value`, tabulated
-once for every code at each levels slot) give the linear values the method reads;
-rebuilt values go back through their inverse.
+(levels, white balance: the kernels' own arithmetic, tabulated once for every code at
+each levels slot by :func:`~rawsim.engine.process.mosaic_table`) give the linear
+values the method reads; rebuilt values go back through their inverse.
 Values above the white level fit the uint16 codes above it; where they would not
 (a white level near 65535) the whole mosaic is scaled down, and the levels' span
 with it, so the kernels read the same linear values to rounding.
@@ -29,7 +29,7 @@ from numba import njit, prange
 
 from rawsim.cfa import CFA
 from rawsim.engine import configure
-from rawsim.engine.process import OP_LEVELS, OP_WB, _mosaic_value
+from rawsim.engine.process import OP_LEVELS, OP_WB, mosaic_table
 from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
     HIGHLIGHT_BORDER_POWER,
@@ -49,25 +49,12 @@ configure()
 _JIT = {"cache": True, "error_model": "numpy"}
 
 
-@njit(**_JIT)
-def _value_table(slot_colour, ops, opf):
-    """(slots, 65536) float32: the mosaic stages before the highlight stage (levels and
-    white balance, which do not depend on position) for every code at each levels
-    slot, whose colour is ``slot_colour[slot]``: the linear values the method reads."""
-    table = np.empty((slot_colour.size, 65536), np.float32)
-    for slot in range(slot_colour.size):
-        for code in range(65536):
-            table[slot, code] = _mosaic_value(
-                np.float32(code), slot, slot_colour[slot], 0, 0, 0.0, 0.0, ops, opf
-            )
-    return table
-
-
 @njit(parallel=True, **_JIT)
 def _blocks(raw, cmap, slots, table, level, b, means, flags):
     """Each whole b × b block's colour means (3, Hb, Wb) and clip flags (bit c: colour c
     has a site ≥ ``level[c]``), the sites' values read from ``table``
-    (:func:`_value_table`); whether any block clipped."""
+    (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot); whether any
+    block clipped."""
     hb, wb = flags.shape
     ph, pw = cmap.shape
     count = np.zeros(hb, np.int64)
@@ -136,7 +123,7 @@ def _fields(means, flags, gains, r0, r1, border, power):
     near = np.zeros((n, wb), np.uint8)
     for i in prange(n):
         y = r0 + i
-        around = np.empty(3, np.float32)
+        around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
         for j in range(wb):
             i0, i1 = max(i - 1, 0), min(i + 2, n)
             j0, j1 = max(j - 1, 0), min(j + 2, wb)
@@ -147,13 +134,15 @@ def _fields(means, flags, gains, r0, r1, border, power):
             near[i, j] = close
             if close or not inside:
                 continue
-            for c in range(3):  # the block's 3 × 3 blocks (in the image), as avg_pool2d
+            # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
+            ya, yb, ja, jb = max(y - 1, 0), min(y + 2, hb), max(j - 1, 0), min(j + 2, wb)
+            count = np.float32((yb - ya) * (jb - ja))
+            for c in range(3):
                 acc = np.float32(0.0)
-                for yy in range(max(y - 1, 0), min(y + 2, hb)):
-                    for jj in range(max(j - 1, 0), min(j + 2, wb)):
+                for yy in range(ya, yb):
+                    for jj in range(ja, jb):
                         acc += means[c, yy, jj]
-                count = (min(y + 2, hb) - max(y - 1, 0)) * (min(j + 2, wb) - max(j - 1, 0))
-                around[c] = acc / np.float32(count)
+                around[c] = acc / count
             total = around[0] + around[1] + around[2]
             if not total > 0:
                 continue
@@ -384,9 +373,9 @@ def reconstruct_mosaic(
         return data, opf
     means = np.empty((3, hb, wb), np.float32)
     flags = np.empty((hb, wb), np.uint8)
-    slot_colour = np.zeros(int(slots.max()) + 1, np.int64)
+    slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
     slot_colour[slots.ravel()] = cmap.ravel()
-    table = _value_table(slot_colour, ops, opf)
+    table = mosaic_table(slot_colour, ops, opf)
     if not _blocks(data, cmap, slots, table, level, b, means, flags):
         return data, opf
     rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border

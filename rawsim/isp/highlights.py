@@ -215,11 +215,11 @@ def _estimates(means, clipped, anyclip, g):
     s = HIGHLIGHT_NEUTRAL
     free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
     kappa = (2 * free).clamp(max=1.0).to(dtype)
-    two = clipped.sum(1, keepdim=True) == 2
-    kappa = torch.where(two, torch.maximum(kappa, _white_refuted(means, clipped, g)), kappa)
+    count = clipped.sum(1, keepdim=True)  # colours clipped in each block
+    kappa = torch.where(count == 2, torch.maximum(kappa, _white_refuted(means, clipped, g)), kappa)
     hue = hue.to(dtype)
-    blown = clipped.sum(1, keepdim=True) >= 2  # one colour left at most
-    single = clipped.sum(1, keepdim=True) == 1
+    blown = count >= 2  # one colour left at most
+    single = count == 1
     seen = share
     trust = _hue_or_white(means, seen, hue, clipped)
     tested = trust * hue + (1 - trust) / 3
