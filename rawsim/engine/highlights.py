@@ -13,13 +13,15 @@ Values above the white level fit the uint16 codes above it; where they would not
 (a white level near 65535) the whole mosaic is scaled down, and the levels' span
 with it, so the kernels read the same linear values to rounding.
 
-Work: one pass over the mosaic for each block's colour means and clip flags
-(parallel over block rows); nothing else when nothing clipped. Otherwise the hue
-fields live on the band of block rows that holds clipped blocks (plus the border),
-as summed-area tables in float64, read only at clipped blocks; each clipped block
-keeps its hue and least level, and its clipped sites are rebuilt from their 3 × 3
-neighbourhoods as they are written (again, scaled, in the rare case where rebuilt
-values need codes above 65535).
+Work goes by tiles of ``TILE`` × ``TILE`` blocks, in proportion to what clipped:
+one integer comparison per site finds the tiles that hold a clipped site (nothing
+else when none does). Block means and clip flags are read in those tiles and
+their neighbours only (tile-major arrays, so untouched tiles cost no memory), the
+hue fields of their border blocks go into a summed-area table per tile (float64),
+and the box sums at clipped blocks add up the tables of the tiles a box covers.
+Each clipped block keeps its hue and least level, and its clipped sites are
+rebuilt from their 3 × 3 neighbourhoods into a copy of the mosaic (again, with
+every site scaled, in the rare case where rebuilt values need codes above 65535).
 """
 
 from __future__ import annotations
@@ -49,109 +51,171 @@ configure()
 _JIT = {"cache": True, "error_model": "numpy"}
 
 
-@njit(parallel=True, **_JIT)
-def _blocks(raw, cmap, slots, table, level, b, means, flags):
-    """Each whole b × b block's colour means (3, Hb, Wb) and clip flags (bit c: colour c
-    has a site ≥ ``level[c]``), the sites' values read from ``table``
-    (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot); whether any
-    block clipped."""
-    hb, wb = flags.shape
-    ph, pw = cmap.shape
-    count = np.zeros(hb, np.int64)
-    for i in prange(hb):
-        sums = np.zeros((3, wb), np.float32)
-        n = np.zeros((3, wb), np.float32)
-        f = np.zeros(wb, np.uint8)
-        for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
-            p = y % ph
-            q, j, bq = 0, 0, 0  # x % pw, the block column, x % b
-            for x in range(wb * b):
-                c = cmap[p, q]
-                v = table[slots[p, q], raw[y, x]]
-                sums[c, j] += v
-                n[c, j] += 1
-                if v >= level[c]:
-                    f[j] |= 1 << c
-                q = q + 1 if q + 1 < pw else 0
-                bq += 1
-                if bq == b:
-                    bq, j = 0, j + 1
-        for j in range(wb):
-            for c in range(3):
-                means[c, i, j] = sums[c, j] / n[c, j]
-            flags[i, j] = f[j]
-            if f[j]:
-                count[i] += 1
-    return count.sum() > 0
-
-
-@njit(parallel=True, **_JIT)
-def _sat(fields, near, r0, r1, hb, wb, border):
-    """Summed-area tables over block rows [r0, r1): the hue fields (weight × share of
-    R, G, B; weight) of the border blocks, and the count of blocks next to a clip
-    (one table per thread at a time)."""
-    n = r1 - r0
-    sat = np.zeros((5, n + 1, wb + 1), np.float64)
-    for k in prange(5):
-        for i in range(n):
-            for j in range(wb):
-                v = np.float64(fields[k, i, j]) if k < 4 else np.float64(near[i, j])
-                sat[k, i + 1, j + 1] = v + sat[k, i, j + 1] + sat[k, i + 1, j] - sat[k, i, j]
-    return sat
+#: Blocks per side of the tiles the pre-pass works in: only tiles with a clipped site
+#: and their neighbours are read (at least HIGHLIGHT_BORDER + 2 blocks).
+TILE = 32
 
 
 @njit(inline="always", **_JIT)
-def _box(sat, k, i0, i1, j0, j1):
-    """Sum of field ``k`` over band rows [i0, i1) and columns [j0, j1)."""
-    return sat[k, i1, j1] - sat[k, i0, j1] - sat[k, i1, j0] + sat[k, i0, j0]
+def _at(flags, i, j):
+    """Block (i, j)'s entry of a tile-major array (Th, Tw, TILE, TILE)."""
+    return flags[i // TILE, j // TILE, i % TILE, j % TILE]
+
+
+@njit(inline="always", **_JIT)
+def _mean(means, c, i, j):
+    """Block (i, j)'s mean of colour c in the tile-major ``means`` (Th, Tw, 3, TILE, TILE)."""
+    return means[i // TILE, j // TILE, c, i % TILE, j % TILE]
 
 
 @njit(parallel=True, **_JIT)
-def _fields(means, flags, gains, r0, r1, border, power):
-    """The border blocks' hue fields (4, band, Wb), read over each block's 3 × 3 blocks
-    and weighted by their brightness to ``power`` (float32 products, as the reference
-    forms them; summed in float64 by :func:`_sat`), and which blocks lie next to a
-    clipped one (band, Wb)."""
-    hb, wb = flags.shape
-    n = r1 - r0
-    clip = np.zeros((n + 1, wb + 1), np.int32)  # summed-area table of clipped blocks
-    for i in range(n):
-        for j in range(wb):
-            hit = 1 if flags[r0 + i, j] else 0
-            clip[i + 1, j + 1] = hit + clip[i, j + 1] + clip[i + 1, j] - clip[i, j]
-    fields = np.zeros((4, n, wb), np.float32)
-    near = np.zeros((n, wb), np.uint8)
-    for i in prange(n):
-        y = r0 + i
+def _clipped_tiles(raw, lines, b, hb, wb, t):
+    """(Th, Tw) uint8: whether each tile of t × t whole b × b blocks holds a site at or
+    above its clip code (``lines``: (period rows, W) int32, the least code that clips at
+    each column of each row of the CFA's period; 65536 where none does). An integer
+    comparison per site, so a mosaic with nothing clipped costs one read."""
+    ph = lines.shape[0]
+    th, tw = -(-hb // t), -(-wb // t)
+    tiles = np.zeros((th, tw), np.uint8)
+    for ti in prange(th):
+        hit = np.zeros(wb * b, np.uint8)  # any clipped site in each column of the tile row
+        for y in range(ti * t * b, min(ti * t + t, hb) * b):
+            line = lines[y % ph]
+            for x in range(wb * b):
+                hit[x] |= np.int32(raw[y, x]) >= line[x]
+        for tj in range(tw):
+            tiles[ti, tj] = hit[tj * t * b : min(tj * t + t, wb) * b].max()
+    return tiles
+
+
+@njit(parallel=True, **_JIT)
+def _blocks(raw, cmap, slots, table, level, b, need, hb, wb, means, flags):
+    """Each whole b × b block's colour means (Th, Tw, 3, TILE, TILE) and clip flags
+    (Th, Tw, TILE, TILE; bit c: colour c has a site ≥ ``level[c]``) in the tiles that
+    ``need`` (Th, Tw) marks, of the Hb × Wb blocks, the sites' values read from
+    ``table`` (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot);
+    blocks elsewhere are left as they are (zero)."""
+    t = TILE
+    ph, pw = cmap.shape
+    for i in prange(hb):
+        ti = i // t
+        sums = np.zeros((3, t), np.float32)
+        n = np.zeros((3, t), np.float32)
+        f = np.zeros(t, np.uint8)
+        for tj in range(need.shape[1]):
+            if not need[ti, tj]:
+                continue
+            j0, j1 = tj * t, min(tj * t + t, wb)
+            sums[:] = 0.0
+            n[:] = 0.0
+            f[:] = 0
+            for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
+                p = y % ph
+                q, j, bq = (j0 * b) % pw, 0, 0  # x % pw, the block column in the tile, x % b
+                for x in range(j0 * b, j1 * b):
+                    c = cmap[p, q]
+                    v = table[slots[p, q], raw[y, x]]
+                    sums[c, j] += v
+                    n[c, j] += 1
+                    if v >= level[c]:
+                        f[j] |= 1 << c
+                    q = q + 1 if q + 1 < pw else 0
+                    bq += 1
+                    if bq == b:
+                        bq, j = 0, j + 1
+            for j in range(j1 - j0):
+                for c in range(3):
+                    means[ti, tj, c, i - ti * t, j] = sums[c, j] / n[c, j]
+                flags[ti, tj, i - ti * t, j] = f[j]
+
+
+@njit(parallel=True, **_JIT)
+def _tile_sats(means, flags, gains, tiles, hb, wb, border, power):
+    """Summed-area tables (n, TILE + 1, TILE + 1, 5) float64 of each listed tile
+    (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks`
+    gives them): the border blocks' hue fields (weight × share of R,
+    G, B; weight), read over each block's 3 × 3 blocks and weighted by their brightness
+    to ``power`` (float32 products, as the reference forms them), and the count of
+    blocks next to a clipped one. Border blocks lie within ``border`` blocks of a
+    clipped one but not next to one; the fields are zero elsewhere."""
+    t = TILE
+    sats = np.zeros((tiles.shape[0], t + 1, t + 1, 5), np.float64)
+    for k in prange(tiles.shape[0]):
+        i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
+        i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
+        # Clipped blocks within 1 and within ``border`` columns, for the tile's rows and
+        # ``border`` rows each side: then the same down the columns.
+        a0, a1 = max(i0 - border, 0), min(i1 + border, hb)
+        wide = np.zeros((a1 - a0, j1 - j0), np.uint8)
+        for i in range(a0, a1):
+            for j in range(j0, j1):
+                v = np.uint8(0)
+                for jj in range(max(j - border, 0), min(j + border + 1, wb)):
+                    if _at(flags, i, jj):
+                        v |= 2 if abs(jj - j) <= 1 else 1
+                wide[i - a0, j - j0] = v
+        sat = sats[k]
         around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
-        for j in range(wb):
-            i0, i1 = max(i - 1, 0), min(i + 2, n)
-            j0, j1 = max(j - 1, 0), min(j + 2, wb)
-            close = clip[i1, j1] - clip[i0, j1] - clip[i1, j0] + clip[i0, j0] > 0
-            i0, i1 = max(i - border, 0), min(i + border + 1, n)
-            j0, j1 = max(j - border, 0), min(j + border + 1, wb)
-            inside = clip[i1, j1] - clip[i0, j1] - clip[i1, j0] + clip[i0, j0] > 0
-            near[i, j] = close
-            if close or not inside:
+        field = np.zeros(5, np.float64)
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                close = inside = False
+                for ii in range(max(i - border, 0), min(i + border + 1, hb)):
+                    v = wide[ii - a0, j - j0]
+                    inside |= v != 0
+                    close |= v >= 2 and abs(ii - i) <= 1
+                field[:] = 0.0
+                field[4] = 1.0 if close else 0.0
+                if inside and not close:
+                    # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
+                    ya, yb, ja, jb = max(i - 1, 0), min(i + 2, hb), max(j - 1, 0), min(j + 2, wb)
+                    count = np.float32((yb - ya) * (jb - ja))
+                    for c in range(3):
+                        acc = np.float32(0.0)
+                        for yy in range(ya, yb):
+                            for jj in range(ja, jb):
+                                acc += _mean(means, c, yy, jj)
+                        around[c] = acc / count
+                    total = around[0] + around[1] + around[2]
+                    if total > 0:
+                        bright = max(
+                            around[0] / gains[0], around[1] / gains[1], around[2] / gains[2]
+                        )
+                        bright = np.float32(
+                            min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power
+                        )
+                        for c in range(3):
+                            field[c] = np.float64(bright * (around[c] / total))
+                        field[3] = np.float64(bright)
+                li, lj = i - i0 + 1, j - j0 + 1
+                for f in range(5):
+                    sat[li, lj, f] = (
+                        field[f] + sat[li - 1, lj, f] + sat[li, lj - 1, f] - sat[li - 1, lj - 1, f]
+                    )
+    return sats
+
+
+@njit(inline="always", **_JIT)
+def _box(sats, slot, i0, i1, j0, j1, out):
+    """Sums (5) of the fields over blocks [i0, i1) × [j0, j1) (inside the image) into
+    ``out``, from the tables of the tiles the box covers (``slot``: each tile's table,
+    −1 where none: zero)."""
+    t = TILE
+    out[:] = 0.0
+    for ti in range(i0 // t, (i1 - 1) // t + 1):
+        a0, a1 = max(i0 - ti * t, 0), min(i1 - ti * t, t)
+        for tj in range(j0 // t, (j1 - 1) // t + 1):
+            s = slot[ti, tj]
+            if s < 0:
                 continue
-            # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
-            ya, yb, ja, jb = max(y - 1, 0), min(y + 2, hb), max(j - 1, 0), min(j + 2, wb)
-            count = np.float32((yb - ya) * (jb - ja))
-            for c in range(3):
-                acc = np.float32(0.0)
-                for yy in range(ya, yb):
-                    for jj in range(ja, jb):
-                        acc += means[c, yy, jj]
-                around[c] = acc / count
-            total = around[0] + around[1] + around[2]
-            if not total > 0:
-                continue
-            bright = max(around[0] / gains[0], around[1] / gains[1], around[2] / gains[2])
-            bright = np.float32(min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power)
-            for c in range(3):
-                fields[c, i, j] = bright * (around[c] / total)
-            fields[3, i, j] = bright
-    return fields, near
+            c0, c1 = max(j0 - tj * t, 0), min(j1 - tj * t, t)
+            for f in range(5):
+                out[f] += (
+                    sats[s, a1, c1, f]
+                    - sats[s, a0, c1, f]
+                    - sats[s, a1, c0, f]
+                    + sats[s, a0, c0, f]
+                )
 
 
 @njit(inline="always", **_JIT)
@@ -179,43 +243,66 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
 
 @njit(parallel=True, **_JIT)
 def _estimates(
-    means, flags, level, sat, r0, r1, scales, lam, neutral, margin, floor, sigma, shares, lows
+    means,
+    flags,
+    level,
+    sats,
+    slot,
+    tiles,
+    hb,
+    wb,
+    scales,
+    lam,
+    neutral,
+    margin,
+    floor,
+    sigma,
+    shares,
+    lows,
 ):
-    """Each clipped block's hue into ``shares`` (3, band, Wb) and the least level its
-    clipped colours allow into ``lows`` (band, Wb) (see :func:`_site_value`);
+    """Each clipped block's hue into ``shares`` (n, 3, TILE, TILE) and the least level
+    its clipped colours allow into ``lows`` (n, TILE, TILE), for the n tiles listed in
+    ``tiles`` (those that hold clipped sites; see :func:`_site_value`) of the Hb × Wb
+    blocks; ``sats``/``slot``: the fields' tables (:func:`_tile_sats`, :func:`_box`);
     ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``."""
-    hb, wb = flags.shape
+    t = TILE
     third = np.float32(1.0 / 3.0)
-    for i in prange(r1 - r0):
-        y = r0 + i
+    for n in prange(tiles.shape[0]):
         share = np.empty(3, np.float32)
         hue = np.empty(3, np.float32)
         seen = np.empty(3, np.float32)
         m = np.empty(3, np.float32)
-        for j in range(wb):
-            f = flags[y, j]
+        acc = np.zeros(4, np.float64)
+        box = np.zeros(5, np.float64)
+        y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
+        for yj in range(min(t, hb - y0) * min(t, wb - x0)):
+            y, j = y0 + yj // min(t, wb - x0), x0 + yj % min(t, wb - x0)
+            f = _at(flags, y, j)
             if f == 0:
                 continue
-            acc = np.zeros(4, np.float64)
+            acc[:] = 0.0
             weight = 1.0
             for s in scales:
-                i0, i1 = max(y - s, r0) - r0, min(y + s + 1, r1) - r0
+                i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                 j0, j1 = max(j - s, 0), min(j + s + 1, wb)
                 area = np.float64((2 * s + 1) * (2 * s + 1))
+                _box(sats, slot, i0, i1, j0, j1, box)
                 for k in range(4):
-                    acc[k] += _box(sat, k, i0, i1, j0, j1) / area * weight
+                    acc[k] += box[k] / area * weight
                 weight *= lam
             s = neutral
-            i0, i1 = max(y - s, r0) - r0, min(y + s + 1, r1) - r0
+            i0, i1 = max(y - s, 0), min(y + s + 1, hb)
             j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-            inside = (min(y + s + 1, hb) - max(y - s, 0)) * (j1 - j0)
-            free = (inside - _box(sat, 4, i0, i1, j0, j1)) / np.float64((2 * s + 1) * (2 * s + 1))
+            _box(sats, slot, i0, i1, j0, j1, box)
+            free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
             kappa = np.float32(min(2.0 * free, 1.0))
             blown = f == 3 or f >= 5  # two or three colours clipped
             if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
                 u = 2 if f == 3 else (1 if f == 5 else 0)
                 need = max(level[(u + 1) % 3], level[(u + 2) % 3])
-                rho = min(max(means[u, y, j] / max(need, floor), np.float32(0.0)), np.float32(1.0))
+                rho = min(
+                    max(_mean(means, u, y, j) / max(need, floor), np.float32(0.0)), np.float32(1.0)
+                )
                 refuted = (np.float32(1.0) - rho) / margin
                 kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
             for c in range(3):
@@ -223,9 +310,9 @@ def _estimates(
             trust = np.float32(1.0)
             if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
                 c = 0 if f == 1 else (1 if f == 2 else 2)
-                total = means[0, y, j] + means[1, y, j] + means[2, y, j]
+                total = _mean(means, 0, y, j) + _mean(means, 1, y, j) + _mean(means, 2, y, j)
                 for k in range(3):
-                    m[k] = means[k, y, j]
+                    m[k] = _mean(means, k, y, j)
                     seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
                 trust = _hue_or_white(m, seen, hue, c, floor, sigma)
             for c in range(3):
@@ -237,10 +324,10 @@ def _estimates(
                 share[c] = max(h, floor)
             low = np.float32(0.0)
             for c in range(3):
-                shares[c, i, j] = share[c]
+                shares[n, c, y - y0, j - x0] = share[c]
                 if f >> c & 1:
-                    low = max(low, means[c, y, j] / share[c])
-            lows[i, j] = low
+                    low = max(low, _mean(means, c, y, j) / share[c])
+            lows[n, y - y0, j - x0] = low
 
 
 @njit(inline="always", **_JIT)
@@ -288,44 +375,88 @@ def _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gain)
 
 
 @njit(parallel=True, **_JIT)
-def _write(raw, out, site, scale, black, span, applied):
-    """Rebuilt sites into ``out`` (DN, rounded): each site of a clipped colour of a
-    clipped block takes max(its value, its rebuilt value, :func:`_site_value`).
-    ``site``: (cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, gains), as
-    :func:`reconstruct_mosaic` builds it. ``scale`` < 1: every site is first scaled
-    about its black level (``span``: the levels' divisor per slot). Returns the largest
-    code a rebuilt value needs, unscaled: above 65535, the caller writes again with a
-    scale that fits it."""
+def _copy(raw, out, slots, black, scale):
+    """Every site into ``out``, scaled by ``scale`` about its black level (DN, rounded):
+    a plain copy at scale 1."""
     h, w = raw.shape
-    cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, gains = site
-    ph, pw = cmap.shape
-    hb, wb = flags.shape
-    tops = np.zeros(h, np.float64)
+    ph, pw = slots.shape
     for y in prange(h):
-        top = 0.0
-        p, by = y % ph, min(y // b, hb - 1)
-        band = r0 <= by < r1
-        q, bx, bq = 0, 0, 0  # x % pw, the block column, x % b
+        if scale == 1.0:
+            out[y] = raw[y]
+            continue
         for x in range(w):
-            slot, c = slots[p, q], cmap[p, q]
-            dn = np.float32(raw[y, x])
-            if scale != 1.0:
-                dn = black[slot] + (dn - black[slot]) * scale
-            f = flags[by, bx] if band else 0
-            if f >> c & 1:
-                share, low = shares[:, by - r0, bx], lows[by - r0, bx]
-                e = _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c])
-                top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
-                if e > table[slot, raw[y, x]]:
-                    dn = black[slot] + e / applied[c] * span[slot] * scale
+            k = black[slots[y % ph, x % pw]]
+            dn = k + (np.float32(raw[y, x]) - k) * scale
             out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
-            q = q + 1 if q + 1 < pw else 0
-            bq += 1
-            if bq == b:
-                bq = 0
-                bx = min(bx + 1, wb - 1)
-        tops[y] = top
+
+
+@njit(parallel=True, **_JIT)
+def _write(raw, out, site, scale, black, span, applied):
+    """Rebuilt sites into ``out`` (DN, rounded; it already holds every site, scaled by
+    ``scale`` about its black level): each site of a clipped colour of a clipped block
+    takes max(its value, its rebuilt value, :func:`_site_value`); sites beyond the
+    last whole block row or column go with that block. ``site``: (cmap, slots, table,
+    flags, shares, lows, tiles, t, b, headroom, gains), as :func:`reconstruct_mosaic`
+    builds it (``span``: the levels' divisor per slot). Returns the largest code a
+    rebuilt value needs, unscaled: above 65535, the caller writes again with a scale
+    that fits it."""
+    h, w = raw.shape
+    cmap, slots, table, flags, shares, lows, tiles, hb, wb, b, headroom, gains = site
+    ph, pw = cmap.shape
+    t = TILE
+    tops = np.zeros(tiles.shape[0], np.float64)
+    for n in prange(tiles.shape[0]):
+        top = 0.0
+        i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
+        for by in range(i0, min(i0 + t, hb)):
+            for bx in range(j0, min(j0 + t, wb)):
+                f = _at(flags, by, bx)
+                if f == 0:
+                    continue
+                share, low = shares[n, :, by - i0, bx - j0], lows[n, by - i0, bx - j0]
+                y1 = h if by == hb - 1 else by * b + b
+                x1 = w if bx == wb - 1 else bx * b + b
+                for y in range(by * b, y1):
+                    p, q = y % ph, (bx * b) % pw
+                    for x in range(bx * b, x1):
+                        slot, c = slots[p, q], cmap[p, q]
+                        q = q + 1 if q + 1 < pw else 0
+                        if not f >> c & 1:
+                            continue
+                        e = _site_value(
+                            raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
+                        )
+                        top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
+                        if e > table[slot, raw[y, x]]:
+                            dn = black[slot] + e / applied[c] * span[slot] * scale
+                            out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+        tops[n] = top
     return tops.max()
+
+
+def _around(tiles: np.ndarray) -> np.ndarray:
+    """The tiles marked in ``tiles`` (Th, Tw) and their eight neighbours: all that lies
+    within the border (and its 3 × 3 reads) of a clipped block."""
+    out = np.zeros((tiles.shape[0] + 2, tiles.shape[1] + 2), np.uint8)
+    for dy in range(3):
+        for dx in range(3):
+            out[dy : dy + tiles.shape[0], dx : dx + tiles.shape[1]] |= tiles
+    return np.ascontiguousarray(out[1:-1, 1:-1])
+
+
+def _clip_lines(table, slots, level, cmap, w: int) -> np.ndarray:
+    """(period rows, ``w``) int32: the least code (DN) at which the site in each column
+    of each row of the CFA's period clips (its ``table`` value ≥ ``level`` of its
+    colour), 65536 where none does; 0 (every code: the block pass decides) where its
+    table row is not monotonic, which levels and white balance never make."""
+    ph, pw = cmap.shape
+    least = np.zeros((ph, pw), np.int32)
+    for p in range(ph):
+        for q in range(pw):
+            row = table[slots[p, q]]
+            if bool(np.all(row[1:] >= row[:-1])):
+                least[p, q] = np.searchsorted(row, level[cmap[p, q]], side="left")
+    return np.ascontiguousarray(np.tile(least, (1, -(-w // pw)))[:, :w])
 
 
 def _slots(cfa: CFA) -> np.ndarray:
@@ -338,10 +469,11 @@ def _slots(cfa: CFA) -> np.ndarray:
 
 
 def reconstruct_mosaic(
-    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains, out=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt,
-    and the op numbers ``opf`` to read it with.
+    """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt
+    (into ``out``, uint16 of its shape, where given), and the op numbers ``opf`` to read
+    it with.
 
     ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
     balance (:func:`rawsim.engine.process._mosaic_value`); ``gains``: the white
@@ -371,30 +503,35 @@ def reconstruct_mosaic(
     lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
     if int(data.max()) < lowest:
         return data, opf
-    means = np.empty((3, hb, wb), np.float32)
-    flags = np.empty((hb, wb), np.uint8)
     slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
     slot_colour[slots.ravel()] = cmap.ravel()
     table = mosaic_table(slot_colour, ops, opf)
-    if not _blocks(data, cmap, slots, table, level, b, means, flags):
+    t = TILE
+    clipped = _clipped_tiles(data, _clip_lines(table, slots, level, cmap, w), b, hb, wb, t)
+    if not clipped.any():
         return data, opf
-    rows = np.flatnonzero(flags.any(axis=1))  # the band: clipped rows and their border
-    r0 = max(0, int(rows[0]) - HIGHLIGHT_BORDER - 1)
-    r1 = min(hb, int(rows[-1]) + HIGHLIGHT_BORDER + 2)
-    fields, near = _fields(means, flags, g, r0, r1, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER)
-    sat = _sat(fields, near, r0, r1, hb, wb, HIGHLIGHT_BORDER)
-    del fields
-    shares = np.zeros((3, r1 - r0, wb), np.float32)
-    lows = np.zeros((r1 - r0, wb), np.float32)
-    scales = np.array(HIGHLIGHT_SCALES, dtype=np.int64)
+    need = _around(clipped)
+    # Tile-major, so that a tile's blocks share pages and untouched tiles cost nothing.
+    means = np.zeros((*need.shape, 3, t, t), np.float32)
+    flags = np.zeros((*need.shape, t, t), np.uint8)
+    _blocks(data, cmap, slots, table, level, b, need, hb, wb, means, flags)
+    listed = np.argwhere(need)
+    slot = np.full(need.shape, -1, np.int64)
+    slot[listed[:, 0], listed[:, 1]] = np.arange(len(listed))
+    sats = _tile_sats(means, flags, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER)
+    tiles = np.argwhere(clipped)
+    shares = np.zeros((len(tiles), 3, t, t), np.float32)
+    lows = np.zeros((len(tiles), t, t), np.float32)
     _estimates(
         means,
         flags,
         level,
-        sat,
-        r0,
-        r1,
-        scales,
+        sats,
+        slot,
+        tiles,
+        hb,
+        wb,
+        np.array(HIGHLIGHT_SCALES, dtype=np.int64),
         HIGHLIGHT_SCALE_WEIGHT,
         HIGHLIGHT_NEUTRAL,
         np.float32(HIGHLIGHT_WHITE_MARGIN),
@@ -406,13 +543,15 @@ def reconstruct_mosaic(
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
-    site = (cmap, slots, table, flags, shares, lows, r0, r1, b, headroom, g)
-    out = np.empty_like(data)
-    top = _write(data, out, site, np.float32(1.0), black, span, applied)
+    site = (cmap, slots, table, flags, shares, lows, tiles, hb, wb, b, headroom, g)
+    out = np.empty_like(data) if out is None else out
     scale = np.float32(1.0)
+    _copy(data, out, slots, black, scale)
+    top = _write(data, out, site, scale, black, span, applied)
     if top > 65535.0:  # rebuilt values need more codes: scale every site to fit them
         bmax = float(black.max())
         scale = np.float32((65535.0 - bmax) / (top - bmax))
+        _copy(data, out, slots, black, scale)
         _write(data, out, site, scale, black, span, applied)
     if scale < 1:
         opf = opf.copy()

@@ -369,6 +369,8 @@ def _tail_curve(
 #: The kernel's output of a batch's last file, once written (:func:`release`), for
 #: the next file of its size and type to render into (``engine_render(reuse=True)``).
 _spare = Spare()
+#: The mosaic ``reconstruct`` rebuilt for a batch's last file, for the next file's.
+_rebuilt = Spare()
 
 
 def release(samples: np.ndarray) -> None:
@@ -392,12 +394,10 @@ def engine_render(
     ``tile``: (rows, columns) of the kernel's tiles, even for Bayer, whole periods of
     other patterns (default: the engine's). ``reuse``: render into the array that
     :func:`release` gave back, if it fits (a batch's files, one after another); the
-    caller gives the samples back once it no longer needs them.
+    caller gives the samples back once it no longer needs them (and the mosaic that
+    ``reconstruct`` rebuilds is kept for the next file's).
     """
-    import numba
-
-    from rawsim.engine import process as ep
-
+    spare = None
     if plan.denoise is not None:
         from rawsim.engine.denoise import denoise_mosaic
 
@@ -415,10 +415,24 @@ def engine_render(
 
         gains, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
-        data, numbers = reconstruct_mosaic(raw.data, raw.cfa, ops, numbers, gains)
+        spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
+        data, numbers = reconstruct_mosaic(raw.data, raw.cfa, ops, numbers, gains, out=spare)
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
         raw, plan = replace(raw, data=data), replace(plan, pre_f=pre_f, highlights=None)
+    try:
+        return _kernels(raw, plan, fmt, bits, tile, reuse)
+    finally:
+        if spare is not None:
+            _rebuilt.keep_array(spare)
+
+
+def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: bool):
+    """:func:`engine_render`'s kernels, once the mosaic's pre-passes are done."""
+    import numba
+
+    from rawsim.engine import process as ep
+
     transpose, flip_rows, flip_cols = ORIENTATION_OPS[plan.orientation]
     h, w = raw.data.shape
     half = plan.method == HALF_SIZE
