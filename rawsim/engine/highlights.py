@@ -16,8 +16,9 @@ with it, so the kernels read the same linear values to rounding.
 Work goes by tiles of ``TILE`` × ``TILE`` blocks, in proportion to what clipped:
 one integer comparison per site finds the tiles that hold a clipped site (nothing
 else when none does). Block means and clip flags are read in those tiles and
-their neighbours only (tile-major arrays, so untouched tiles cost no memory), the
-hue fields of their border blocks go into a summed-area table per tile (float64),
+their neighbours only, and kept per tile (no array the size of the mosaic but the
+copy that takes the rebuilt sites), the hue fields of their border blocks go into
+a summed-area table per tile (float64),
 and the box sums at clipped blocks add up the tables of the tiles a box covers.
 Each clipped block keeps its hue and least level, and its clipped sites are
 rebuilt from their 3 × 3 neighbourhoods into a copy of the mosaic (again, with
@@ -26,12 +27,14 @@ every site scaled, in the rare case where rebuilt values need codes above 65535)
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from rawsim.cfa import CFA
 from rawsim.engine import configure
 from rawsim.engine.process import OP_LEVELS, OP_WB, mosaic_table
+from rawsim.engine.tiles import next_tile
 from rawsim.isp.config import (
     HIGHLIGHT_BORDER,
     HIGHLIGHT_BORDER_POWER,
@@ -57,19 +60,22 @@ TILE = 32
 
 
 @njit(inline="always", **_JIT)
-def _at(flags, i, j):
-    """Block (i, j)'s entry of a tile-major array (Th, Tw, TILE, TILE)."""
-    return flags[i // TILE, j // TILE, i % TILE, j % TILE]
+def _at(flags, slot, i, j):
+    """Block (i, j)'s clip flags from the tiles' ``flags`` (n, TILE, TILE), ``slot``
+    (Th, Tw) giving each tile's index there (−1: none, no clip)."""
+    s = slot[i // TILE, j // TILE]
+    return flags[s, i % TILE, j % TILE] if s >= 0 else np.uint8(0)
 
 
 @njit(inline="always", **_JIT)
-def _mean(means, c, i, j):
-    """Block (i, j)'s mean of colour c in the tile-major ``means`` (Th, Tw, 3, TILE, TILE)."""
-    return means[i // TILE, j // TILE, c, i % TILE, j % TILE]
+def _mean(means, slot, c, i, j):
+    """Block (i, j)'s mean of colour c from the tiles' ``means`` (n, 3, TILE, TILE)
+    (only read in tiles that have them)."""
+    return means[slot[i // TILE, j // TILE], c, i % TILE, j % TILE]
 
 
-@njit(parallel=True, **_JIT)
-def _clipped_tiles(raw, lines, b, hb, wb, t):
+@njit(parallel=True, nogil=True, **_JIT)
+def _clipped_tiles(raw, lines, b, hb, wb, t, threads):
     """(Th, Tw) uint8: whether each tile of t × t whole b × b blocks holds a site at or
     above its clip code (``lines``: (period rows, W) int32, the least code that clips at
     each column of each row of the CFA's period; 65536 where none does). An integer
@@ -77,121 +83,142 @@ def _clipped_tiles(raw, lines, b, hb, wb, t):
     ph = lines.shape[0]
     th, tw = -(-hb // t), -(-wb // t)
     tiles = np.zeros((th, tw), np.uint8)
-    for ti in prange(th):
-        hit = np.zeros(wb * b, np.uint8)  # any clipped site in each column of the tile row
-        for y in range(ti * t * b, min(ti * t + t, hb) * b):
-            line = lines[y % ph]
-            for x in range(wb * b):
-                hit[x] |= np.int32(raw[y, x]) >= line[x]
-        for tj in range(tw):
-            tiles[ti, tj] = hit[tj * t * b : min(tj * t + t, wb) * b].max()
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        while True:
+            ti = next_tile(counter)
+            if ti >= th:
+                break
+            hit = np.zeros(wb * b, np.uint8)  # any clipped site in each column of the tile row
+            for y in range(ti * t * b, min(ti * t + t, hb) * b):
+                line = lines[y % ph]
+                for x in range(wb * b):
+                    hit[x] |= np.int32(raw[y, x]) >= line[x]
+            for tj in range(tw):
+                tiles[ti, tj] = hit[tj * t * b : min(tj * t + t, wb) * b].max()
     return tiles
 
 
-@njit(parallel=True, **_JIT)
-def _blocks(raw, cmap, slots, table, level, b, need, hb, wb, means, flags):
-    """Each whole b × b block's colour means (Th, Tw, 3, TILE, TILE) and clip flags
-    (Th, Tw, TILE, TILE; bit c: colour c has a site ≥ ``level[c]``) in the tiles that
-    ``need`` (Th, Tw) marks, of the Hb × Wb blocks, the sites' values read from
-    ``table`` (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot);
-    blocks elsewhere are left as they are (zero)."""
+@njit(parallel=True, nogil=True, **_JIT)
+def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, threads):
+    """Each whole b × b block's colour means (n, 3, TILE, TILE) and clip flags (n, TILE,
+    TILE; bit c: colour c has a site ≥ ``level[c]``) in the n tiles listed in
+    ``tiles`` (n, 2) of the Hb × Wb blocks, the sites' values read from ``table``
+    (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot)."""
     t = TILE
     ph, pw = cmap.shape
-    for i in prange(hb):
-        ti = i // t
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
         sums = np.zeros((3, t), np.float32)
         n = np.zeros((3, t), np.float32)
         f = np.zeros(t, np.uint8)
-        for tj in range(need.shape[1]):
-            if not need[ti, tj]:
-                continue
-            j0, j1 = tj * t, min(tj * t + t, wb)
-            sums[:] = 0.0
-            n[:] = 0.0
-            f[:] = 0
-            for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
-                p = y % ph
-                q, j, bq = (j0 * b) % pw, 0, 0  # x % pw, the block column in the tile, x % b
-                for x in range(j0 * b, j1 * b):
-                    c = cmap[p, q]
-                    v = table[slots[p, q], raw[y, x]]
-                    sums[c, j] += v
-                    n[c, j] += 1
-                    if v >= level[c]:
-                        f[j] |= 1 << c
-                    q = q + 1 if q + 1 < pw else 0
-                    bq += 1
-                    if bq == b:
-                        bq, j = 0, j + 1
-            for j in range(j1 - j0):
-                for c in range(3):
-                    means[ti, tj, c, i - ti * t, j] = sums[c, j] / n[c, j]
-                flags[ti, tj, i - ti * t, j] = f[j]
+        while True:
+            k = next_tile(counter)
+            if k >= tiles.shape[0]:
+                break
+            i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
+            j1 = min(j0 + t, wb)
+            for i in range(i0, min(i0 + t, hb)):
+                sums[:] = 0.0
+                n[:] = 0.0
+                f[:] = 0
+                for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
+                    p = y % ph
+                    q, j, bq = (j0 * b) % pw, 0, 0  # x % pw, the block column in the tile, x % b
+                    for x in range(j0 * b, j1 * b):
+                        c = cmap[p, q]
+                        v = table[slots[p, q], raw[y, x]]
+                        sums[c, j] += v
+                        n[c, j] += 1
+                        if v >= level[c]:
+                            f[j] |= 1 << c
+                        q = q + 1 if q + 1 < pw else 0
+                        bq += 1
+                        if bq == b:
+                            bq, j = 0, j + 1
+                for j in range(j1 - j0):
+                    for c in range(3):
+                        means[k, c, i - i0, j] = sums[c, j] / n[c, j]
+                    flags[k, i - i0, j] = f[j]
 
 
-@njit(parallel=True, **_JIT)
-def _tile_sats(means, flags, gains, tiles, hb, wb, border, power):
+@njit(parallel=True, nogil=True, **_JIT)
+def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads):
     """Summed-area tables (n, TILE + 1, TILE + 1, 5) float64 of each listed tile
-    (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks`
-    gives them): the border blocks' hue fields (weight × share of R,
-    G, B; weight), read over each block's 3 × 3 blocks and weighted by their brightness
-    to ``power`` (float32 products, as the reference forms them), and the count of
-    blocks next to a clipped one. Border blocks lie within ``border`` blocks of a
-    clipped one but not next to one; the fields are zero elsewhere."""
+    (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks` gives
+    them for these tiles, ``slot`` each tile's index in them): the border blocks' hue
+    fields (weight × share of R, G, B; weight), read over each block's 3 × 3 blocks and
+    weighted by their brightness to ``power`` (float32 products, as the reference forms
+    them), and the count of blocks next to a clipped one. Border blocks lie within
+    ``border`` blocks of a clipped one but not next to one; the fields are zero
+    elsewhere."""
     t = TILE
     sats = np.zeros((tiles.shape[0], t + 1, t + 1, 5), np.float64)
-    for k in prange(tiles.shape[0]):
-        i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
-        i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
-        # Clipped blocks within 1 and within ``border`` columns, for the tile's rows and
-        # ``border`` rows each side: then the same down the columns.
-        a0, a1 = max(i0 - border, 0), min(i1 + border, hb)
-        wide = np.zeros((a1 - a0, j1 - j0), np.uint8)
-        for i in range(a0, a1):
-            for j in range(j0, j1):
-                v = np.uint8(0)
-                for jj in range(max(j - border, 0), min(j + border + 1, wb)):
-                    if _at(flags, i, jj):
-                        v |= 2 if abs(jj - j) <= 1 else 1
-                wide[i - a0, j - j0] = v
-        sat = sats[k]
-        around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
-        field = np.zeros(5, np.float64)
-        for i in range(i0, i1):
-            for j in range(j0, j1):
-                close = inside = False
-                for ii in range(max(i - border, 0), min(i + border + 1, hb)):
-                    v = wide[ii - a0, j - j0]
-                    inside |= v != 0
-                    close |= v >= 2 and abs(ii - i) <= 1
-                field[:] = 0.0
-                field[4] = 1.0 if close else 0.0
-                if inside and not close:
-                    # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
-                    ya, yb, ja, jb = max(i - 1, 0), min(i + 2, hb), max(j - 1, 0), min(j + 2, wb)
-                    count = np.float32((yb - ya) * (jb - ja))
-                    for c in range(3):
-                        acc = np.float32(0.0)
-                        for yy in range(ya, yb):
-                            for jj in range(ja, jb):
-                                acc += _mean(means, c, yy, jj)
-                        around[c] = acc / count
-                    total = around[0] + around[1] + around[2]
-                    if total > 0:
-                        bright = max(
-                            around[0] / gains[0], around[1] / gains[1], around[2] / gains[2]
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        while True:
+            k = next_tile(counter)
+            if k >= tiles.shape[0]:
+                break
+            i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
+            i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
+            # Clipped blocks within 1 and within ``border`` columns, for the tile's rows and
+            # ``border`` rows each side: then the same down the columns.
+            a0, a1 = max(i0 - border, 0), min(i1 + border, hb)
+            wide = np.zeros((a1 - a0, j1 - j0), np.uint8)
+            for i in range(a0, a1):
+                for j in range(j0, j1):
+                    v = np.uint8(0)
+                    for jj in range(max(j - border, 0), min(j + border + 1, wb)):
+                        if _at(flags, slot, i, jj):
+                            v |= 2 if abs(jj - j) <= 1 else 1
+                    wide[i - a0, j - j0] = v
+            sat = sats[k]
+            around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
+            field = np.zeros(5, np.float64)
+            for i in range(i0, i1):
+                for j in range(j0, j1):
+                    close = inside = False
+                    for ii in range(max(i - border, 0), min(i + border + 1, hb)):
+                        v = wide[ii - a0, j - j0]
+                        inside |= v != 0
+                        close |= v >= 2 and abs(ii - i) <= 1
+                    field[:] = 0.0
+                    field[4] = 1.0 if close else 0.0
+                    if inside and not close:
+                        # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
+                        ya, yb, ja, jb = (
+                            max(i - 1, 0),
+                            min(i + 2, hb),
+                            max(j - 1, 0),
+                            min(j + 2, wb),
                         )
-                        bright = np.float32(
-                            min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power
-                        )
+                        count = np.float32((yb - ya) * (jb - ja))
                         for c in range(3):
-                            field[c] = np.float64(bright * (around[c] / total))
-                        field[3] = np.float64(bright)
-                li, lj = i - i0 + 1, j - j0 + 1
-                for f in range(5):
-                    sat[li, lj, f] = (
-                        field[f] + sat[li - 1, lj, f] + sat[li, lj - 1, f] - sat[li - 1, lj - 1, f]
-                    )
+                            acc = np.float32(0.0)
+                            for yy in range(ya, yb):
+                                for jj in range(ja, jb):
+                                    acc += _mean(means, slot, c, yy, jj)
+                            around[c] = acc / count
+                        total = around[0] + around[1] + around[2]
+                        if total > 0:
+                            bright = max(
+                                around[0] / gains[0], around[1] / gains[1], around[2] / gains[2]
+                            )
+                            bright = np.float32(
+                                min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power
+                            )
+                            for c in range(3):
+                                field[c] = np.float64(bright * (around[c] / total))
+                            field[3] = np.float64(bright)
+                    li, lj = i - i0 + 1, j - j0 + 1
+                    for f in range(5):
+                        sat[li, lj, f] = (
+                            field[f]
+                            + sat[li - 1, lj, f]
+                            + sat[li, lj - 1, f]
+                            - sat[li - 1, lj - 1, f]
+                        )
     return sats
 
 
@@ -241,7 +268,7 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
     return np.float32(1.0) / (np.float32(1.0) + np.exp(-z))
 
 
-@njit(parallel=True, **_JIT)
+@njit(parallel=True, nogil=True, **_JIT)
 def _estimates(
     means,
     flags,
@@ -259,6 +286,7 @@ def _estimates(
     sigma,
     shares,
     lows,
+    threads,
 ):
     """Each clipped block's hue into ``shares`` (n, 3, TILE, TILE) and the least level
     its clipped colours allow into ``lows`` (n, TILE, TILE), for the n tiles listed in
@@ -267,67 +295,77 @@ def _estimates(
     ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``."""
     t = TILE
     third = np.float32(1.0 / 3.0)
-    for n in prange(tiles.shape[0]):
-        share = np.empty(3, np.float32)
-        hue = np.empty(3, np.float32)
-        seen = np.empty(3, np.float32)
-        m = np.empty(3, np.float32)
-        acc = np.zeros(4, np.float64)
-        box = np.zeros(5, np.float64)
-        y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
-        for yj in range(min(t, hb - y0) * min(t, wb - x0)):
-            y, j = y0 + yj // min(t, wb - x0), x0 + yj % min(t, wb - x0)
-            f = _at(flags, y, j)
-            if f == 0:
-                continue
-            acc[:] = 0.0
-            weight = 1.0
-            for s in scales:
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        while True:
+            n = next_tile(counter)
+            if n >= tiles.shape[0]:
+                break
+            share = np.empty(3, np.float32)
+            hue = np.empty(3, np.float32)
+            seen = np.empty(3, np.float32)
+            m = np.empty(3, np.float32)
+            acc = np.zeros(4, np.float64)
+            box = np.zeros(5, np.float64)
+            y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
+            for yj in range(min(t, hb - y0) * min(t, wb - x0)):
+                y, j = y0 + yj // min(t, wb - x0), x0 + yj % min(t, wb - x0)
+                f = _at(flags, slot, y, j)
+                if f == 0:
+                    continue
+                acc[:] = 0.0
+                weight = 1.0
+                for s in scales:
+                    i0, i1 = max(y - s, 0), min(y + s + 1, hb)
+                    j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+                    area = np.float64((2 * s + 1) * (2 * s + 1))
+                    _box(sats, slot, i0, i1, j0, j1, box)
+                    for k in range(4):
+                        acc[k] += box[k] / area * weight
+                    weight *= lam
+                s = neutral
                 i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                 j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                area = np.float64((2 * s + 1) * (2 * s + 1))
                 _box(sats, slot, i0, i1, j0, j1, box)
-                for k in range(4):
-                    acc[k] += box[k] / area * weight
-                weight *= lam
-            s = neutral
-            i0, i1 = max(y - s, 0), min(y + s + 1, hb)
-            j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-            _box(sats, slot, i0, i1, j0, j1, box)
-            free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
-            kappa = np.float32(min(2.0 * free, 1.0))
-            blown = f == 3 or f >= 5  # two or three colours clipped
-            if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
-                u = 2 if f == 3 else (1 if f == 5 else 0)
-                need = max(level[(u + 1) % 3], level[(u + 2) % 3])
-                rho = min(
-                    max(_mean(means, u, y, j) / max(need, floor), np.float32(0.0)), np.float32(1.0)
-                )
-                refuted = (np.float32(1.0) - rho) / margin
-                kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
-            for c in range(3):
-                hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
-            trust = np.float32(1.0)
-            if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
-                c = 0 if f == 1 else (1 if f == 2 else 2)
-                total = _mean(means, 0, y, j) + _mean(means, 1, y, j) + _mean(means, 2, y, j)
-                for k in range(3):
-                    m[k] = _mean(means, k, y, j)
-                    seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
-                trust = _hue_or_white(m, seen, hue, c, floor, sigma)
-            for c in range(3):
-                h = hue[c]
-                if blown:
-                    h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
-                elif trust < 1:
-                    h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
-                share[c] = max(h, floor)
-            low = np.float32(0.0)
-            for c in range(3):
-                shares[n, c, y - y0, j - x0] = share[c]
-                if f >> c & 1:
-                    low = max(low, _mean(means, c, y, j) / share[c])
-            lows[n, y - y0, j - x0] = low
+                free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
+                kappa = np.float32(min(2.0 * free, 1.0))
+                blown = f == 3 or f >= 5  # two or three colours clipped
+                if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
+                    u = 2 if f == 3 else (1 if f == 5 else 0)
+                    need = max(level[(u + 1) % 3], level[(u + 2) % 3])
+                    rho = min(
+                        max(_mean(means, slot, u, y, j) / max(need, floor), np.float32(0.0)),
+                        np.float32(1.0),
+                    )
+                    refuted = (np.float32(1.0) - rho) / margin
+                    kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
+                for c in range(3):
+                    hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+                trust = np.float32(1.0)
+                if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
+                    c = 0 if f == 1 else (1 if f == 2 else 2)
+                    total = (
+                        _mean(means, slot, 0, y, j)
+                        + _mean(means, slot, 1, y, j)
+                        + _mean(means, slot, 2, y, j)
+                    )
+                    for k in range(3):
+                        m[k] = _mean(means, slot, k, y, j)
+                        seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
+                    trust = _hue_or_white(m, seen, hue, c, floor, sigma)
+                for c in range(3):
+                    h = hue[c]
+                    if blown:
+                        h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
+                    elif trust < 1:
+                        h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
+                    share[c] = max(h, floor)
+                low = np.float32(0.0)
+                for c in range(3):
+                    shares[n, c, y - y0, j - x0] = share[c]
+                    if f >> c & 1:
+                        low = max(low, _mean(means, slot, c, y, j) / share[c])
+                lows[n, y - y0, j - x0] = low
 
 
 @njit(inline="always", **_JIT)
@@ -374,63 +412,73 @@ def _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gain)
     return np.float32(min(np.float64(share[c]) * level, np.float64(headroom * gain)))
 
 
-@njit(parallel=True, **_JIT)
-def _copy(raw, out, slots, black, scale):
+@njit(parallel=True, nogil=True, **_JIT)
+def _copy(raw, out, slots, black, scale, threads):
     """Every site into ``out``, scaled by ``scale`` about its black level (DN, rounded):
     a plain copy at scale 1."""
     h, w = raw.shape
     ph, pw = slots.shape
-    for y in prange(h):
-        if scale == 1.0:
-            out[y] = raw[y]
-            continue
-        for x in range(w):
-            k = black[slots[y % ph, x % pw]]
-            dn = k + (np.float32(raw[y, x]) - k) * scale
-            out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        while True:
+            y = next_tile(counter)
+            if y >= h:
+                break
+            if scale == 1.0:
+                out[y] = raw[y]
+                continue
+            for x in range(w):
+                k = black[slots[y % ph, x % pw]]
+                dn = k + (np.float32(raw[y, x]) - k) * scale
+                out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
 
 
-@njit(parallel=True, **_JIT)
-def _write(raw, out, site, scale, black, span, applied):
+@njit(parallel=True, nogil=True, **_JIT)
+def _write(raw, out, site, scale, black, span, applied, threads):
     """Rebuilt sites into ``out`` (DN, rounded; it already holds every site, scaled by
     ``scale`` about its black level): each site of a clipped colour of a clipped block
     takes max(its value, its rebuilt value, :func:`_site_value`); sites beyond the
     last whole block row or column go with that block. ``site``: (cmap, slots, table,
-    flags, shares, lows, tiles, t, b, headroom, gains), as :func:`reconstruct_mosaic`
-    builds it (``span``: the levels' divisor per slot). Returns the largest code a
-    rebuilt value needs, unscaled: above 65535, the caller writes again with a scale
-    that fits it."""
+    flags, slot, shares, lows, tiles, Hb, Wb, b, headroom, gains), as
+    :func:`reconstruct_mosaic` builds it (``span``: the levels' divisor per levels
+    slot). Returns the largest code a rebuilt value needs, unscaled: above 65535, the
+    caller writes again with a scale that fits it."""
     h, w = raw.shape
-    cmap, slots, table, flags, shares, lows, tiles, hb, wb, b, headroom, gains = site
+    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains = site
     ph, pw = cmap.shape
     t = TILE
     tops = np.zeros(tiles.shape[0], np.float64)
-    for n in prange(tiles.shape[0]):
-        top = 0.0
-        i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
-        for by in range(i0, min(i0 + t, hb)):
-            for bx in range(j0, min(j0 + t, wb)):
-                f = _at(flags, by, bx)
-                if f == 0:
-                    continue
-                share, low = shares[n, :, by - i0, bx - j0], lows[n, by - i0, bx - j0]
-                y1 = h if by == hb - 1 else by * b + b
-                x1 = w if bx == wb - 1 else bx * b + b
-                for y in range(by * b, y1):
-                    p, q = y % ph, (bx * b) % pw
-                    for x in range(bx * b, x1):
-                        slot, c = slots[p, q], cmap[p, q]
-                        q = q + 1 if q + 1 < pw else 0
-                        if not f >> c & 1:
-                            continue
-                        e = _site_value(
-                            raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
-                        )
-                        top = max(top, np.float64(black[slot] + e / applied[c] * span[slot]))
-                        if e > table[slot, raw[y, x]]:
-                            dn = black[slot] + e / applied[c] * span[slot] * scale
-                            out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
-        tops[n] = top
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        while True:
+            n = next_tile(counter)
+            if n >= tiles.shape[0]:
+                break
+            top = 0.0
+            i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
+            for by in range(i0, min(i0 + t, hb)):
+                for bx in range(j0, min(j0 + t, wb)):
+                    f = _at(flags, slot, by, bx)
+                    if f == 0:
+                        continue
+                    share, low = shares[n, :, by - i0, bx - j0], lows[n, by - i0, bx - j0]
+                    y1 = h if by == hb - 1 else by * b + b
+                    x1 = w if bx == wb - 1 else bx * b + b
+                    for y in range(by * b, y1):
+                        p, q = y % ph, (bx * b) % pw
+                        for x in range(bx * b, x1):
+                            k, c = slots[p, q], cmap[p, q]
+                            q = q + 1 if q + 1 < pw else 0
+                            if not f >> c & 1:
+                                continue
+                            e = _site_value(
+                                raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
+                            )
+                            top = max(top, np.float64(black[k] + e / applied[c] * span[k]))
+                            if e > table[k, raw[y, x]]:
+                                dn = black[k] + e / applied[c] * span[k] * scale
+                                out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
+            tops[n] = top
     return tops.max()
 
 
@@ -507,18 +555,20 @@ def reconstruct_mosaic(
     slot_colour[slots.ravel()] = cmap.ravel()
     table = mosaic_table(slot_colour, ops, opf)
     t = TILE
-    clipped = _clipped_tiles(data, _clip_lines(table, slots, level, cmap, w), b, hb, wb, t)
+    threads = numba.get_num_threads()
+    lines = _clip_lines(table, slots, level, cmap, w)
+    clipped = _clipped_tiles(data, lines, b, hb, wb, t, threads)
     if not clipped.any():
         return data, opf
-    need = _around(clipped)
-    # Tile-major, so that a tile's blocks share pages and untouched tiles cost nothing.
-    means = np.zeros((*need.shape, 3, t, t), np.float32)
-    flags = np.zeros((*need.shape, t, t), np.uint8)
-    _blocks(data, cmap, slots, table, level, b, need, hb, wb, means, flags)
-    listed = np.argwhere(need)
-    slot = np.full(need.shape, -1, np.int64)
+    listed = np.argwhere(_around(clipped))  # the tiles read: each one's index, its slot
+    slot = np.full(clipped.shape, -1, np.int64)
     slot[listed[:, 0], listed[:, 1]] = np.arange(len(listed))
-    sats = _tile_sats(means, flags, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER)
+    means = np.empty((len(listed), 3, t, t), np.float32)
+    flags = np.empty((len(listed), t, t), np.uint8)
+    _blocks(data, cmap, slots, table, level, b, listed, hb, wb, means, flags, threads)
+    sats = _tile_sats(
+        means, flags, slot, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
+    )
     tiles = np.argwhere(clipped)
     shares = np.zeros((len(tiles), 3, t, t), np.float32)
     lows = np.zeros((len(tiles), t, t), np.float32)
@@ -539,20 +589,21 @@ def reconstruct_mosaic(
         np.float32(HIGHLIGHT_HUE_SIGMA),
         shares,
         lows,
+        threads,
     )
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
-    site = (cmap, slots, table, flags, shares, lows, tiles, hb, wb, b, headroom, g)
+    site = (cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, g)
     out = np.empty_like(data) if out is None else out
     scale = np.float32(1.0)
-    _copy(data, out, slots, black, scale)
-    top = _write(data, out, site, scale, black, span, applied)
+    _copy(data, out, slots, black, scale, threads)
+    top = _write(data, out, site, scale, black, span, applied, threads)
     if top > 65535.0:  # rebuilt values need more codes: scale every site to fit them
         bmax = float(black.max())
         scale = np.float32((65535.0 - bmax) / (top - bmax))
-        _copy(data, out, slots, black, scale)
-        _write(data, out, site, scale, black, span, applied)
+        _copy(data, out, slots, black, scale, threads)
+        _write(data, out, site, scale, black, span, applied, threads)
     if scale < 1:
         opf = opf.copy()
         opf[0, 4:8] = (span * scale).astype(np.float64)
