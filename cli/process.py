@@ -66,9 +66,9 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 @click.option(
     "--highlights",
     type=click.Choice(HIGHLIGHTS),
-    help="clip at white (default; LibRaw -H 0); unclip: keep values above white (-H 1); "
-    "blend: dcraw's blend (-H 2); reconstruct: rebuild clipped colours on the mosaic from "
-    "the unclipped ones and the surrounding hue (as darktable's inpaint opposed).",
+    help="reconstruct (default): rebuild clipped colours on the mosaic from the unclipped "
+    "ones and the surrounding hue (as darktable's inpaint opposed); clip at white (LibRaw "
+    "-H 0); unclip: keep values above white (-H 1); blend: dcraw's blend (-H 2).",
 )
 @click.option(
     "--denoise",

@@ -15,7 +15,7 @@ from rawsim.isp.half_size import HalfSize, half_size
 from rawsim.pipelines.process import render
 from rawsim_cli.main import cli
 from tests.conftest import DATA, PATTERNS, psnr
-from tests.test_engine_process import _assert_close, _both, synthetic_raw
+from tests.test_engine_process import _assert_close, _both, base_config, synthetic_raw
 from tests.test_process import LIBRAW_MATCHED
 
 
@@ -58,7 +58,7 @@ def test_engine_equals_reference(pattern, orientation):
         pattern, h=78, w=142 if pattern != "XTRANS" else 151, orientation=orientation
     )
     for changes in ({}, dict(highlights="blend", wb="auto")):
-        config = override(default_config(), demosaic="half", **changes)
+        config = override(base_config(), demosaic="half", **changes)
         _assert_close(*_both(raw, config))
         _assert_close(*_both(raw, config, "exr", 32))
 
@@ -66,7 +66,13 @@ def test_engine_equals_reference(pattern, orientation):
 def test_agrees_with_libraw_half_size():
     """Matched settings (camera white balance, sRGB, clip): LibRaw's half_size image."""
     path = DATA / "raw" / "canon_eos60d_mlv.dng"
-    config = override(default_config(), demosaic="half", wb="camera", baseline_exposure="ignore")
+    config = override(
+        default_config(),
+        demosaic="half",
+        wb="camera",
+        baseline_exposure="ignore",
+        highlights="clip",
+    )
     ours, _ = render(read_raw(path), config)
     ours = np.clip(ours[0].permute(1, 2, 0).numpy(), 0, 1)
     with rawpy.imread(str(path)) as raw:

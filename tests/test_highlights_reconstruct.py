@@ -272,6 +272,37 @@ def test_unclip_keeps_values_above_white():
     assert torch.equal(handle_highlights(x, "unclip"), x)
 
 
+def test_reconstruct_is_the_default():
+    """``process`` rebuilds clipped highlights unless told otherwise: the default
+    config's highlight stage reconstructs, just before the demosaic, and its gains
+    keep the smallest at 1 as clip's do (so the two render unclipped areas alike)."""
+    config = IspConfig.default()
+    assert config.enabled_stage(HighlightsStage).mode == "reconstruct"
+    names = [s.name for s in config.stages]
+    assert names.index(HighlightsStage.name) < names.index(DemosaicStage.name)
+    from rawsim.pipelines.process import engine_plan, engine_render
+
+    raw = synthetic_raw("RGGB", h=84, w=150)
+    data = 516 + (raw.data.astype(np.int64) - 516) // 2  # nothing reaches white …
+    y, x = np.mgrid[0:84, 0:150]
+    disc = (y - 42) ** 2 + (x - 75) ** 2 < 100
+    data[disc] = 16383  # … but a disc
+    raw = replace_raw(raw, data=data.astype(np.uint16), as_shot_wb=(1.6, 0.9, 1.3))
+    renders, gains = {}, {}
+    for mode in ("default", "reconstruct", "clip"):
+        tables = (
+            default_config() if mode == "default" else override(default_config(), highlights=mode)
+        )
+        plan = engine_plan(raw, tables, "tiff")
+        renders[mode] = engine_render(raw, plan, "tiff", 16).astype(np.int64)
+        gains[mode] = plan.info["white_balance"]
+    assert gains["default"] == gains["clip"] and min(gains["default"]) == 1.0  # green's was 0.9
+    assert np.array_equal(renders["default"], renders["reconstruct"])
+    far = (y - 42) ** 2 + (x - 75) ** 2 > 20**2
+    assert np.array_equal(renders["default"][far], renders["clip"][far])
+    assert np.abs(renders["default"] - renders["clip"])[disc].max() > 1000
+
+
 def test_config_places_reconstruct_before_demosaic():
     config = IspConfig.default().override(highlights="blend").override(highlights="reconstruct")
     names = [s.name for s in config.stages]

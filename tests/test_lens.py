@@ -40,7 +40,7 @@ from rawsim.isp.lens import PADDINGS, LensCorrection, add_lens, correct_lens, re
 from rawsim.pipelines.process import engine_plan, engine_render, render, render_float
 from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr
-from tests.test_engine_process import _assert_close, _both, synthetic_raw
+from tests.test_engine_process import _assert_close, _both, base_config, synthetic_raw
 
 #: A kit zoom with strong barrel distortion at its widest (8 % at the corners),
 #: lateral CA (poly3) and vignetting in lensfun, on the APS-C camera it came with.
@@ -218,7 +218,7 @@ def test_engine_remap_equals_torch(padding, reverse):
 
 
 def _lens_config(**changes) -> list[dict]:
-    return override(default_config(), lens=KIT["lens"], focal_length=16.0, aperture=8.0, **changes)
+    return override(base_config(), lens=KIT["lens"], focal_length=16.0, aperture=8.0, **changes)
 
 
 @pytest.mark.parametrize(
@@ -240,7 +240,7 @@ def test_engine_render_equals_torch(pattern, changes, orientation):
     floats, _ = render_float(raw, config)  # the engine's linear part, then torch's tail
     assert (floats - render(raw, config)[0]).abs().max() < 1e-5
     # the lens stage moves pixels: without it the render differs
-    plain = engine_render(raw, engine_plan(raw, default_config(), "tiff"), "tiff", 16)
+    plain = engine_render(raw, engine_plan(raw, base_config(), "tiff"), "tiff", 16)
     if orientation == 1:
         assert np.abs(plain.astype(int) - engine_render(raw, plan, "tiff", 16)).max() > 1000
 

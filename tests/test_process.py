@@ -31,7 +31,7 @@ from tests.conftest import DATA, psnr
 
 RAW = DATA / "raw"
 #: rawsim's demosaic as LibRaw's: bilinear, on linear values.
-AS_LIBRAW = {"demosaic": "bilinear", "demosaic_domain": "linear"}
+AS_LIBRAW = {"demosaic": "bilinear", "demosaic_domain": "linear", "highlights": "clip"}
 LIBRAW_MATCHED = dict(
     use_camera_wb=True,
     demosaic_algorithm=rawpy.DemosaicAlgorithm.LINEAR,

@@ -448,10 +448,11 @@ class WhiteBalanceStage(Stage):
         LibRaw starts from. ``auto``: :func:`auto_white_balance`. A fallback is warned
         in ``info["warnings"]``.
 
-        With highlights clipped (LibRaw's default) the gains are scaled so that the
-        smallest is 1, as LibRaw does: every channel reaches white together and clipped
-        highlights stay neutral. With other highlight modes (blend, reconstruct,
-        unclip) they keep G = 1: each colour then clips at its own gain.
+        With highlights reconstructed (the default) or clipped (LibRaw's default) the
+        gains are scaled so that the smallest is 1, as LibRaw does for its clip: no
+        colour clips below white, clipped highlights stay neutral, and the two modes
+        render what did not clip alike. With blend and unclip they keep G = 1: each
+        colour then clips at its own gain.
         """
         mode, source = self.mode, self.mode
         if mode == "camera" and raw.as_shot_wb is None:
@@ -471,7 +472,7 @@ class WhiteBalanceStage(Stage):
         else:
             gains, source = parse_gains(mode), "user"
         highlights = config.enabled_stage(HighlightsStage)
-        if highlights is not None and highlights.mode == "clip":
+        if highlights is not None and highlights.mode in ("clip", "reconstruct"):
             low = min(gains)
             gains = tuple(float(g / low) for g in gains)
         info["white_balance"] = list(gains)
@@ -480,14 +481,15 @@ class WhiteBalanceStage(Stage):
 
 @dataclass(frozen=True)
 class HighlightsStage(Stage):
-    """Clipping at white, none, dcraw's blend of clipped channels, or reconstruction."""
+    """Reconstruction of clipped colours (the default), clipping at white, none, or
+    dcraw's blend of clipped channels."""
 
     name: ClassVar[str] = "highlights"
     colour_only: ClassVar[bool] = True
     mode: str = _param(
-        "clip",
+        "reconstruct",
         _choice(HIGHLIGHT_MODES),
-        "clip, unclip (none), blend (after demosaic) or reconstruct (before demosaic)",
+        "reconstruct (before demosaic; the default), clip, unclip (none) or blend (after demosaic)",
     )
 
 
