@@ -389,6 +389,26 @@ def test_engine_pre_pass_equals_the_reference(pattern):
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_sites_that_did_not_clip_keep_their_values(pattern):
+    """A hard edge between a blown sky and a dark roof, astride the blocks: the dark
+    sites keep their values, in blocks where their colour clipped too (they measured
+    their light); only the clipped sites are rebuilt, in both backends. (Every site of
+    a clipped colour in such a block used to be raised: on Kodak's kodim08, dark
+    pixels along a blown sky turned cyan.)"""
+    raw = synthetic_raw(pattern, h=90, w=150)
+    edge = 41  # odd: Bayer blocks and X-Trans blocks of 3 rows straddle it
+    data = np.full((90, 150), 516 + 1500, np.uint16)
+    data[edge:] = 16383
+    raw = replace_raw(raw, data=data)
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
+    assert np.array_equal(rebuilt[:edge], data[:edge])
+    assert (rebuilt[edge:] > data[edge:]).mean() > 0.5  # the sky was rebuilt
+    assert np.abs(ours - ref).max() <= 2.1 * 0.5 / (16383 - 516) * 1.01
+    assert np.array_equal(ref[:edge], ours[:edge])
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_engine_equals_the_reference_on_sparse_highlights(pattern):
     """Small highlights far apart (the engine reads only the tiles around them): one
     astride the corner of four tiles, one inside a tile whose border reaches into the

@@ -436,15 +436,16 @@ def _copy(raw, out, slots, black, scale, threads):
 @njit(parallel=True, nogil=True, **_JIT)
 def _write(raw, out, site, scale, black, span, applied, threads):
     """Rebuilt sites into ``out`` (DN, rounded; it already holds every site, scaled by
-    ``scale`` about its black level): each site of a clipped colour of a clipped block
-    takes max(its value, its rebuilt value, :func:`_site_value`); sites beyond the
-    last whole block row or column go with that block. ``site``: (cmap, slots, table,
-    flags, slot, shares, lows, tiles, Hb, Wb, b, headroom, gains), as
+    ``scale`` about its black level): each site that clipped, in a block where its
+    colour clipped, takes max(its value, its rebuilt value, :func:`_site_value`); sites
+    beyond the last whole block row or column go with that block (and clip at the
+    same levels). ``site``: (cmap, slots, table,
+    flags, slot, shares, lows, tiles, Hb, Wb, b, headroom, gains, clip levels), as
     :func:`reconstruct_mosaic` builds it (``span``: the levels' divisor per levels
     slot). Returns the largest code a rebuilt value needs, unscaled: above 65535, the
     caller writes again with a scale that fits it."""
     h, w = raw.shape
-    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains = site
+    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains, level = site
     ph, pw = cmap.shape
     t = TILE
     tops = np.zeros(tiles.shape[0], np.float64)
@@ -469,8 +470,8 @@ def _write(raw, out, site, scale, black, span, applied, threads):
                         for x in range(bx * b, x1):
                             k, c = slots[p, q], cmap[p, q]
                             q = q + 1 if q + 1 < pw else 0
-                            if not f >> c & 1:
-                                continue
+                            if not f >> c & 1 or table[k, raw[y, x]] < level[c]:
+                                continue  # only sites that clipped, of colours that clipped
                             e = _site_value(
                                 raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
                             )
@@ -594,7 +595,7 @@ def reconstruct_mosaic(
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
-    site = (cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, g)
+    site = (cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, g, level)
     out = np.empty_like(data) if out is None else out
     scale = np.float32(1.0)
     _copy(data, out, slots, black, scale, threads)

@@ -100,6 +100,15 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
                         for a in range(TAPS):
                             row += weights[px, a] * _tap(src, y0 + b, x0 + a, k, h, w, padding)
                         acc += weights[py, b] * row
+                # no ringing: within the range of the 2 × 2 pixels around the sample
+                n0 = -FIRST  # the tap at the sample's floor
+                a0 = _tap(src, y0 + n0, x0 + n0, k, h, w, padding)
+                a1 = _tap(src, y0 + n0, x0 + n0 + 1, k, h, w, padding)
+                a2 = _tap(src, y0 + n0 + 1, x0 + n0, k, h, w, padding)
+                a3 = _tap(src, y0 + n0 + 1, x0 + n0 + 1, k, h, w, padding)
+                lo = min(min(a0, a1), min(a2, a3))
+                hi = max(max(a0, a1), max(a2, a3))
+                acc = min(max(acc, lo), hi)
                 rgb[k][HALO + i - r0, HALO + j - c0] = acc * gain
 
 

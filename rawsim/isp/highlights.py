@@ -112,8 +112,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     levels, white light cannot have made the block, and κ is raised to how far below
     (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue.
 
-    Each site of a clipped colour then becomes max(its value, share × level): the
-    level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
+    Each site that clipped (in a block where its colour clipped; its unclipped
+    neighbours measured their light and keep it) then becomes max(its value, share ×
+    level): the level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
     colours its block did not clip (on RGB, the pixel's own), or raised to the
     block's largest clipped mean over its share where that is higher. Differentiable
     almost everywhere; support: (largest scale + border + 2) blocks.
@@ -152,7 +153,10 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     local = _local_means(x, cmap)
     free = grow((~clipped).to(x.dtype)) > 0
     est_site = _level_estimates(local, grow(share), grow(floor), free, g).gather(1, index)
-    clip_site = grow(clipped.to(x.dtype)).gather(1, index) > 0
+    # A site is rebuilt where it clipped itself, in a block where its colour clipped:
+    # its neighbours in the block that did not clip measured their light.
+    level = (HIGHLIGHT_CLIPPED * g)[cmap]
+    clip_site = (grow(clipped.to(x.dtype)).gather(1, index) > 0) & (x >= level)
     return torch.where(clip_site, torch.maximum(x, est_site), x)
 
 

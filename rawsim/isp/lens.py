@@ -3,9 +3,10 @@
 :func:`remap_lens` applies a :class:`~rawsim.io.lensfun.LensField` (the radial
 tables of :mod:`rawsim.io.lensfun`) to linear RGB: each output pixel's channel k
 samples the input at its own source position (Lanczos-3, :mod:`rawsim.resample`:
-the 6 × 6 pixels around it) and is multiplied by
-its gain. :func:`correct_lens` takes the lens out of a photo (what ``rawsim
-process --lens-correction auto`` does after the demosaic); :func:`add_lens`
+the 6 × 6 pixels around it, kept within the range of the 2 × 2 nearest, so no
+edge rings) and is multiplied by its gain. :func:`correct_lens` takes the lens out
+of a photo (what ``rawsim process --lens-correction auto`` does after the demosaic);
+:func:`add_lens`
 puts it into a clean image (the unprocessing direction). The compiled engine's
 twin is :mod:`rawsim.engine.lens`; both evaluate the same float32 arithmetic.
 
@@ -87,6 +88,15 @@ def _remap_rows(image, field, table, top, bottom, padding):
                 v = _tap(plane, y0 + row_tap, x0 + col_tap, h, w, padding)
                 row = row + wx[..., col_tap] * v
             acc = acc + wy[..., row_tap] * row
+        # no ringing: within the range of the 2 × 2 pixels around the sample
+        near = [
+            _tap(plane, y0 + dy - FIRST, x0 + dx - FIRST, h, w, padding)
+            for dy in (0, 1)
+            for dx in (0, 1)
+        ]
+        lo = torch.minimum(torch.minimum(near[0], near[1]), torch.minimum(near[2], near[3]))
+        hi = torch.maximum(torch.maximum(near[0], near[1]), torch.maximum(near[2], near[3]))
+        acc = torch.minimum(torch.maximum(acc, lo), hi)
         out.append(acc * gain)
     return torch.stack(out, dim=1)
 
