@@ -101,11 +101,15 @@ def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
                             row += weights[px, a] * _tap(src, y0 + b, x0 + a, k, h, w, padding)
                         acc += weights[py, b] * row
                 # no ringing: within the range of the 2 × 2 pixels around the sample
-                n0 = -FIRST  # the tap at the sample's floor
-                a0 = _tap(src, y0 + n0, x0 + n0, k, h, w, padding)
-                a1 = _tap(src, y0 + n0, x0 + n0 + 1, k, h, w, padding)
-                a2 = _tap(src, y0 + n0 + 1, x0 + n0, k, h, w, padding)
-                a3 = _tap(src, y0 + n0 + 1, x0 + n0 + 1, k, h, w, padding)
+                ya, xa = y0 - FIRST, x0 - FIRST  # the tap at the sample's floor
+                if inside:
+                    a0, a1 = src[ya, xa, k], src[ya, xa + 1, k]
+                    a2, a3 = src[ya + 1, xa, k], src[ya + 1, xa + 1, k]
+                else:
+                    a0 = _tap(src, ya, xa, k, h, w, padding)
+                    a1 = _tap(src, ya, xa + 1, k, h, w, padding)
+                    a2 = _tap(src, ya + 1, xa, k, h, w, padding)
+                    a3 = _tap(src, ya + 1, xa + 1, k, h, w, padding)
                 lo = min(min(a0, a1), min(a2, a3))
                 hi = max(max(a0, a1), max(a2, a3))
                 acc = min(max(acc, lo), hi)
