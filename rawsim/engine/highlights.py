@@ -17,12 +17,13 @@ Work goes by tiles of ``TILE`` × ``TILE`` blocks, in proportion to what clipped
 one integer comparison per site finds the tiles that hold a clipped site (nothing
 else when none does). Block means and clip flags are read in those tiles and
 their neighbours only, and kept per tile (no array the size of the mosaic but the
-copy that takes the rebuilt sites), the hue fields of their border blocks go into
-a summed-area table per tile (float64),
-and the box sums at clipped blocks add up the tables of the tiles a box covers.
-Each clipped block keeps its hue and least level, and its clipped sites are
-rebuilt from their 3 × 3 neighbourhoods into a copy of the mosaic (again, with
-every site scaled, in the rare case where rebuilt values need codes above 65535).
+copy that takes the rebuilt sites); the hue fields of their border blocks go into
+a summed-area table per tile (float64), and the box sums at clipped blocks add up
+the tables of the tiles a box covers. Each clipped block keeps its hue and least
+level, and its clipped sites are rebuilt from their 3 × 3 neighbourhoods into a
+copy of the mosaic (again, with every site scaled, in the rare case where rebuilt
+values need codes above 65535). Threads take tiles as they finish one
+(:mod:`rawsim.engine.tiles`), and the kernels release the GIL.
 """
 
 from __future__ import annotations
