@@ -76,11 +76,12 @@ def _mean(means, slot, c, i, j):
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _clipped_tiles(raw, lines, b, hb, wb, t, threads):
-    """(Th, Tw) uint8: whether each tile of t × t whole b × b blocks holds a site at or
+def _clipped_tiles(raw, lines, b, hb, wb, threads):
+    """(Th, Tw) uint8: whether each tile of TILE × TILE whole b × b blocks holds a site at or
     above its clip code (``lines``: (period rows, W) int32, the least code that clips at
     each column of each row of the CFA's period; 65536 where none does). An integer
     comparison per site, so a mosaic with nothing clipped costs one read."""
+    t = TILE
     ph = lines.shape[0]
     th, tw = -(-hb // t), -(-wb // t)
     tiles = np.zeros((th, tw), np.uint8)
@@ -309,64 +310,64 @@ def _estimates(
             acc = np.zeros(4, np.float64)
             box = np.zeros(5, np.float64)
             y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
-            for yj in range(min(t, hb - y0) * min(t, wb - x0)):
-                y, j = y0 + yj // min(t, wb - x0), x0 + yj % min(t, wb - x0)
-                f = _at(flags, slot, y, j)
-                if f == 0:
-                    continue
-                acc[:] = 0.0
-                weight = 1.0
-                for s in scales:
+            for y in range(y0, min(y0 + t, hb)):
+                for j in range(x0, min(x0 + t, wb)):
+                    f = _at(flags, slot, y, j)
+                    if f == 0:
+                        continue
+                    acc[:] = 0.0
+                    weight = 1.0
+                    for s in scales:
+                        i0, i1 = max(y - s, 0), min(y + s + 1, hb)
+                        j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+                        area = np.float64((2 * s + 1) * (2 * s + 1))
+                        _box(sats, slot, i0, i1, j0, j1, box)
+                        for k in range(4):
+                            acc[k] += box[k] / area * weight
+                        weight *= lam
+                    s = neutral
                     i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                     j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                    area = np.float64((2 * s + 1) * (2 * s + 1))
                     _box(sats, slot, i0, i1, j0, j1, box)
-                    for k in range(4):
-                        acc[k] += box[k] / area * weight
-                    weight *= lam
-                s = neutral
-                i0, i1 = max(y - s, 0), min(y + s + 1, hb)
-                j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                _box(sats, slot, i0, i1, j0, j1, box)
-                free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
-                kappa = np.float32(min(2.0 * free, 1.0))
-                blown = f == 3 or f >= 5  # two or three colours clipped
-                if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
-                    u = 2 if f == 3 else (1 if f == 5 else 0)
-                    need = max(level[(u + 1) % 3], level[(u + 2) % 3])
-                    rho = min(
-                        max(_mean(means, slot, u, y, j) / max(need, floor), np.float32(0.0)),
-                        np.float32(1.0),
-                    )
-                    refuted = (np.float32(1.0) - rho) / margin
-                    kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
-                for c in range(3):
-                    hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
-                trust = np.float32(1.0)
-                if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
-                    c = 0 if f == 1 else (1 if f == 2 else 2)
-                    total = (
-                        _mean(means, slot, 0, y, j)
-                        + _mean(means, slot, 1, y, j)
-                        + _mean(means, slot, 2, y, j)
-                    )
-                    for k in range(3):
-                        m[k] = _mean(means, slot, k, y, j)
-                        seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
-                    trust = _hue_or_white(m, seen, hue, c, floor, sigma)
-                for c in range(3):
-                    h = hue[c]
-                    if blown:
-                        h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
-                    elif trust < 1:
-                        h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
-                    share[c] = max(h, floor)
-                low = np.float32(0.0)
-                for c in range(3):
-                    shares[n, c, y - y0, j - x0] = share[c]
-                    if f >> c & 1:
-                        low = max(low, _mean(means, slot, c, y, j) / share[c])
-                lows[n, y - y0, j - x0] = low
+                    free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
+                    kappa = np.float32(min(2.0 * free, 1.0))
+                    blown = f == 3 or f >= 5  # two or three colours clipped
+                    if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
+                        u = 2 if f == 3 else (1 if f == 5 else 0)
+                        need = max(level[(u + 1) % 3], level[(u + 2) % 3])
+                        rho = min(
+                            max(_mean(means, slot, u, y, j) / max(need, floor), np.float32(0.0)),
+                            np.float32(1.0),
+                        )
+                        refuted = (np.float32(1.0) - rho) / margin
+                        kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
+                    for c in range(3):
+                        hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+                    trust = np.float32(1.0)
+                    if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
+                        c = 0 if f == 1 else (1 if f == 2 else 2)
+                        total = (
+                            _mean(means, slot, 0, y, j)
+                            + _mean(means, slot, 1, y, j)
+                            + _mean(means, slot, 2, y, j)
+                        )
+                        for k in range(3):
+                            m[k] = _mean(means, slot, k, y, j)
+                            seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
+                        trust = _hue_or_white(m, seen, hue, c, floor, sigma)
+                    for c in range(3):
+                        h = hue[c]
+                        if blown:
+                            h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
+                        elif trust < 1:
+                            h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
+                        share[c] = max(h, floor)
+                    low = np.float32(0.0)
+                    for c in range(3):
+                        shares[n, c, y - y0, j - x0] = share[c]
+                        if f >> c & 1:
+                            low = max(low, _mean(means, slot, c, y, j) / share[c])
+                    lows[n, y - y0, j - x0] = low
 
 
 @njit(inline="always", **_JIT)
@@ -440,11 +441,11 @@ def _write(raw, out, site, scale, black, span, applied, threads):
     ``scale`` about its black level): each site that clipped, in a block where its
     colour clipped, takes max(its value, its rebuilt value, :func:`_site_value`); sites
     beyond the last whole block row or column go with that block (and clip at the
-    same levels). ``site``: (cmap, slots, table,
-    flags, slot, shares, lows, tiles, Hb, Wb, b, headroom, gains, clip levels), as
-    :func:`reconstruct_mosaic` builds it (``span``: the levels' divisor per levels
-    slot). Returns the largest code a rebuilt value needs, unscaled: above 65535, the
-    caller writes again with a scale that fits it."""
+    same levels). ``site``: (cmap, slots, table, flags, slot, shares, lows, tiles,
+    Hb, Wb, b, headroom, gains, clip levels), as :func:`reconstruct_mosaic` builds it
+    (``span``: the levels' divisor per levels slot). Returns the largest code a
+    rebuilt value needs, unscaled: above 65535, the caller writes again with a scale
+    that fits it."""
     h, w = raw.shape
     cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains, level = site
     ph, pw = cmap.shape
@@ -471,13 +472,14 @@ def _write(raw, out, site, scale, black, span, applied, threads):
                         for x in range(bx * b, x1):
                             k, c = slots[p, q], cmap[p, q]
                             q = q + 1 if q + 1 < pw else 0
-                            if not f >> c & 1 or table[k, raw[y, x]] < level[c]:
+                            v = table[k, raw[y, x]]
+                            if not f >> c & 1 or v < level[c]:
                                 continue  # only sites that clipped, of colours that clipped
                             e = _site_value(
                                 raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
                             )
                             top = max(top, np.float64(black[k] + e / applied[c] * span[k]))
-                            if e > table[k, raw[y, x]]:
+                            if e > v:
                                 dn = black[k] + e / applied[c] * span[k] * scale
                                 out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
             tops[n] = top
@@ -559,7 +561,7 @@ def reconstruct_mosaic(
     t = TILE
     threads = numba.get_num_threads()
     lines = _clip_lines(table, slots, level, cmap, w)
-    clipped = _clipped_tiles(data, lines, b, hb, wb, t, threads)
+    clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
     if not clipped.any():
         return data, opf
     listed = np.argwhere(_around(clipped))  # the tiles read: each one's index, its slot

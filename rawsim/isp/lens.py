@@ -6,9 +6,9 @@ samples the input at its own source position (Lanczos-3, :mod:`rawsim.resample`:
 the 6 × 6 pixels around it, kept within the range of the 2 × 2 nearest, so no
 edge rings) and is multiplied by its gain. :func:`correct_lens` takes the lens out
 of a photo (what ``rawsim process --lens-correction auto`` does after the demosaic);
-:func:`add_lens`
-puts it into a clean image (the unprocessing direction). The compiled engine's
-twin is :mod:`rawsim.engine.lens`; both evaluate the same float32 arithmetic.
+:func:`add_lens` puts it into a clean image (the unprocessing direction). The
+compiled engine's twin is :mod:`rawsim.engine.lens`; both evaluate the same float32
+arithmetic.
 
 Differentiable in the image (the field is fixed). Values are linear, any range,
 never clipped. Positions outside the input take ``padding``: ``zeros`` (black:
