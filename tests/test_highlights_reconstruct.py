@@ -569,3 +569,49 @@ def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
     r = runner.invoke(cli, [*base, "--baseline-exposure", "ignore", "-o", str(tmp_path / "low")])
     (record,) = [json.loads(line) for line in r.stdout.splitlines()]
     assert not any("blown render" in w for w in record["warnings"])
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_sky_whose_border_hue_cannot_have_made_it_goes_neutral(pattern):
+    """A broad sky with G and B clipped and R far below its clip level, seen only
+    against a brown ground: neither white light (R would be at B's clip level) nor the
+    ground's hue (G would be below its clip) can have made it, so its core, far from
+    the ground, is rebuilt neutral: G = B, the closest to the sky's hue the clip allows
+    (with the ground's hue it came back green: G/B 1.5, where the sky's is 0.83)."""
+    cfa = CFA(pattern)
+    size = 240
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    sky = (r < 100).float()
+    ground = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * 0.8
+    rgb = (torch.tensor([0.4, 2.5, 3.0])[:, None, None] * sky + ground * (1 - sky))[None]
+    truth, cmap = mosaic_of(rgb, cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    assert sel.sum() > 10000 and not bool(sel[cmap == 0].any())  # G and B only
+    core = torch.zeros_like(sel)
+    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
+    want, got = block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
+    assert abs(float(got[1] / got[2]) - 1) < 0.05
+    assert abs(float(hue_angle(got) - hue_angle(want))) < 15  # 34° with the ground's hue
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
+    """The sky of the test above, in DN: G and B clipped, R low, in a brown ground."""
+    raw = synthetic_raw(pattern, h=420, w=606)
+    span = 16383 - 516
+    cmap = np.tile(
+        np.array(raw.cfa.colors).reshape(raw.cfa.period), (420 // raw.cfa.period[0] + 1, 606)
+    )[:420, :606]
+    y, x = np.mgrid[0:420, 0:606]
+    sky = (y - 210) ** 2 + (x - 303) ** 2 < 170**2
+    level = np.where(sky, np.array([0.15, 1.0, 1.0])[cmap], np.array([0.35, 0.25, 0.12])[cmap])
+    data = (516 + level * span).astype(np.uint16)
+    raw = replace_raw(raw, data=data)
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
+    assert (rebuilt != data).sum() > 10000  # sites were rebuilt
+    dn = 2.1 * 0.5 / span
+    assert np.abs(ours - ref).max() <= dn * 1.01

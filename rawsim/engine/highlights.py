@@ -270,6 +270,14 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
     return np.float32(1.0) / (np.float32(1.0) + np.exp(-z))
 
 
+@njit(inline="always", **_JIT)
+def _refuted(rho, margin):
+    """How surely (0–1) a guess is refuted, from what it predicts over what was
+    measured (``rho``, clamped to 0–1): full at (1 − ``margin``) or below."""
+    rho = min(max(rho, np.float32(0.0)), np.float32(1.0))
+    return min(max((np.float32(1.0) - rho) / margin, np.float32(0.0)), np.float32(1.0))
+
+
 @njit(parallel=True, nogil=True, **_JIT)
 def _estimates(
     means,
@@ -332,17 +340,19 @@ def _estimates(
                     free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
                     kappa = np.float32(min(2.0 * free, 1.0))
                     blown = f == 3 or f >= 5  # two or three colours clipped
-                    if f == 3 or f == 5 or f == 6:  # two: is white light ruled out?
-                        u = 2 if f == 3 else (1 if f == 5 else 0)
-                        need = max(level[(u + 1) % 3], level[(u + 2) % 3])
-                        rho = min(
-                            max(_mean(means, slot, u, y, j) / max(need, floor), np.float32(0.0)),
-                            np.float32(1.0),
-                        )
-                        refuted = (np.float32(1.0) - rho) / margin
-                        kappa = max(kappa, min(max(refuted, np.float32(0.0)), np.float32(1.0)))
                     for c in range(3):
                         hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
+                    if f == 3 or f == 5 or f == 6:  # two: are white light and the hue ruled out?
+                        u = 2 if f == 3 else (1 if f == 5 else 0)
+                        mu = _mean(means, slot, u, y, j)
+                        need = max(level[(u + 1) % 3], level[(u + 2) % 3])
+                        white = _refuted(mu / max(need, floor), margin)
+                        rho = np.float32(1.0)
+                        for c in ((u + 1) % 3, (u + 2) % 3):
+                            made = mu * hue[c] / max(hue[u], floor)
+                            rho = min(rho, made / max(_mean(means, slot, c, y, j), floor))
+                        refuted = white * (np.float32(1.0) - _refuted(rho, margin))
+                        kappa = max(kappa, refuted)
                     trust = np.float32(1.0)
                     if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
                         c = 0 if f == 1 else (1 if f == 2 else 2)

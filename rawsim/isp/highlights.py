@@ -110,7 +110,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     core of a large blown area is white (on the benchmark, white light at depth is
     the better guess); but where two clipped and the third lies below their clip
     levels, white light cannot have made the block, and κ is raised to how far below
-    (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue.
+    (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue;
+    unless the border's hue is refuted too, putting a clipped colour below its clipped
+    mean (:func:`_hue_refuted`): then neither is kept, and the block goes neutral.
 
     Each site that clipped (in a block where its colour clipped; its unclipped
     neighbours measured their light and keep it) then becomes max(its value, share ×
@@ -220,8 +222,11 @@ def _estimates(means, clipped, anyclip, g):
     free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
     kappa = (2 * free).clamp(max=1.0).to(dtype)
     count = clipped.sum(1, keepdim=True)  # colours clipped in each block
-    kappa = torch.where(count == 2, torch.maximum(kappa, _white_refuted(means, clipped, g)), kappa)
     hue = hue.to(dtype)
+    # Two clipped: the border's hue wins over white light by how surely the third colour
+    # refutes white, unless the hue is refuted too (then neither is kept: neutral).
+    refuted = _white_refuted(means, clipped, g) * (1 - _hue_refuted(means, clipped, hue))
+    kappa = torch.where(count == 2, torch.maximum(kappa, refuted), kappa)
     blown = count >= 2  # one colour left at most
     single = count == 1
     seen = share
@@ -241,6 +246,20 @@ def _white_refuted(means, clipped, g):
     seen = torch.where(clipped, 0.0, means).amax(1, keepdim=True)
     need = torch.where(clipped, level, 0.0).amax(1, keepdim=True)
     rho = (seen / need.clamp_min(HIGHLIGHT_RATIO_FLOOR)).clamp(0.0, 1.0)
+    return ((1 - rho) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
+
+
+def _hue_refuted(means, clipped, hue):
+    """Where two colours clipped: how surely (0–1) ``hue`` is not the light's, from the
+    third colour's mean, which that hue would put at least at the clipped colours' means
+    (full where it puts one at (1 − ``HIGHLIGHT_WHITE_MARGIN``) of its mean or below):
+    a brown border's hue cannot have made a block whose green and blue clipped while
+    its red stayed low."""
+    seen = torch.where(clipped, 0.0, means).amax(1, keepdim=True)
+    hue_seen = torch.where(clipped, 0.0, hue).amax(1, keepdim=True)
+    made = seen * hue / hue_seen.clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    rho = torch.where(clipped, made / means.clamp_min(HIGHLIGHT_RATIO_FLOOR), 1.0)
+    rho = rho.amin(1, keepdim=True).clamp(0.0, 1.0)
     return ((1 - rho) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
 
 
