@@ -168,28 +168,55 @@ def test_a_large_region_takes_its_border_hue(pattern):
     assert abs(float(plain - want)) > 3 * abs(float(got - want))
 
 
-@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
-def test_a_blue_sky_whose_green_and_blue_clipped_stays_blue(pattern):
-    """G and B clipped over a broad dome, R far below their clip levels, so white light
-    cannot have made it: the core, 30+ px from any unclipped site, keeps the sky's
-    hue and its B/G ratio (it was faded to white: hue 150° against 114.5°, B/G 1.0
-    against 1.88)."""
+def sky_core(pattern, colour, size=240):
+    """A sky of G and B clipped, R not: ``colour(r)`` (3, H, W) camera RGB from each
+    pixel's distance r to the centre, mosaicked, clipped and rebuilt. Returns the
+    truth's and the rebuilt colour (3,) over the central 60 × 60 pixels."""
     cfa = CFA(pattern)
-    size = 240
     y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
     r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
-    lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
-    rgb = (torch.tensor([0.3, 0.8, 1.5])[:, None, None] * lum)[None]
-    truth, cmap = mosaic_of(rgb, cfa)
+    truth, cmap = mosaic_of(colour(r)[None], cfa)
     clipped = clip_sensor(truth, cmap)
     out = reconstruct_highlights(clipped, GAINS, cfa)
     sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
     assert sel.sum() > 10000 and not bool(sel[cmap == 0].any())  # G and B only
     core = torch.zeros_like(sel)
     core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
-    want, got = block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
+    return block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_blue_sky_whose_green_and_blue_clipped_stays_blue(pattern):
+    """G and B clipped over a broad dome, R far below their clip levels, so white light
+    cannot have made it: the core, 30+ px from any unclipped site, keeps the sky's
+    hue and its B/G ratio (it was faded to white: hue 150° against 114.5°, B/G 1.0
+    against 1.88)."""
+
+    def dome(r):
+        lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
+        return torch.tensor([0.3, 0.8, 1.5])[:, None, None] * lum
+
+    want, got = sky_core(pattern, dome)
     assert abs(float(hue_angle(got) - hue_angle(want))) < 2.0
     assert abs(float(got[2] / got[1] / (want[2] / want[1])) - 1) < 0.05
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_sky_whose_border_hue_cannot_have_made_it_goes_neutral(pattern):
+    """A broad sky with G and B clipped and R far below its clip level, seen only
+    against a brown ground: neither white light (R would be at B's clip level) nor the
+    ground's hue (G would be below its clip) can have made it, so its core, far from
+    the ground, is rebuilt neutral: G = B, the closest to the sky's hue the clip allows
+    (with the ground's hue it came back green: G/B 1.5, where the sky's is 0.83)."""
+
+    def sky_over_ground(r):
+        sky = (r < 100).float()
+        ground = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * 0.8
+        return torch.tensor([0.4, 2.5, 3.0])[:, None, None] * sky + ground * (1 - sky)
+
+    want, got = sky_core(pattern, sky_over_ground)
+    assert abs(float(got[1] / got[2]) - 1) < 0.05
+    assert abs(float(hue_angle(got) - hue_angle(want))) < 15  # 34° with the ground's hue
 
 
 def test_nothing_clipped_is_the_identity_and_values_are_never_lowered():
@@ -569,32 +596,6 @@ def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
     r = runner.invoke(cli, [*base, "--baseline-exposure", "ignore", "-o", str(tmp_path / "low")])
     (record,) = [json.loads(line) for line in r.stdout.splitlines()]
     assert not any("blown render" in w for w in record["warnings"])
-
-
-@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
-def test_a_sky_whose_border_hue_cannot_have_made_it_goes_neutral(pattern):
-    """A broad sky with G and B clipped and R far below its clip level, seen only
-    against a brown ground: neither white light (R would be at B's clip level) nor the
-    ground's hue (G would be below its clip) can have made it, so its core, far from
-    the ground, is rebuilt neutral: G = B, the closest to the sky's hue the clip allows
-    (with the ground's hue it came back green: G/B 1.5, where the sky's is 0.83)."""
-    cfa = CFA(pattern)
-    size = 240
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
-    sky = (r < 100).float()
-    ground = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * 0.8
-    rgb = (torch.tensor([0.4, 2.5, 3.0])[:, None, None] * sky + ground * (1 - sky))[None]
-    truth, cmap = mosaic_of(rgb, cfa)
-    clipped = clip_sensor(truth, cmap)
-    out = reconstruct_highlights(clipped, GAINS, cfa)
-    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
-    assert sel.sum() > 10000 and not bool(sel[cmap == 0].any())  # G and B only
-    core = torch.zeros_like(sel)
-    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
-    want, got = block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
-    assert abs(float(got[1] / got[2]) - 1) < 0.05
-    assert abs(float(hue_angle(got) - hue_angle(want))) < 15  # 34° with the ground's hue
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
