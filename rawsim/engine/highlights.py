@@ -381,47 +381,86 @@ def _estimates(
 
 
 @njit(inline="always", **_JIT)
-def _site_value(raw, cmap, slots, table, y, x, c, f, share, low, headroom, gain):
-    """The rebuilt value of colour ``c`` at site (y, x) of a block with clip flags ``f``,
-    hue ``share`` (3) and least level ``low``: the block's hue at the brightness of
-    the site's 3 × 3 neighbourhood, the means there of the colours the block did not
-    clip over their shares (float64), raised to ``low``, at most ``headroom`` × the
-    colour's clip level ``gain`` (the reference's ``_site_estimates``)."""
+def _sums(raw, cmap, slots, table, y, x, sums):
+    """Each colour's sum and count over the 3 × 3 neighbourhood of site (y, x), into
+    ``sums`` (6, float64: R, G, B sums, then counts)."""
     h, w = raw.shape
     ph, pw = cmap.shape
+    sums[:] = 0.0
     y0, y1, x0, x1 = max(y - 1, 0), min(y + 2, h), max(x - 1, 0), min(x + 2, w)
-    s0 = s1 = s2 = 0.0  # each colour's sum and count over the neighbourhood
-    n0 = n1 = n2 = 0.0
     p = y0 % ph
     for yy in range(y0, y1):
         q = x0 % pw
         for xx in range(x0, x1):
             k = cmap[p, q]
-            v = np.float64(table[slots[p, q], raw[yy, xx]])
-            if k == 0:
-                s0 += v
-                n0 += 1.0
-            elif k == 1:
-                s1 += v
-                n1 += 1.0
-            else:
-                s2 += v
-                n2 += 1.0
+            sums[k] += np.float64(table[slots[p, q], raw[yy, xx]])
+            sums[3 + k] += 1.0
             q = q + 1 if q + 1 < pw else 0
         p = p + 1 if p + 1 < ph else 0
+
+
+@njit(inline="always", **_JIT)
+def _value(sums, c, f, share, low, headroom, gain):
+    """The rebuilt value of colour ``c`` in a block with clip flags ``f``, hue ``share``
+    (3) and least level ``low``: the block's hue at the brightness of the site's
+    neighbourhood (``sums``, :func:`_sums`), the means there of the colours the block
+    did not clip over their shares (float64), raised to ``low``, at most ``headroom``
+    × the colour's clip level ``gain`` (the reference's ``_level_estimates``)."""
     num, den = 0.0, 0.0
-    if not f & 1 and n0 > 0:
-        num += s0 / n0
-        den += np.float64(share[0])
-    if not f >> 1 & 1 and n1 > 0:
-        num += s1 / n1
-        den += np.float64(share[1])
-    if not f >> 2 & 1 and n2 > 0:
-        num += s2 / n2
-        den += np.float64(share[2])
+    for k in range(3):
+        if not f >> k & 1 and sums[3 + k] > 0:
+            num += sums[k] / sums[3 + k]
+            den += np.float64(share[k])
     level = num / den if den > 0 else 0.0
     level = max(level, np.float64(low))
     return np.float32(min(np.float64(share[c]) * level, np.float64(headroom * gain)))
+
+
+@njit(inline="always", **_JIT)
+def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
+    """The second fit's value of colour ``c`` at site (y, x) of block (by, bx), whose
+    clip flags are ``f`` (``site``: as :func:`_write` takes it): :func:`_value` over
+    the site's neighbourhood, where each neighbour of a colour the block did not clip
+    that is itself a rebuilt site counts at its first fit's value (a clipped value is
+    only a lower bound). ``sums``, ``first``: scratch (6,) float64."""
+    cmap, slots, table, flags, slot, shares, lows, _, hb, wb, b, headroom, gains, level, index = (
+        site
+    )
+    h, w = raw.shape
+    ph, pw = cmap.shape
+    t = TILE
+    _sums(raw, cmap, slots, table, y, x, sums)
+    p = max(y - 1, 0) % ph
+    for yy in range(max(y - 1, 0), min(y + 2, h)):
+        q = max(x - 1, 0) % pw
+        for xx in range(max(x - 1, 0), min(x + 2, w)):
+            k = cmap[p, q]
+            v = table[slots[p, q], raw[yy, xx]]
+            q = q + 1 if q + 1 < pw else 0
+            if f >> k & 1 or v < level[k]:
+                continue  # not read by the fit, or not clipped
+            ny, nx = min(yy // b, hb - 1), min(xx // b, wb - 1)
+            g = _at(flags, slot, ny, nx)
+            if not g >> k & 1:
+                continue  # its block did not clip its colour: measured
+            n = index[ny // t, nx // t]
+            _sums(raw, cmap, slots, table, yy, xx, first)
+            e = _value(
+                first,
+                k,
+                g,
+                shares[n, :, ny % t, nx % t],
+                lows[n, ny % t, nx % t],
+                headroom,
+                gains[k],
+            )
+            if e > v:
+                sums[k] += np.float64(e) - np.float64(v)
+        p = p + 1 if p + 1 < ph else 0
+    n = index[by // t, bx // t]
+    return _value(
+        sums, c, f, shares[n, :, by % t, bx % t], lows[n, by % t, bx % t], headroom, gains[c]
+    )
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -452,12 +491,15 @@ def _write(raw, out, site, scale, black, span, applied, threads):
     colour clipped, takes max(its value, its rebuilt value, :func:`_site_value`); sites
     beyond the last whole block row or column go with that block (and clip at the
     same levels). ``site``: (cmap, slots, table, flags, slot, shares, lows, tiles,
-    Hb, Wb, b, headroom, gains, clip levels), as :func:`reconstruct_mosaic` builds it
+    Hb, Wb, b, headroom, gains, clip levels, each clipped tile's index in ``tiles``),
+    as :func:`reconstruct_mosaic` builds it
     (``span``: the levels' divisor per levels slot). Returns the largest code a
     rebuilt value needs, unscaled: above 65535, the caller writes again with a scale
     that fits it."""
     h, w = raw.shape
-    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains, level = site
+    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains, level, _ = (
+        site
+    )
     ph, pw = cmap.shape
     t = TILE
     tops = np.zeros(tiles.shape[0], np.float64)
@@ -468,13 +510,13 @@ def _write(raw, out, site, scale, black, span, applied, threads):
             if n >= tiles.shape[0]:
                 break
             top = 0.0
+            sums, first = np.empty(6, np.float64), np.empty(6, np.float64)
             i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
             for by in range(i0, min(i0 + t, hb)):
                 for bx in range(j0, min(j0 + t, wb)):
                     f = _at(flags, slot, by, bx)
                     if f == 0:
                         continue
-                    share, low = shares[n, :, by - i0, bx - j0], lows[n, by - i0, bx - j0]
                     y1 = h if by == hb - 1 else by * b + b
                     x1 = w if bx == wb - 1 else bx * b + b
                     for y in range(by * b, y1):
@@ -485,9 +527,7 @@ def _write(raw, out, site, scale, black, span, applied, threads):
                             v = table[k, raw[y, x]]
                             if not f >> c & 1 or v < level[c]:
                                 continue  # only sites that clipped, of colours that clipped
-                            e = _site_value(
-                                raw, cmap, slots, table, y, x, c, f, share, low, headroom, gains[c]
-                            )
+                            e = _site_value(raw, y, x, c, f, by, bx, site, sums, first)
                             top = max(top, np.float64(black[k] + e / applied[c] * span[k]))
                             if e > v:
                                 dn = black[k] + e / applied[c] * span[k] * scale
@@ -608,7 +648,25 @@ def reconstruct_mosaic(
     black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
     applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
-    site = (cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, g, level)
+    index = np.full(clipped.shape, -1, np.int64)  # each clipped tile's row in ``tiles``
+    index[tiles[:, 0], tiles[:, 1]] = np.arange(len(tiles))
+    site = (
+        cmap,
+        slots,
+        table,
+        flags,
+        slot,
+        shares,
+        lows,
+        tiles,
+        hb,
+        wb,
+        b,
+        headroom,
+        g,
+        level,
+        index,
+    )
     out = np.empty_like(data) if out is None else out
     scale = np.float32(1.0)
     _copy(data, out, slots, black, scale, threads)

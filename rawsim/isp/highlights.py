@@ -118,8 +118,10 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     neighbours measured their light and keep it) then becomes max(its value, share ×
     level): the level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
     colours its block did not clip (on RGB, the pixel's own), or raised to the
-    block's largest clipped mean over its share where that is higher. Differentiable
-    almost everywhere; support: (largest scale + border + 2) blocks.
+    block's largest clipped mean over its share where that is higher. The fit is made
+    twice: the second reads the neighbours the first rebuilt at their rebuilt values
+    (a clipped value is only a lower bound). Differentiable almost everywhere;
+    support: (largest scale + border + 2) blocks.
     """
     check_image(x, "image")
     g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
@@ -152,14 +154,17 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
         t.repeat_interleave(b, -2).repeat_interleave(b, -1), pad, mode="replicate"
     )
     index = cmap.expand(x.shape[0], 1, h, w)
-    local = _local_means(x, cmap)
     free = grow((~clipped).to(x.dtype)) > 0
-    est_site = _level_estimates(local, grow(share), grow(floor), free, g).gather(1, index)
+    share, floor = grow(share), grow(floor)
     # A site is rebuilt where it clipped itself, in a block where its colour clipped:
     # its neighbours in the block that did not clip measured their light.
     level = (HIGHLIGHT_CLIPPED * g)[cmap]
     clip_site = (grow(clipped.to(x.dtype)).gather(1, index) > 0) & (x >= level)
-    return torch.where(clip_site, torch.maximum(x, est_site), x)
+    out = x
+    for _ in range(2):  # the second fit reads rebuilt neighbours, not their clipped values
+        est_site = _level_estimates(_local_means(out, cmap), share, floor, free, g)
+        out = torch.where(clip_site, torch.maximum(x, est_site.gather(1, index)), x)
+    return out
 
 
 def _colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
