@@ -22,8 +22,11 @@ a summed-area table per tile (float64), and the box sums at clipped blocks add u
 the tables of the tiles a box covers. Each clipped block keeps its hue and least
 level, and its clipped sites are rebuilt from their 3 × 3 neighbourhoods into a
 copy of the mosaic (again, with every site scaled, in the rare case where rebuilt
-values need codes above 65535). Threads take tiles as they finish one
-(:mod:`rawsim.engine.tiles`), and the kernels release the GIL.
+values need codes above 65535). The reference fits each site twice, the second
+time with its rebuilt neighbours at their first values; the engine writes once,
+recomputing a neighbour's first value where the fit reads it (:func:`_site_value`).
+Threads take tiles as they finish one (:mod:`rawsim.engine.tiles`), and the
+kernels release the GIL.
 """
 
 from __future__ import annotations
