@@ -182,3 +182,23 @@ def test_a_signal_handled_in_a_finalizer_still_stops_the_job(process):
     )
     assert r.stdout.strip() == f"interrupted {signal.SIGTERM}", r.stdout + r.stderr
     assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr
+
+
+def test_a_stopped_pool_leaves_no_manager_thread_to_race_the_exit():
+    """After the workers are stopped, the pool's manager thread is gone too: left
+    running, it races the interpreter's exit, which then printed ``OSError: [Errno 9]
+    Bad file descriptor`` after the summary of an interrupted job (seen once in CI)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rawsim.run.batch import _terminate
+    from rawsim.run.jobs import _worker_context
+
+    pool = ProcessPoolExecutor(max_workers=2, mp_context=_worker_context())
+    futures = [pool.submit(time.sleep, 30) for _ in range(4)]
+    while not any(f.running() for f in futures):
+        time.sleep(0.01)
+    manager = pool._executor_manager_thread
+    start = time.monotonic()
+    _terminate(pool)
+    assert time.monotonic() - start < 2.0
+    assert not manager.is_alive()

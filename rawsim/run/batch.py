@@ -322,8 +322,13 @@ def _run_pool(tasks, job, jobs, overwrite, debug, kwargs) -> Iterator[Result]:
 
 def _terminate(pool: ProcessPoolExecutor) -> None:
     """Cancel the queued tasks and stop the workers: SIGTERM (they remove their
-    temporary files and exit), SIGKILL for any still alive after :data:`WORKER_GRACE`."""
+    temporary files and exit), SIGKILL for any still alive after :data:`WORKER_GRACE`.
+    Then wait (as long again at most) for the pool's manager thread to close its
+    pipes: left running, it races the interpreter's exit, whose wake-up call can
+    write to a pipe it is closing and print ``OSError: [Errno 9] Bad file
+    descriptor`` after the job's summary (CPython 3.11)."""
     workers = multiprocessing.active_children()
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() drops it
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in workers:
         proc.terminate()
@@ -333,6 +338,8 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
         if proc.is_alive():
             proc.kill()
             proc.join()
+    if manager is not None:
+        manager.join(WORKER_GRACE)
 
 
 @dataclass
