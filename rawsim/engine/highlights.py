@@ -432,7 +432,7 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
     h, w = raw.shape
     ph, pw = cmap.shape
     t = TILE
-    _sums(raw, cmap, slots, table, y, x, sums)
+    sums[:] = 0.0
     p = max(y - 1, 0) % ph
     for yy in range(max(y - 1, 0), min(y + 2, h)):
         q = max(x - 1, 0) % pw
@@ -440,25 +440,16 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
             k = cmap[p, q]
             v = table[slots[p, q], raw[yy, xx]]
             q = q + 1 if q + 1 < pw else 0
-            if f >> k & 1 or v < level[k]:
-                continue  # not read by the fit, or not clipped
-            ny, nx = min(yy // b, hb - 1), min(xx // b, wb - 1)
-            g = _at(flags, slot, ny, nx)
-            if not g >> k & 1:
-                continue  # its block did not clip its colour: measured
-            n = index[ny // t, nx // t]
-            _sums(raw, cmap, slots, table, yy, xx, first)
-            e = _value(
-                first,
-                k,
-                g,
-                shares[n, :, ny % t, nx % t],
-                lows[n, ny % t, nx % t],
-                headroom,
-                gains[k],
-            )
-            if e > v:
-                sums[k] += np.float64(e) - np.float64(v)
+            sums[3 + k] += 1.0
+            if not f >> k & 1 and v >= level[k]:  # read by the fit, and clipped
+                ny, nx = min(yy // b, hb - 1), min(xx // b, wb - 1)
+                g = _at(flags, slot, ny, nx)
+                if g >> k & 1:  # its block clipped its colour: rebuilt
+                    n = index[ny // t, nx // t]
+                    _sums(raw, cmap, slots, table, yy, xx, first)
+                    share, low = shares[n, :, ny % t, nx % t], lows[n, ny % t, nx % t]
+                    v = max(v, _value(first, k, g, share, low, headroom, gains[k]))
+            sums[k] += np.float64(v)
         p = p + 1 if p + 1 < ph else 0
     n = index[by // t, bx // t]
     return _value(

@@ -250,8 +250,7 @@ def _white_refuted(means, clipped, g):
     level = (HIGHLIGHT_CLIPPED * g).reshape(1, 3, 1, 1)
     seen = torch.where(clipped, 0.0, means).amax(1, keepdim=True)
     need = torch.where(clipped, level, 0.0).amax(1, keepdim=True)
-    rho = (seen / need.clamp_min(HIGHLIGHT_RATIO_FLOOR)).clamp(0.0, 1.0)
-    return ((1 - rho) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
+    return _refuted(seen / need.clamp_min(HIGHLIGHT_RATIO_FLOOR))
 
 
 def _hue_refuted(means, clipped, hue):
@@ -264,8 +263,14 @@ def _hue_refuted(means, clipped, hue):
     hue_seen = torch.where(clipped, 0.0, hue).amax(1, keepdim=True)
     made = seen * hue / hue_seen.clamp_min(HIGHLIGHT_RATIO_FLOOR)
     rho = torch.where(clipped, made / means.clamp_min(HIGHLIGHT_RATIO_FLOOR), 1.0)
-    rho = rho.amin(1, keepdim=True).clamp(0.0, 1.0)
-    return ((1 - rho) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
+    return _refuted(rho.amin(1, keepdim=True))
+
+
+def _refuted(rho):
+    """How surely (0–1) a guess is refuted, from what it predicts over what was
+    measured (``rho``, clamped to 0–1): full at (1 − ``HIGHLIGHT_WHITE_MARGIN``) or
+    below."""
+    return ((1 - rho.clamp(0.0, 1.0)) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
 
 
 def _local_means(x: torch.Tensor, cmap: torch.Tensor) -> torch.Tensor:
