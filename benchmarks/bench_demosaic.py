@@ -39,7 +39,7 @@ from rawsim.colorspaces import SRGB_CURVE  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = "nikon_d850"
-METHODS = ("wcd", "menon", "malvar", "bilinear")
+METHODS = ("learned", "wcd", "menon", "malvar", "bilinear")
 LIBRAW = ("AHD", "AAHD", "DHT", "VNG")
 
 

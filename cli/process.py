@@ -15,7 +15,7 @@ from rawsim_cli.options import (
 from rawsim_cli.report import check_inputs, run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
-DEMOSAICS = ("wcd", "menon", "malvar", "bilinear")
+DEMOSAICS = ("learned", "wcd", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend", "reconstruct", "unclip")
 DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")

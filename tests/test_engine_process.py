@@ -204,9 +204,10 @@ def test_orientations(orientation):
 
 @pytest.mark.parametrize("tile", [(2, 2), (6, 18), (16, 64), (64, 512)])
 def test_tile_sizes_and_threads_give_identical_bits(tile):
-    """Every tile size and thread count gives the same bits (wcd and menon, ragged edges)."""
+    """Every tile size and thread count gives the same bits (learned, wcd and menon,
+    ragged edges)."""
     raw = synthetic_raw("GBRG", h=70, w=94)
-    for method in ("wcd", "menon"):
+    for method in ("learned", "wcd", "menon"):
         config = override(base_config(), demosaic=method)
         plan = engine_plan(raw, config, "tiff")
         base = engine_render(raw, plan, "tiff", 16)

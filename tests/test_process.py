@@ -120,7 +120,10 @@ def test_isp_show_round_trips_through_config(tmp_path):
     "text, message",
     [
         ('[[stage]]\nname = "sharpen"', "unknown stage 'sharpen'; valid: black_level"),
-        ('[[stage]]\nname = "demosaic"\nmethod = "ahd"', "valid: wcd, menon, malvar, bilinear"),
+        (
+            '[[stage]]\nname = "demosaic"\nmethod = "ahd"',
+            "valid: learned, wcd, menon, malvar, bilinear",
+        ),
         ('[[stage]]\nname = "tone"\ncolour = 1', "unknown key 'colour'; valid: enabled, curve"),
         ('[[stage]]\nname = "exposure"\nev = "bright"', "expected stops in [-20, 20] or auto"),
         (

@@ -50,11 +50,12 @@ _JIT = {"cache": True, "error_model": "numpy"}
 #: then share less cache).
 TILE_ROWS = 96
 TILE_COLS = 768
-#: Context around a tile: the largest reach of any demosaic's chain (Menon's is 11).
-HALO = 12
+#: Context around a tile: the largest reach of any demosaic's chain (``learned``'s is
+#: 13: ``wcd``'s 11 and its correction's 2), rounded up to keep the CFA phase.
+HALO = 14
 
 #: Demosaic codes.
-DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3}
+DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3, "learned": 4}
 #: Pointwise op codes (mosaic and RGB stages).
 #: OP_ROOT/OP_SQUARE: into and out of the demosaic's root domain (the reference's
 #: ``rawsim.isp.demosaic.to_root``/``from_root``), the last mosaic op and the first RGB op.
@@ -384,13 +385,14 @@ def _sum5(lines, out):
 
 
 @njit(**_JIT)
-def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
-    """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`)."""
+def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w, q):
+    """Weighted colour-difference demosaic (:func:`rawsim.isp.demosaic.demosaic_wcd`),
+    written ``q`` sites beyond the tile (what :func:`_correct` reads around it)."""
     dh, dv, gh, gv, bh, bv, sh, sv = b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]
     grn, red1, blue1, yr, yb = b[8], b[9], b[10], b[11], b[12]
     one, zero = np.float32(1.0), np.float32(0.0)
-    # Colour differences G − C along rows and columns (reach 9).
-    ia, ib, ja, jb = _span(9, r0, r1, c0, c1, h, w)
+    # Colour differences G − C along rows and columns (reach 9 + q).
+    ia, ib, ja, jb = _span(9 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm = cmap[i & 1, ja:jb]
         w2, w1, x, e1, e2 = _line_h(m, i, ja, jb)
@@ -402,9 +404,9 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             oh[k] = sign * (x[k] - a - c)
             a, c = _ha(n1[k], s1[k], n2[k], x[k], s2[k])
             ov[k] = sign * (x[k] - a - c)
-    for q in (dh, dv):
-        _mirror(q, 9, r0, r1, c0, c1, h, w)
-    ia, ib, ja, jb = _span(8, r0, r1, c0, c1, h, w)
+    for buf in (dh, dv):
+        _mirror(buf, 9 + q, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(8 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         he, hw, _, _ = _cross(dh, i, ja, jb)
         _, _, vs, vn = _cross(dv, i, ja, jb)
@@ -412,23 +414,23 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
         for k in range(jb - ja):
             oh[k] = abs(hw[k] - he[k])
             ov[k] = abs(vn[k] - vs[k])
-    for q in (gh, gv):
-        _mirror(q, 8, r0, r1, c0, c1, h, w)
+    for buf in (gh, gv):
+        _mirror(buf, 8 + q, r0, r1, c0, c1, h, w)
     # 5 × 5 box sums: along rows, then along columns.
-    ia, ib, ja, jb = _span(6, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(6 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for src, dst in ((gh, bh), (gv, bv)):
             _sum5(_line_h(src, i, ja, jb), _at(dst, i, ja, jb, 0))
-    for q in (bh, bv):
-        _mirror(q, 6, r0, r1, c0, c1, h, w)
-    ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
+    for buf in (bh, bv):
+        _mirror(buf, 6 + q, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(4 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         for src, dst in ((bh, sh), (bv, sv)):
             _sum5(_line_v(src, i, ja, jb), _at(dst, i, ja, jb, 0))
-    for q in (sh, sv):
-        _mirror(q, 4, r0, r1, c0, c1, h, w)
+    for buf in (sh, sv):
+        _mirror(buf, 4 + q, r0, r1, c0, c1, h, w)
     # Green: the four one-sided estimates, weighted by 1 / (gradient sum)².
-    ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(2 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, x = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0)
         hw2, hw1, h0, he1, he2 = _line_h(dh, i, ja, jb)
@@ -446,11 +448,11 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             c, v = cm[k], x[k]
             g = v if c == 1 else v + delta
             o_g[k] = g
-    _mirror(grn, 2, r0, r1, c0, c1, h, w)
+    _mirror(grn, 2 + q, r0, r1, c0, c1, h, w)
     # Red at blue sites and blue at red sites: diagonal colour differences (the
     # diagonal neighbours of a red site are blue and of a blue one red: their
     # green − mosaic is the difference of the colour missing here).
-    ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(1 + q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
         mnw, mne, msw, mse = _diagonals(m, i, ja, jb, 1)
@@ -473,10 +475,10 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_r[k], o_b[k] = r, bl
             o_yr[k] = g - r if c != 1 else zero
             o_yb[k] = g - bl if c != 1 else zero
-    for q in (yr, yb):
-        _mirror(q, 1, r0, r1, c0, c1, h, w)
+    for buf in (yr, yb):
+        _mirror(buf, 1 + q, r0, r1, c0, c1, h, w)
     # Red and blue at green sites: the four neighbours' differences, weighted as green.
-    ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
+    ia, ib, ja, jb = _span(q, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, g0 = cmap[i & 1, ja:jb], _at(grn, i, ja, jb, 0)
         s_w, _, _, _, s_e = _line_h(sh, i, ja, jb)
@@ -494,6 +496,136 @@ def _wcd(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_g[k] = g
             o_r[k] = g - cr / t if green else r1_[k]
             o_b[k] = g - cb / t if green else b1_[k]
+
+
+@njit(**_JIT)
+def _correct(src, b, rgb, cmap, wt, r0, r1, c0, c1, h, w):
+    """The ``learned`` demosaic's correction after :func:`_wcd`
+    (:func:`rawsim.learned_demosaic.correction.correct`): ``src``, ``wcd``'s three
+    buffers mirrored within reach 2, into ``rgb`` on the tile.
+
+    The filters are symmetric in rows and in columns, so each input colour's 5 × 5
+    window reduces to 9 sums over the sites (±|dy|, ±|dx|) away: ``b[0:6]`` first
+    holds each row's v[x − 1] + v[x + 1] and v[x − 2] + v[x + 2]. A row of a Bayer
+    mosaic measures one colour at even columns and another at odd ones, and lacks
+    the third: two sums per site suffice, ``b[6]`` for the colour the other
+    column measures and ``b[7]`` for the third. One pass per input colour adds its
+    share to both, the weights alternating with the column's parity, in loops
+    that LLVM vectorises. ``wt`` (2, 2, 2, 3, 3, 3): the weights by row and column
+    parity, sum, input colour, |dy|, |dx|
+    (:func:`rawsim.learned_demosaic.correction.site_filters`).
+    """
+    _, _, ja, jb = _span(0, r0, r1, c0, c1, h, w)
+    for ch in range(3):
+        for i in range(HALO - 2, r1 - r0 + HALO + 2):  # the tile's rows and 2 each side
+            w2, w1, _, e1, e2 = _line_h(src[ch], i, ja, jb)
+            o1, o2 = _at(b[2 * ch], i, ja, jb, 0), _at(b[2 * ch + 1], i, ja, jb, 0)
+            for k in range(jb - ja):
+                o1[k] = w1[k] + e1[k]
+                o2[k] = w2[k] + e2[k]
+    zero = np.float32(0.0)
+    ia, ib, _, _ = _span(0, r0, r1, c0, c1, h, w)
+    for i in range(ia, ib):
+        other, third = _at(b[6], i, ja, jb, 0), _at(b[7], i, ja, jb, 0)
+        for k in range(jb - ja):
+            other[k], third[k] = zero, zero
+        for ch in range(3):
+            _accumulate(
+                src[ch],
+                b[2 * ch],
+                b[2 * ch + 1],
+                wt[i & 1, 0, :, ch],
+                wt[i & 1, 1, :, ch],
+                i,
+                ja,
+                jb,
+                other,
+                third,
+            )
+        even, odd = cmap[i & 1, ja], cmap[i & 1, ja + 1]  # ja is even: the tile keeps the CFA phase
+        for c in range(3):
+            x, out = _at(src[c], i, ja, jb, 0), _at(rgb[c], i, ja, jb, 0)
+            if c != even and c != odd:
+                for k in range(jb - ja):
+                    out[k] = x[k] + third[k]
+            else:
+                for k in range(jb - ja):
+                    lacks = (k & 1 == 0) == (c == odd)  # the site lacks c
+                    out[k] = x[k] + (other[k] if lacks else zero)
+
+
+@njit(inline="always", **_JIT)
+def _accumulate(v, h1, h2, e, o, i, ja, jb, other, third):
+    """Add one input colour's share to :func:`_correct`'s two sums on row ``i``: its
+    values ``v`` and row sums ``h1``, ``h2``; ``e``/``o`` (2, 3, 3): the weights at
+    even and odd columns (sum, |dy|, |dx|)."""
+    n2, n1, v0, s1, s2 = _line_v(v, i, ja, jb)
+    a2, a1, a0, b1, b2 = _line_v(h1, i, ja, jb)
+    c2, c1, c0, d1, d2 = _line_v(h2, i, ja, jb)
+    # The weights as scalars: loads from ``e``/``o`` in the loop could alias the sums.
+    x00, x01, x02, x10, x11, x12 = (
+        e[0, 0, 0],
+        e[0, 0, 1],
+        e[0, 0, 2],
+        e[0, 1, 0],
+        e[0, 1, 1],
+        e[0, 1, 2],
+    )
+    x20, x21, x22 = e[0, 2, 0], e[0, 2, 1], e[0, 2, 2]
+    y00, y01, y02, y10, y11, y12 = (
+        o[0, 0, 0],
+        o[0, 0, 1],
+        o[0, 0, 2],
+        o[0, 1, 0],
+        o[0, 1, 1],
+        o[0, 1, 2],
+    )
+    y20, y21, y22 = o[0, 2, 0], o[0, 2, 1], o[0, 2, 2]
+    t00, t01, t02, t10, t11, t12 = (
+        e[1, 0, 0],
+        e[1, 0, 1],
+        e[1, 0, 2],
+        e[1, 1, 0],
+        e[1, 1, 1],
+        e[1, 1, 2],
+    )
+    t20, t21, t22 = e[1, 2, 0], e[1, 2, 1], e[1, 2, 2]
+    u00, u01, u02, u10, u11, u12 = (
+        o[1, 0, 0],
+        o[1, 0, 1],
+        o[1, 0, 2],
+        o[1, 1, 0],
+        o[1, 1, 1],
+        o[1, 1, 2],
+    )
+    u20, u21, u22 = o[1, 2, 0], o[1, 2, 1], o[1, 2, 2]
+    for k in range(jb - ja):
+        ev = k & 1 == 0
+        g00, g01, g02 = v0[k], a0[k], c0[k]
+        g10, g11, g12 = n1[k] + s1[k], a1[k] + b1[k], c1[k] + d1[k]
+        g20, g21, g22 = n2[k] + s2[k], a2[k] + b2[k], c2[k] + d2[k]
+        other[k] += (
+            (x00 if ev else y00) * g00
+            + (x01 if ev else y01) * g01
+            + (x02 if ev else y02) * g02
+            + (x10 if ev else y10) * g10
+            + (x11 if ev else y11) * g11
+            + (x12 if ev else y12) * g12
+            + (x20 if ev else y20) * g20
+            + (x21 if ev else y21) * g21
+            + (x22 if ev else y22) * g22
+        )
+        third[k] += (
+            (t00 if ev else u00) * g00
+            + (t01 if ev else u01) * g01
+            + (t02 if ev else u02) * g02
+            + (t10 if ev else u10) * g10
+            + (t11 if ev else u11) * g11
+            + (t12 if ev else u12) * g12
+            + (t20 if ev else u20) * g20
+            + (t21 if ev else u21) * g21
+            + (t22 if ev else u22) * g22
+        )
 
 
 @njit(**_JIT)
@@ -866,6 +998,7 @@ def process_kernel(
     raw,
     colors,
     method,
+    filters,
     table,
     pre_ops,
     pre_f,
@@ -884,10 +1017,11 @@ def process_kernel(
     """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
 
     ``colors``: the CFA's colour index at the 4 tile sites (row-major);
-    ``method``: a :data:`DEMOSAIC_CODES` value. ``threads``: numba's thread count (each
-    thread gets its own tile buffers); tiles are ``tile_rows`` × ``tile_cols``
-    (even numbers: tiles keep the CFA phase; default :data:`TILE_ROWS`,
-    :data:`TILE_COLS`).
+    ``method``: a :data:`DEMOSAIC_CODES` value; ``filters``: the ``learned`` one's
+    (:func:`_correct`; any float32 array of that shape for the others). ``threads``:
+    numba's thread count (each thread gets its own tile buffers); tiles are
+    ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep the CFA phase; default
+    :data:`TILE_ROWS`, :data:`TILE_COLS`).
     """
     h, w = raw.shape
     rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
@@ -915,8 +1049,14 @@ def process_kernel(
                 _malvar(m, rgb, cmap, r0, r1, c0, c1, h, w)
             elif method == 2:
                 _menon(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
+            elif method == 3:
+                _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w, 0)
             else:
-                _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
+                first = (bufs[13], bufs[14], bufs[15])  # wcd; bufs[:6] are free after it
+                _wcd(m, bufs, first, cmap, r0, r1, c0, c1, h, w, 2)
+                for buf in first:
+                    _mirror(buf, 2, r0, r1, c0, c1, h, w)
+                _correct(first, bufs, rgb, cmap, filters, r0, r1, c0, c1, h, w)
             _finish(
                 rgb,
                 post_ops,

@@ -53,11 +53,17 @@ SAFE_WB_THRESHOLD = 0.9
 #: The radial lens-shading model's coefficients (:func:`rawsim.isp.lens_shading.radial_gain`),
 #: the vignetting that ``unprocess --vignetting`` adds.
 DEFAULT_K = (0.3, 0.15, 0.05)
-DEMOSAIC_METHODS = ("wcd", "menon", "malvar", "bilinear")
+DEMOSAIC_METHODS = ("learned", "wcd", "menon", "malvar", "bilinear")
 #: What each demosaic method becomes on an X-Trans (6×6) mosaic: ``bilinear`` stays
 #: LibRaw's same-colour average; the Bayer interpolations all become ``icd``
 #: (:mod:`rawsim.isp.xtrans`).
-XTRANS_METHOD = {"wcd": "icd", "menon": "icd", "malvar": "icd", "bilinear": "bilinear"}
+XTRANS_METHOD = {
+    "learned": "icd",
+    "wcd": "icd",
+    "menon": "icd",
+    "malvar": "icd",
+    "bilinear": "bilinear",
+}
 #: The demosaic stage's ``half``: no interpolation, one pixel per 2×2 block of any
 #: mosaic (:mod:`rawsim.isp.half_size`; ``rawsim process --half-size``).
 HALF_SIZE = "half"

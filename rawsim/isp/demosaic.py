@@ -10,15 +10,19 @@ Methods (``DEMOSAIC_METHODS``):
   filtering and a posteriori decision" (IEEE TIP 2007): horizontal and vertical
   green estimates, a decision from colour-difference gradients, directional
   red/blue interpolation and the paper's refining step.
-* ``wcd`` (default): weighted colour-difference interpolation after the
+* ``wcd``: weighted colour-difference interpolation after the
   gradient-based threshold-free method of Pekkucuksen and Altunbasak (ICASSP
   2010): Hamilton–Adams colour differences along rows and columns, averaged one
   side at a time towards north, south, east and west and blended with weights
   1/(gradient sum)²; red and blue then follow the green through colour
   differences, weighted the same way (diagonally for red at blue sites).
+* ``learned`` (default): ``wcd``, then a learned linear correction of the colours
+  each site did not measure, from the 5 × 5 ``wcd`` values around it
+  (:mod:`rawsim.learned_demosaic`: its weights, how they were fitted and on what).
 
 All are linear or piecewise linear in the input, differentiable, and keep the
-input's values at its own CFA sites (before Menon's refining step). Borders are
+input's values at its own CFA sites (before Menon's refining step); all but Menon's
+decision are linear in the input's scale (the learned correction is linear). Borders are
 handled by mirror padding, which keeps the CFA phase. No clipping.
 
 The stage interpolates square roots by default (:class:`RootDomain`, the config's
@@ -38,6 +42,7 @@ from rawsim.cfa import CFA
 from rawsim.errors import check_choice, check_image
 from rawsim.isp.config import DEMOSAIC_METHODS, DEMOSAIC_ROOT_EPS
 from rawsim.isp.planes import correlate
+from rawsim.learned_demosaic.correction import REACH, correct
 
 
 def _box(x: torch.Tensor, size: int) -> torch.Tensor:
@@ -261,7 +266,12 @@ def _diagonal_mean(diff: torch.Tensor, diagonal) -> torch.Tensor:
     return sum(w * d(dy, dx) for w, (dy, dx) in zip(weights, _DIAGONALS, strict=True)) / total
 
 
-def demosaic(mosaic: torch.Tensor, cfa: CFA, method: str = "wcd") -> torch.Tensor:
+def demosaic_learned(mosaic: torch.Tensor, cfa: CFA) -> torch.Tensor:
+    """``wcd`` then the learned correction (see the module doc): (B, 1, H, W) → (B, 3, H, W)."""
+    return correct(demosaic_wcd(mosaic, cfa), cfa)
+
+
+def demosaic(mosaic: torch.Tensor, cfa: CFA, method: str = "learned") -> torch.Tensor:
     """Demosaic (B, 1, H, W) with ``method`` (see ``DEMOSAIC_METHODS``)."""
     check_choice("demosaic method", method, DEMOSAIC_METHODS)
     if method == "bilinear":
@@ -270,7 +280,9 @@ def demosaic(mosaic: torch.Tensor, cfa: CFA, method: str = "wcd") -> torch.Tenso
         return demosaic_malvar(mosaic, cfa)
     if method == "menon":
         return demosaic_menon(mosaic, cfa)
-    return demosaic_wcd(mosaic, cfa)
+    if method == "wcd":
+        return demosaic_wcd(mosaic, cfa)
+    return demosaic_learned(mosaic, cfa)
 
 
 #: float32 constants of the root domain, shared with the engine (its OP_ROOT/OP_SQUARE).
@@ -318,7 +330,7 @@ class RootDomain(nn.Module):
 class Demosaic(nn.Module):
     """Demosaic stage: ``forward`` mosaic → RGB, ``reverse`` RGB → mosaic (sampling)."""
 
-    def __init__(self, cfa: CFA, method: str = "wcd") -> None:
+    def __init__(self, cfa: CFA, method: str = "learned") -> None:
         super().__init__()
         self.cfa = cfa
         self.method = check_choice("demosaic method", method, DEMOSAIC_METHODS)
@@ -326,7 +338,10 @@ class Demosaic(nn.Module):
     @property
     def radius(self) -> int:
         """Rows of context each output row depends on (bounded generously)."""
-        return {"bilinear": 2, "malvar": 2, "menon": 12, "wcd": 16}[self.method]
+        wcd = 16
+        return {"bilinear": 2, "malvar": 2, "menon": 12, "wcd": wcd, "learned": wcd + REACH}[
+            self.method
+        ]
 
     def forward(self, mosaic: torch.Tensor) -> torch.Tensor:
         return demosaic(mosaic, self.cfa, self.method)

@@ -464,9 +464,15 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
         ep.half_kernel(data, classes, cmap, table, *stages, *output, threads, *tile)
     elif raw.cfa.is_bayer:
+        from rawsim.learned_demosaic.correction import REACH, site_filters
+
         method = ep.DEMOSAIC_CODES[plan.method]
+        if plan.method == "learned":
+            filters = site_filters(raw.cfa)
+        else:  # unused; the kernel's one signature
+            filters = np.zeros((2, 2, 2, 3, REACH + 1, REACH + 1), np.float32)
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
-        ep.process_kernel(data, colors, method, table, *stages, *output, threads, *tile)
+        ep.process_kernel(data, colors, method, filters, table, *stages, *output, threads, *tile)
     else:
         from rawsim.engine import xtrans
 
