@@ -245,7 +245,7 @@ def _every_mosaic_stage() -> IspConfig:
 
 
 @pytest.mark.parametrize("pattern", ["XTRANS", "GRG/BGB/GRG", "RGGB"])
-@pytest.mark.parametrize("demosaic", ["bilinear", "wcd"])
+@pytest.mark.parametrize("demosaic", ["bilinear", "learned"])
 def test_strips_equal_the_whole_image(tmp_path, pattern, demosaic):
     """Without gradients the ISP runs in strips of whole periods with every stage's reach
     as halo; the rows past the last whole strip join it (a strip of two rows and a

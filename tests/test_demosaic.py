@@ -10,7 +10,7 @@ from rawsim.cfa import CFA
 from rawsim.errors import ParameterError
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.isp.demosaic import DEMOSAIC_METHODS, Demosaic, demosaic, demosaic_menon
-from rawsim.learned_demosaic.correction import check_filters, load_filters
+from rawsim.learned_demosaic.filters import check_filters, load_filters
 from tests.conftest import DATA, cpsnr, libraw_linear
 
 PHOTOS = ["astronaut.png", "coffee.png", "chelsea.png", "rocket.jpg"]
@@ -67,6 +67,10 @@ def test_quality_ordering_on_real_photos(quality):
     assert quality["malvar"] >= quality["bilinear"] + 3
     assert quality["menon"] >= quality["malvar"] + 1
     assert quality["wcd"] >= quality["menon"] + 0.5
+    # Fitted on film scans and softer photos, the learned correction costs these sharp
+    # photos a little as coded (-0.31 dB, rocket's JPEG -0.7); through a linear render
+    # it gains (+0.18 dB, benchmarks/bench_demosaic.py), and on Kodak's crops below.
+    assert quality["learned"] >= quality["wcd"] - 0.5
 
 
 def test_wcd_beats_libraw_on_the_same_photos(tmp_path, photos, quality):
@@ -106,9 +110,9 @@ def test_learned_filters_have_the_documented_form():
     filters = load_filters()
     check_filters(filters)
     for k, own in enumerate((0, 1, 1, 2)):  # R, Gr, Gb, B
-        assert filters[k, own].abs().max() == 0  # a site keeps the colour it measured
+        assert np.abs(filters[k, own]).max() == 0  # a site keeps the colour it measured
         lacking = [c for c in range(3) if c != own]
-        assert all(filters[k, c].abs().max() > 0.01 for c in lacking)
+        assert all(np.abs(filters[k, c]).max() > 0.01 for c in lacking)
     with pytest.raises(ValueError, match="shape"):
         check_filters(filters[:, :, :, :4])
     for taps, reason in (
@@ -116,7 +120,7 @@ def test_learned_filters_have_the_documented_form():
         ({(0, 1, 0, 2, 2): 0.01}, "sum to zero"),  # green at R sites: one more tap
         ({(0, 1, 0, 2, 0): 0.01, (0, 1, 0, 2, 1): -0.01}, "symmetric"),
     ):
-        broken = filters.clone()
+        broken = filters.copy()
         for index, value in taps.items():
             broken[index] += value
         with pytest.raises(ValueError, match=reason):

@@ -22,6 +22,7 @@ from rawsim.isp.config import (
     highlight_block,
     override,
 )
+from rawsim.isp.demosaic import Demosaic
 from rawsim.isp.highlights import Highlights, handle_highlights, reconstruct_highlights
 from tests.test_engine_process import _assert_close, _both, synthetic_raw  # noqa: F401
 
@@ -325,7 +326,8 @@ def test_reconstruct_is_the_default():
         gains[mode] = plan.info["white_balance"]
     assert gains["default"] == gains["clip"] and min(gains["default"]) == 1.0  # green's was 0.9
     assert np.array_equal(renders["default"], renders["reconstruct"])
-    far = (y - 42) ** 2 + (x - 75) ** 2 > 20**2
+    reach = 10 + Demosaic(CFA("RGGB"), "learned").radius  # the disc and the demosaic's reach
+    far = (y - 42) ** 2 + (x - 75) ** 2 > reach**2
     assert np.array_equal(renders["default"][far], renders["clip"][far])
     assert np.abs(renders["default"] - renders["clip"])[disc].max() > 1000
 
@@ -339,17 +341,20 @@ def test_config_places_reconstruct_before_demosaic():
 
 
 # -------------------------------------------------------------- the render
-#: sha256 (first 16 hex digits) of the 16-bit TIFF samples of ``synthetic_raw`` (84 ×
-#: 150) with clip and blend, engine and torch reference, demosaicked on linear values,
-#: measured before reconstruct and unclip were added: those modes' bytes must not
-#: change. X-Trans pinned again when its ``icd`` stopped taking its own square roots
-#: (the demosaic domain became one stage option for every CFA); before that, its
-#: bytes were those of its own square-root curve.
+#: sha256 (first 16 hex digits) of the engine's 16-bit TIFF samples of
+#: ``synthetic_raw`` (84 × 150) with clip and blend, demosaicked by ``wcd`` on linear
+#: values, measured before reconstruct and unclip were added: those modes' bytes must
+#: not change. X-Trans pinned again when its ``icd`` stopped taking its own square
+#: roots (the demosaic domain became one stage option for every CFA); before that,
+#: its bytes were those of its own square-root curve. The engine's float32 arithmetic
+#: is IEEE's on every CPU; torch's is not (its reference renders differ by a code
+#: value here and there between an AVX-512 Intel Xeon and an AMD Zen 5), so the
+#: reference is held to within a code of the engine instead.
 CLIP_BLEND_BYTES = {
-    ("RGGB", "clip"): ("e9b39081f3394c4e", "b06304353fd8a0ba"),
-    ("RGGB", "blend"): ("a02f04cf877f0d1c", "88bae5bf6d696d29"),
-    ("XTRANS", "clip"): ("4b9e4d89ed30101d", "420846791b8fa1d2"),
-    ("XTRANS", "blend"): ("9dbe982ce03a14cb", "f38203a29595588d"),
+    ("RGGB", "clip"): "e9b39081f3394c4e",
+    ("RGGB", "blend"): "a02f04cf877f0d1c",
+    ("XTRANS", "clip"): "4b9e4d89ed30101d",
+    ("XTRANS", "blend"): "9dbe982ce03a14cb",
 }
 
 
@@ -357,10 +362,11 @@ CLIP_BLEND_BYTES = {
 def test_clip_and_blend_bytes_unchanged(key):
     pattern, mode = key
     raw = synthetic_raw(pattern, h=84, w=150)
-    config = override(default_config(), highlights=mode, demosaic_domain="linear")
+    config = override(default_config(), highlights=mode, demosaic="wcd", demosaic_domain="linear")
     ours, ref = _both(raw, config)
-    digest = lambda a: hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]  # noqa: E731
-    assert (digest(ours), digest(ref)) == CLIP_BLEND_BYTES[key]
+    digest = hashlib.sha256(np.ascontiguousarray(ours).tobytes()).hexdigest()[:16]
+    assert digest == CLIP_BLEND_BYTES[key]
+    assert np.abs(ours.astype(np.int64) - ref).max() <= 1
 
 
 def test_cli_lists_the_modes():

@@ -417,7 +417,7 @@ def test_process_cli_formats_and_sidecars(tmp_path):
 
 def test_process_cli_config_flags_and_errors(tmp_path):
     cfg = tmp_path / "isp.toml"
-    cfg.write_text(CliRunner().invoke(cli, ["isp", "show"]).output.replace('"wcd"', '"malvar"'))
+    cfg.write_text(CliRunner().invoke(cli, ["isp", "show"]).output.replace('"learned"', '"malvar"'))
     r = CliRunner().invoke(
         cli,
         [

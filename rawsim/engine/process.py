@@ -513,7 +513,7 @@ def _correct(src, b, rgb, cmap, wt, r0, r1, c0, c1, h, w):
     share to both, the weights alternating with the column's parity, in loops
     that LLVM vectorises. ``wt`` (2, 2, 2, 3, 3, 3): the weights by row and column
     parity, sum, input colour, |dy|, |dx|
-    (:func:`rawsim.learned_demosaic.correction.site_filters`).
+    (:func:`rawsim.learned_demosaic.filters.site_filters`).
     """
     _, _, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for ch in range(3):

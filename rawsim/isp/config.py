@@ -506,7 +506,7 @@ class DemosaicStage(Stage):
     name: ClassVar[str] = "demosaic"
     mosaic_only: ClassVar[bool] = True
     method: str = _param(
-        "wcd",
+        "learned",
         _choice((*DEMOSAIC_METHODS, HALF_SIZE)),
         "interpolation method, or half: a half-size image without interpolation",
     )

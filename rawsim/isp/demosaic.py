@@ -42,7 +42,8 @@ from rawsim.cfa import CFA
 from rawsim.errors import check_choice, check_image
 from rawsim.isp.config import DEMOSAIC_METHODS, DEMOSAIC_ROOT_EPS
 from rawsim.isp.planes import correlate
-from rawsim.learned_demosaic.correction import REACH, correct
+from rawsim.learned_demosaic.correction import correct
+from rawsim.learned_demosaic.filters import REACH
 
 
 def _box(x: torch.Tensor, size: int) -> torch.Tensor:

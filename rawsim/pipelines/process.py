@@ -464,7 +464,7 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
         ep.half_kernel(data, classes, cmap, table, *stages, *output, threads, *tile)
     elif raw.cfa.is_bayer:
-        from rawsim.learned_demosaic.correction import REACH, site_filters
+        from rawsim.learned_demosaic.filters import REACH, site_filters
 
         method = ep.DEMOSAIC_CODES[plan.method]
         if plan.method == "learned":

@@ -35,7 +35,8 @@ import torch.nn.functional as F
 
 from rawsim.cfa import CFA
 from rawsim.isp.demosaic import demosaic_wcd
-from rawsim.learned_demosaic.correction import REACH, SIZE, check_filters, correct
+from rawsim.learned_demosaic.correction import correct
+from rawsim.learned_demosaic.filters import REACH, SIZE, check_filters
 
 #: The mosaic the filters are fitted on; the classes make them hold for every Bayer layout.
 PATTERN = CFA("RGGB")
@@ -100,7 +101,7 @@ def accumulate(rgb: np.ndarray, sites: int, rng: np.random.Generator, normal, rh
             rhs[k] += (x @ error.T).numpy()
 
 
-def solve(normal: np.ndarray, rhs: np.ndarray, ridge: float) -> torch.Tensor:
+def solve(normal: np.ndarray, rhs: np.ndarray, ridge: float) -> np.ndarray:
     """The filters (4, 3, 3, SIZE, SIZE) float32 from the normal equations: each
     group's weight on its taps, the centre's minus their sum."""
     filters = np.zeros((4, 3, 3, SIZE, SIZE), np.float32)
@@ -114,7 +115,7 @@ def solve(normal: np.ndarray, rhs: np.ndarray, ridge: float) -> torch.Tensor:
                         filters[k, colour, :, REACH + dy, REACH + dx] = weights[:, g, slot]
             taps = filters[k, colour].astype(np.float64).sum((-2, -1))
             filters[k, colour, :, REACH, REACH] = -taps
-    return torch.from_numpy(filters)
+    return filters
 
 
 def photos(folders: list[Path]) -> list[Path]:
@@ -138,7 +139,7 @@ def check(folder: Path, filters: torch.Tensor) -> None:
         truth = torch.from_numpy(rgb).permute(2, 0, 1)
         with torch.no_grad():
             estimate = demosaic_wcd(PATTERN.mosaic(truth[None]), PATTERN)
-            corrected = correct(estimate, PATTERN, filters)
+            corrected = correct(estimate, PATTERN, torch.from_numpy(filters))
         rows.append((cpsnr(estimate[0], truth), cpsnr(corrected[0], truth)))
     base, learned = np.array(rows).T
     print(
@@ -173,7 +174,7 @@ def main() -> None:
             print(f"{len(used)} photos, {time.monotonic() - start:.0f} s", file=sys.stderr)
     filters = solve(normal, rhs, args.ridge)
     check_filters(filters)
-    from safetensors.torch import save_file
+    from safetensors.numpy import save_file
 
     metadata = {
         "photos": str(len(used)),
@@ -185,7 +186,7 @@ def main() -> None:
         "trainer": "rawsim.learned_demosaic.training.train",
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    save_file({"filters": filters.contiguous()}, str(args.out), metadata=metadata)
+    save_file({"filters": filters}, str(args.out), metadata=metadata)
     print(json.dumps(metadata))
     for folder in args.check:
         check(folder, filters)
