@@ -562,70 +562,43 @@ def _accumulate(v, h1, h2, e, o, i, ja, jb, other, third):
     n2, n1, v0, s1, s2 = _line_v(v, i, ja, jb)
     a2, a1, a0, b1, b2 = _line_v(h1, i, ja, jb)
     c2, c1, c0, d1, d2 = _line_v(h2, i, ja, jb)
-    # The weights as scalars: loads from ``e``/``o`` in the loop could alias the sums.
-    x00, x01, x02, x10, x11, x12 = (
-        e[0, 0, 0],
-        e[0, 0, 1],
-        e[0, 0, 2],
-        e[0, 1, 0],
-        e[0, 1, 1],
-        e[0, 1, 2],
-    )
-    x20, x21, x22 = e[0, 2, 0], e[0, 2, 1], e[0, 2, 2]
-    y00, y01, y02, y10, y11, y12 = (
-        o[0, 0, 0],
-        o[0, 0, 1],
-        o[0, 0, 2],
-        o[0, 1, 0],
-        o[0, 1, 1],
-        o[0, 1, 2],
-    )
-    y20, y21, y22 = o[0, 2, 0], o[0, 2, 1], o[0, 2, 2]
-    t00, t01, t02, t10, t11, t12 = (
-        e[1, 0, 0],
-        e[1, 0, 1],
-        e[1, 0, 2],
-        e[1, 1, 0],
-        e[1, 1, 1],
-        e[1, 1, 2],
-    )
-    t20, t21, t22 = e[1, 2, 0], e[1, 2, 1], e[1, 2, 2]
-    u00, u01, u02, u10, u11, u12 = (
-        o[1, 0, 0],
-        o[1, 0, 1],
-        o[1, 0, 2],
-        o[1, 1, 0],
-        o[1, 1, 1],
-        o[1, 1, 2],
-    )
-    u20, u21, u22 = o[1, 2, 0], o[1, 2, 1], o[1, 2, 2]
+    other_e, other_o, third_e, third_o = _nine(e[0]), _nine(o[0]), _nine(e[1]), _nine(o[1])
     for k in range(jb - ja):
-        ev = k & 1 == 0
-        g00, g01, g02 = v0[k], a0[k], c0[k]
-        g10, g11, g12 = n1[k] + s1[k], a1[k] + b1[k], c1[k] + d1[k]
-        g20, g21, g22 = n2[k] + s2[k], a2[k] + b2[k], c2[k] + d2[k]
-        other[k] += (
-            (x00 if ev else y00) * g00
-            + (x01 if ev else y01) * g01
-            + (x02 if ev else y02) * g02
-            + (x10 if ev else y10) * g10
-            + (x11 if ev else y11) * g11
-            + (x12 if ev else y12) * g12
-            + (x20 if ev else y20) * g20
-            + (x21 if ev else y21) * g21
-            + (x22 if ev else y22) * g22
+        even = k & 1 == 0
+        g = (
+            v0[k],
+            a0[k],
+            c0[k],
+            n1[k] + s1[k],
+            a1[k] + b1[k],
+            c1[k] + d1[k],
+            n2[k] + s2[k],
+            a2[k] + b2[k],
+            c2[k] + d2[k],
         )
-        third[k] += (
-            (t00 if ev else u00) * g00
-            + (t01 if ev else u01) * g01
-            + (t02 if ev else u02) * g02
-            + (t10 if ev else u10) * g10
-            + (t11 if ev else u11) * g11
-            + (t12 if ev else u12) * g12
-            + (t20 if ev else u20) * g20
-            + (t21 if ev else u21) * g21
-            + (t22 if ev else u22) * g22
-        )
+        other[k] += _weigh(other_e, other_o, even, g)
+        third[k] += _weigh(third_e, third_o, even, g)
+
+
+@njit(inline="always", **_JIT)
+def _nine(w):
+    """The weights ``w`` (3, 3) as 9 scalars, |dy| then |dx|: loads from the array in a
+    loop could alias the sums the loop writes, and keep it from vectorising."""
+    return (w[0, 0], w[0, 1], w[0, 2], w[1, 0], w[1, 1], w[1, 2], w[2, 0], w[2, 1], w[2, 2])
+
+
+@njit(inline="always", **_JIT)
+def _weigh(e, o, even, g):
+    """The 9 group sums ``g`` weighted by ``e`` at an even column, else ``o``."""
+    t = (e[0] if even else o[0]) * g[0]
+    t += (e[1] if even else o[1]) * g[1]
+    t += (e[2] if even else o[2]) * g[2]
+    t += (e[3] if even else o[3]) * g[3]
+    t += (e[4] if even else o[4]) * g[4]
+    t += (e[5] if even else o[5]) * g[5]
+    t += (e[6] if even else o[6]) * g[6]
+    t += (e[7] if even else o[7]) * g[7]
+    return t + (e[8] if even else o[8]) * g[8]
 
 
 @njit(**_JIT)
