@@ -34,15 +34,16 @@ import torch
 import torch.nn.functional as F
 
 from rawsim.cfa import CFA
+from rawsim.io.images import even_rgb
 from rawsim.isp.demosaic import demosaic_wcd
 from rawsim.learned_demosaic.correction import correct
-from rawsim.learned_demosaic.filters import REACH, SIZE, check_filters
+from rawsim.learned_demosaic.filters import OWN_COLOUR, REACH, SIZE, check_filters
 
-#: The mosaic the filters are fitted on; the classes make them hold for every Bayer layout.
+#: The mosaic the filters are fitted on; the classes (its sites R, Gr, Gb, B: its
+#: ``packed_sites``) make them hold for every Bayer layout.
 PATTERN = CFA("RGGB")
-#: Class of each site of the RGGB tile, and the colours it did not measure.
-CLASSES = {(0, 0): 0, (0, 1): 1, (1, 0): 2, (1, 1): 3}
-MISSING = ((1, 2), (0, 2), (0, 2), (0, 1))
+#: The colours each class did not measure.
+MISSING = tuple(tuple(c for c in range(3) if c != own) for own in OWN_COLOUR)
 #: The groups of taps (|dy|, |dx|) that share a weight; the centre is (0, 0).
 GROUPS = tuple((a, b) for a in range(REACH + 1) for b in range(REACH + 1) if (a, b) != (0, 0))
 FEATURES = 3 * len(GROUPS)
@@ -50,14 +51,12 @@ EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 
 
 def read_photo(path: Path) -> np.ndarray | None:
-    """(H, W, 3) float32 coded values in [0, 1], cropped to even sides; None if the
-    photo is grey or has fewer than three channels."""
+    """(H, W, 3) float32 coded values in [0, 1], cropped to even sides
+    (:func:`~rawsim.io.images.even_rgb`); None if the photo is grey (a grey file's
+    one channel comes back repeated)."""
     import OpenImageIO as oiio
 
-    pixels = oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)
-    if pixels.ndim < 3 or pixels.shape[2] < 3:
-        return None
-    rgb = np.ascontiguousarray(pixels[: pixels.shape[0] // 2 * 2, : pixels.shape[1] // 2 * 2, :3])
+    rgb = even_rgb(oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT))
     if max(np.abs(rgb[..., 0] - rgb[..., 1]).max(), np.abs(rgb[..., 2] - rgb[..., 1]).max()) < 0.02:
         return None
     return rgb.astype(np.float32)
@@ -91,7 +90,7 @@ def accumulate(rgb: np.ndarray, sites: int, rng: np.random.Generator, normal, rh
             estimate = demosaic_wcd(PATTERN.mosaic(truth[None]), PATTERN)[0]
         h, w = truth.shape[1:]
         padded = padded_flat(estimate)
-        for (r, c), k in CLASSES.items():
+        for k, (r, c) in enumerate(PATTERN.packed_sites):
             count = (h // 2) * (w // 2)
             pick = torch.from_numpy(rng.choice(count, min(sites, count), replace=False))
             rows, cols = 2 * (pick // (w // 2)) + r, 2 * (pick % (w // 2)) + c
