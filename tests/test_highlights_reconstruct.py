@@ -210,14 +210,33 @@ def test_a_sky_whose_border_hue_cannot_have_made_it_goes_neutral(pattern):
     the ground, is rebuilt neutral: G = B, the closest to the sky's hue the clip allows
     (with the ground's hue it came back green: G/B 1.5, where the sky's is 0.83)."""
 
-    def sky_over_ground(r):
-        sky = (r < 100).float()
-        ground = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * 0.8
-        return torch.tensor([0.4, 2.5, 3.0])[:, None, None] * sky + ground * (1 - sky)
-
     want, got = sky_core(pattern, sky_over_ground)
     assert abs(float(got[1] / got[2]) - 1) < 0.05
     assert abs(float(hue_angle(got) - hue_angle(want))) < 15  # 34° with the ground's hue
+
+
+def sky_over_ground(r):
+    """A sky of G and B clipped, R far below its clip, within 100 px of the centre, in
+    a brown ground."""
+    sky = (r < 100).float()
+    ground = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * 0.8
+    return torch.tensor([0.4, 2.5, 3.0])[:, None, None] * sky + ground * (1 - sky)
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_refuted_border_hue_is_not_kept_beside_the_border_either(pattern):
+    """The sky above, 3–20 px inside its edge: the ground's hue, refuted there as in
+    the core, is not taken because the ground is near. The rim is rebuilt neutral
+    (G = B) as the core is; it took the ground's hue by nearness (G/B 1.18–1.29 at
+    3–20 px: green, where the sky's is 0.83; in a real sky between branches, magenta)."""
+    cfa = CFA(pattern)
+    y, x = torch.meshgrid(torch.arange(240), torch.arange(240), indexing="ij")
+    r = (((y - 120) ** 2 + (x - 120) ** 2) ** 0.5).float()
+    truth, cmap = mosaic_of(sky_over_ground(r)[None], cfa)
+    out = reconstruct_highlights(clip_sensor(truth, cmap), GAINS, cfa)
+    for lo, hi in ((80, 90), (90, 97)):
+        got = block_rgb(out, cmap, (r >= lo) & (r < hi), 2)
+        assert abs(float(got[1] / got[2]) - 1) < 0.05, (lo, hi)
 
 
 def test_nothing_clipped_is_the_identity_and_values_are_never_lowered():

@@ -354,8 +354,8 @@ def _estimates(
                         for c in ((u + 1) % 3, (u + 2) % 3):
                             made = mu * hue[c] / max(hue[u], floor)
                             rho = min(rho, made / max(_mean(means, slot, c, y, j), floor))
-                        refuted = white * (np.float32(1.0) - _refuted(rho, margin))
-                        kappa = max(kappa, refuted)
+                        kept = np.float32(1.0) - _refuted(rho, margin)
+                        kappa = max(kappa * kept, white * kept)
                     trust = np.float32(1.0)
                     if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
                         c = 0 if f == 1 else (1 if f == 2 else 2)

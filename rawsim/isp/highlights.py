@@ -112,7 +112,8 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     levels, white light cannot have made the block, and κ is raised to how far below
     (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue;
     unless the border's hue is refuted too, putting a clipped colour below its clipped
-    mean (:func:`_hue_refuted`): then neither is kept, and the block goes neutral.
+    mean (:func:`_hue_refuted`): then neither is kept, and the block goes neutral, however
+    near the border (the hue's κ falls by how surely it is refuted).
 
     Each site that clipped (in a block where its colour clipped; its unclipped
     neighbours measured their light and keep it) then becomes max(its value, share ×
@@ -229,9 +230,11 @@ def _estimates(means, clipped, anyclip, g):
     count = clipped.sum(1, keepdim=True)  # colours clipped in each block
     hue = hue.to(dtype)
     # Two clipped: the border's hue wins over white light by how surely the third colour
-    # refutes white, unless the hue is refuted too (then neither is kept: neutral).
-    refuted = _white_refuted(means, clipped, g) * (1 - _hue_refuted(means, clipped, hue))
-    kappa = torch.where(count == 2, torch.maximum(kappa, refuted), kappa)
+    # refutes white, unless the hue is refuted too (then neither is kept: neutral). A
+    # refuted hue is not kept near the border either: its κ falls by how surely.
+    hue_kept = 1 - _hue_refuted(means, clipped, hue)
+    refuted = _white_refuted(means, clipped, g) * hue_kept
+    kappa = torch.where(count == 2, torch.maximum(kappa * hue_kept, refuted), kappa)
     blown = count >= 2  # one colour left at most
     single = count == 1
     seen = share
