@@ -271,8 +271,12 @@ def test_tall_image_strips_and_tiles():
 def test_gradcheck(padding):
     params = kit(3.5)
     x = torch.rand(1, 3, 7, 11, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda t: correct_lens(t, params, padding), (x,))
-    assert torch.autograd.gradcheck(lambda t: add_lens(t, params, padding), (x,))
+    # the whole Jacobian for one padding; random projections of it for the others
+    fast = padding != "zeros"
+    assert torch.autograd.gradcheck(
+        lambda t: correct_lens(t, params, padding), (x,), fast_mode=fast
+    )
+    assert torch.autograd.gradcheck(lambda t: add_lens(t, params, padding), (x,), fast_mode=fast)
 
 
 def test_module_equals_functions_and_checks_input():
