@@ -133,7 +133,7 @@ def command(
         frame_stats,
         same_camera,
     )
-    from rawsim.dark_calibration import PatternRemoval, accumulate, add_to_profile
+    from rawsim.dark_calibration import PatternRemoval, accumulate, add_to_profile, count_problems
     from rawsim.errors import ParameterError
     from rawsim.io.atomic import atomic_output
     from rawsim.io.raw import read_raw
@@ -174,6 +174,9 @@ def command(
             if not darks:
                 raise ParameterError("--dark-shading needs dark frames (--dark)")
             acc = accumulate(dark_pass())
+            early = count_problems(acc.n, tuple(gain_switch))
+            if early and not force:  # before the flats are read and fitted
+                raise CalibrationRefused(early)
             removal = PatternRemoval(acc)
             flat = lambda raw, value: removal.flat(raw, float(value or raw.iso))  # noqa: E731
             dark = lambda raw, value: removal.dark(raw, float(value or raw.iso))  # noqa: E731

@@ -150,11 +150,9 @@ def fit_dark_shading(
     for the pattern measured there, fewer than two ISOs in a range.
     """
     isos = acc.isos
-    edges = [-math.inf, *sorted(switch_isos), math.inf]
-    problems, per_iso, ranges, ks, bs = [], {}, [], [], []
-    single = [i for i in isos if acc.n[i] < 2]
-    if single:
-        problems = [f"ISO {i:g}: one dark frame; the pattern needs several" for i in single]
+    per_iso, ranges, ks, bs = {}, [], [], []
+    problems = count_problems(acc.n, switch_isos)
+    if any(acc.n[i] < 2 for i in isos):
         return DarkShadingFit([], np.zeros((0, 0, 0)), np.zeros((0, 0, 0)), {}, {}, problems)
     for iso in isos:
         n, v = acc.n[iso], acc.temporal_variance(iso)
@@ -178,15 +176,8 @@ def fit_dark_shading(
                 f"temporal noise of σ {math.sqrt(v):.3g} DN needs at least {need} for a map "
                 f"that correlates {MAP_CORRELATION} with it"
             )
-    for lo, hi in zip(edges, edges[1:], strict=False):
-        group = [i for i in isos if lo <= i < hi]
-        if not group:
-            continue
-        if len(group) < 2:
-            problems.append(
-                f"gain range starting at ISO {group[0]:g}: dark frames at one ISO only; "
-                "k·ISO + b needs at least two ISOs per gain range"
-            )
+    for group in gain_ranges(isos, switch_isos):
+        if len(group) < 2:  # a problem count_problems gave
             continue
         w = np.array([acc.n[i] / acc.temporal_variance(i) for i in group])
         x = np.array(group)
@@ -204,6 +195,31 @@ def fit_dark_shading(
             [], np.zeros((0, 0, 0)), np.zeros((0, 0, 0)), sigma, per_iso, problems
         )
     return DarkShadingFit(ranges, np.stack(ks), np.stack(bs), sigma, per_iso, problems)
+
+
+def gain_ranges(isos: list[float], switch_isos: tuple[float, ...]) -> list[list[float]]:
+    """``isos`` (sorted) split where each of ``switch_isos`` starts a gain range; the
+    ranges that hold any."""
+    edges = [-math.inf, *sorted(switch_isos), math.inf]
+    groups = [[i for i in isos if lo <= i < hi] for lo, hi in zip(edges, edges[1:], strict=False)]
+    return [g for g in groups if g]
+
+
+def count_problems(frames: dict[float, int], switch_isos: tuple[float, ...] = ()) -> list[str]:
+    """What no measurement can mend in a set of dark frames (``frames``: how many at
+    each ISO): an ISO with one frame, a gain range with frames at one ISO. ``calibrate``
+    refuses on these before it fits the flats."""
+    isos = sorted(frames)
+    problems = [
+        f"ISO {i:g}: one dark frame; the pattern needs several" for i in isos if frames[i] < 2
+    ]
+    for group in gain_ranges(isos, switch_isos):
+        if len(group) < 2:
+            problems.append(
+                f"gain range starting at ISO {group[0]:g}: dark frames at one ISO only; "
+                "k·ISO + b needs at least two ISOs per gain range"
+            )
+    return problems
 
 
 def accumulate(frames: Iterable[tuple[RawImage, float]]) -> DarkAccumulator:

@@ -261,6 +261,13 @@ def test_too_few_dark_frames_or_isos_are_refused(dark_frames, tmp_path):
     assert not out.exists() and not (tmp_path / "cam.dark.npz").exists()
     r = CliRunner().invoke(cli, [*args, "--gain-switch", "400", "--dark", str(root / "darks")])
     assert r.exit_code == 1 and "at least two ISOs per gain range" in r.output, r.output
+    # refused before the flats are read: a broken one is never opened
+    broken = tmp_path / "flats"
+    broken.mkdir()
+    (broken / "f.dng").write_bytes(b"not a raw")
+    one_iso = [*args[:1], str(broken), *args[2:], "--gain-switch", "400"]
+    r = CliRunner().invoke(cli, [*one_iso, "--dark", str(root / "darks")])
+    assert r.exit_code == 1 and "at least two ISOs per gain range" in r.output, r.output
     r = CliRunner().invoke(cli, [*args])
     assert r.exit_code != 0 and "needs dark frames" in r.output
 
