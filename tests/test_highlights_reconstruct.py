@@ -641,3 +641,53 @@ def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
     assert (rebuilt != data).sum() > 10000  # sites were rebuilt
     dn = 2.1 * 0.5 / span
     assert np.abs(ours - ref).max() <= dn * 1.01
+
+
+def test_a_border_of_two_hues_does_not_make_a_purple():
+    """Blocks with G and B clipped and R measured, whose border is half brown and half
+    blue, each as bright: the two shares average to a purple (green the least) that
+    no border block has. The border disagrees, so the blocks go towards neutral and
+    none keeps green the least (34 of 100 did)."""
+    from rawsim.isp.highlights import _estimates
+
+    g = torch.tensor([2.0, 1.0, 1.6])
+    means = torch.zeros(1, 3, 40, 40)
+    means[0, :, :, :20] = torch.tensor([1.28, 0.77, 0.51])[:, None, None]  # brown
+    means[0, :, :, 20:] = torch.tensor([0.38, 0.77, 1.23])[:, None, None]  # blue
+    core = (slice(15, 25), slice(15, 25))
+    means[0, :, core[0], core[1]] = torch.tensor([1.5, 1.0, 1.6])[:, None, None]
+    clipped = torch.zeros(1, 3, 40, 40, dtype=torch.bool)
+    clipped[0, 1:, core[0], core[1]] = True
+    share, _ = _estimates(means, clipped, clipped.any(1, keepdim=True), g)
+    s = share[0, :, core[0], core[1]]
+    assert not bool(((s[1] < s[0]) & (s[1] < s[2])).any())
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_engine_equals_the_reference_where_the_border_disagrees(pattern, monkeypatch):
+    """A sky with G and B clipped and R measured, in a ground half brown and half blue
+    (as bright in white-balanced terms), in DN: the border's spread of hue changes the
+    rebuilt sky, and the engine rebuilds it as the reference does."""
+    import rawsim.isp.highlights as reference
+
+    raw = synthetic_raw(pattern, h=420, w=606)  # white balance 2.1, 1, 1.6
+    span = 16383 - 516
+    cmap = np.tile(
+        np.array(raw.cfa.colors).reshape(raw.cfa.period), (420 // raw.cfa.period[0] + 1, 606)
+    )[:420, :606]
+    y, x = np.mgrid[0:420, 0:606]
+    sky = (y - 210) ** 2 + (x - 303) ** 2 < 150**2
+    ground = np.where(
+        x < 303, np.array([0.61, 0.77, 0.32])[cmap], np.array([0.18, 0.77, 0.77])[cmap]
+    )
+    level = np.where(sky, np.array([0.75, 1.0, 1.0])[cmap], ground)
+    data = (516 + level * span).astype(np.uint16)
+    raw = replace_raw(raw, data=data)
+    config = override(default_config(), highlights="reconstruct")
+    ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
+    assert (rebuilt != data).sum() > 10000  # sites were rebuilt
+    dn = 2.1 * 0.5 / span
+    assert np.abs(ours - ref).max() <= dn * 1.01
+    monkeypatch.setattr(reference, "HIGHLIGHT_HUE_SPREAD", 1e9)  # any border agrees
+    _, trusting, _ = _engine_and_reference_mosaics(raw, config)
+    assert np.abs(trusting - ref).max() > 100 * dn  # the spread mattered here

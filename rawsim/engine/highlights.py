@@ -45,6 +45,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_SIGMA,
+    HIGHLIGHT_HUE_SPREAD,
     HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
@@ -56,6 +57,9 @@ from rawsim.isp.config import (
 configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
+#: Fields of the border tables: weight × share of R, G, B; weight; weight × each share
+#: squared; then (at ``NEAR``) the blocks next to a clipped one.
+FIELDS, NEAR = 8, 7
 
 
 #: Blocks per side of the tiles the pre-pass works in: only tiles with a clipped site
@@ -149,16 +153,17 @@ def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, thre
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads):
-    """Summed-area tables (n, TILE + 1, TILE + 1, 5) float64 of each listed tile
+    """Summed-area tables (n, TILE + 1, TILE + 1, 8) float64 of each listed tile
     (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks` gives
     them for these tiles, ``slot`` each tile's index in them): the border blocks' hue
-    fields (weight × share of R, G, B; weight), read over each block's 3 × 3 blocks and
-    weighted by their brightness to ``power`` (float32 products, as the reference forms
-    them), and the count of blocks next to a clipped one. Border blocks lie within
-    ``border`` blocks of a clipped one but not next to one; the fields are zero
-    elsewhere."""
+    fields (weight × share of R, G, B; weight; weight × each share squared, for the
+    border's spread of hue), read over each block's 3 × 3 blocks and weighted by their
+    brightness to ``power`` (float32 products, as the reference forms them), and the
+    count of blocks next to a clipped one (:data:`FIELDS` in all, that at :data:`NEAR`).
+    Border blocks lie within ``border`` blocks of a clipped one but not next to one; the
+    fields are zero elsewhere."""
     t = TILE
-    sats = np.zeros((tiles.shape[0], t + 1, t + 1, 5), np.float64)
+    sats = np.zeros((tiles.shape[0], t + 1, t + 1, FIELDS), np.float64)
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
     for _ in prange(threads):  # each thread takes items while any are left
         while True:
@@ -180,7 +185,7 @@ def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads)
                     wide[i - a0, j - j0] = v
             sat = sats[k]
             around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
-            field = np.zeros(5, np.float64)
+            field = np.zeros(FIELDS, np.float64)
             for i in range(i0, i1):
                 for j in range(j0, j1):
                     close = inside = False
@@ -189,7 +194,7 @@ def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads)
                         inside |= v != 0
                         close |= v >= 2 and abs(ii - i) <= 1
                     field[:] = 0.0
-                    field[4] = 1.0 if close else 0.0
+                    field[NEAR] = 1.0 if close else 0.0
                     if inside and not close:
                         # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
                         ya, yb, ja, jb = (
@@ -214,10 +219,12 @@ def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads)
                                 min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power
                             )
                             for c in range(3):
-                                field[c] = np.float64(bright * (around[c] / total))
+                                share = around[c] / total
+                                field[c] = np.float64(bright * share)
+                                field[4 + c] = np.float64(bright * (share * share))
                             field[3] = np.float64(bright)
                     li, lj = i - i0 + 1, j - j0 + 1
-                    for f in range(5):
+                    for f in range(FIELDS):
                         sat[li, lj, f] = (
                             field[f]
                             + sat[li - 1, lj, f]
@@ -228,12 +235,12 @@ def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads)
 
 
 @njit(inline="always", **_JIT)
-def _box(sats, slot, i0, i1, j0, j1, out):
-    """Sums (5) of the fields over blocks [i0, i1) × [j0, j1) (inside the image) into
-    ``out``, from the tables of the tiles the box covers (``slot``: each tile's table,
-    −1 where none: zero)."""
+def _box(sats, slot, i0, i1, j0, j1, out, first, last):
+    """Sums of the fields [``first``, ``last``) over blocks [i0, i1) × [j0, j1) (inside
+    the image) into those of ``out`` (the others are left), from the tables of the tiles
+    the box covers (``slot``: each tile's table, −1 where none: zero)."""
     t = TILE
-    out[:] = 0.0
+    out[first:last] = 0.0
     for ti in range(i0 // t, (i1 - 1) // t + 1):
         a0, a1 = max(i0 - ti * t, 0), min(i1 - ti * t, t)
         for tj in range(j0 // t, (j1 - 1) // t + 1):
@@ -241,13 +248,36 @@ def _box(sats, slot, i0, i1, j0, j1, out):
             if s < 0:
                 continue
             c0, c1 = max(j0 - tj * t, 0), min(j1 - tj * t, t)
-            for f in range(5):
+            for f in range(first, last):
                 out[f] += (
                     sats[s, a1, c1, f]
                     - sats[s, a0, c1, f]
                     - sats[s, a1, c0, f]
                     + sats[s, a0, c0, f]
                 )
+
+
+@njit(inline="always", **_JIT)
+def _agreement(sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit):
+    """How well the border of block (y, j) agrees on its hue (0–1, float32): 1 − the
+    root of its shares' summed variances over ``spread_limit``. ``acc`` holds the
+    block's hue fields and weight (:func:`_estimates`); the squared shares are summed
+    here, over the same boxes, into ``acc[4:7]``."""
+    acc[4:7] = 0.0
+    weight = 1.0
+    for s in scales:
+        i0, i1 = max(y - s, 0), min(y + s + 1, hb)
+        j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+        area = np.float64((2 * s + 1) * (2 * s + 1))
+        _box(sats, slot, i0, i1, j0, j1, box, 4, NEAR)
+        for c in range(3):
+            acc[4 + c] += box[4 + c] / area * weight
+        weight *= lam
+    spread = 0.0
+    for c in range(3):
+        centre = acc[c] / acc[3]
+        spread += max(acc[4 + c] / acc[3] - centre * centre, 0.0)
+    return np.float32(min(max(1.0 - np.sqrt(spread) / spread_limit, 0.0), 1.0))
 
 
 @njit(inline="always", **_JIT)
@@ -297,6 +327,7 @@ def _estimates(
     margin,
     floor,
     sigma,
+    spread_limit,
     shares,
     lows,
     threads,
@@ -305,7 +336,8 @@ def _estimates(
     its clipped colours allow into ``lows`` (n, TILE, TILE), for the n tiles listed in
     ``tiles`` (those that hold clipped sites; see :func:`_site_value`) of the Hb × Wb
     blocks; ``sats``/``slot``: the fields' tables (:func:`_tile_sats`, :func:`_box`);
-    ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``."""
+    ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``,
+    ``spread_limit``: ``HIGHLIGHT_HUE_SPREAD``."""
     t = TILE
     third = np.float32(1.0 / 3.0)
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
@@ -318,8 +350,8 @@ def _estimates(
             hue = np.empty(3, np.float32)
             seen = np.empty(3, np.float32)
             m = np.empty(3, np.float32)
-            acc = np.zeros(4, np.float64)
-            box = np.zeros(5, np.float64)
+            acc = np.zeros(7, np.float64)  # hue fields, weight, shares squared
+            box = np.zeros(FIELDS, np.float64)
             y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
             for y in range(y0, min(y0 + t, hb)):
                 for j in range(x0, min(x0 + t, wb)):
@@ -332,15 +364,17 @@ def _estimates(
                         i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                         j0, j1 = max(j - s, 0), min(j + s + 1, wb)
                         area = np.float64((2 * s + 1) * (2 * s + 1))
-                        _box(sats, slot, i0, i1, j0, j1, box)
+                        _box(sats, slot, i0, i1, j0, j1, box, 0, 4)
                         for k in range(4):
                             acc[k] += box[k] / area * weight
                         weight *= lam
                     s = neutral
                     i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                     j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                    _box(sats, slot, i0, i1, j0, j1, box)
-                    free = ((i1 - i0) * (j1 - j0) - box[4]) / np.float64((2 * s + 1) * (2 * s + 1))
+                    _box(sats, slot, i0, i1, j0, j1, box, NEAR, FIELDS)
+                    free = ((i1 - i0) * (j1 - j0) - box[NEAR]) / np.float64(
+                        (2 * s + 1) * (2 * s + 1)
+                    )
                     kappa = np.float32(min(2.0 * free, 1.0))
                     blown = f == 3 or f >= 5  # two or three colours clipped
                     for c in range(3):
@@ -356,6 +390,11 @@ def _estimates(
                             rho = min(rho, made / max(_mean(means, slot, c, y, j), floor))
                         kept = np.float32(1.0) - _refuted(rho, margin)
                         kappa = max(kappa * kept, white * kept)
+                    if blown and acc[3] > 0 and hue[1] <= min(hue[0], hue[2]):
+                        # least green: a purple mixed from a border that disagrees?
+                        kappa = kappa * _agreement(
+                            sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit
+                        )
                     trust = np.float32(1.0)
                     if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
                         c = 0 if f == 1 else (1 if f == 2 else 2)
@@ -635,6 +674,7 @@ def reconstruct_mosaic(
         np.float32(HIGHLIGHT_WHITE_MARGIN),
         np.float32(HIGHLIGHT_RATIO_FLOOR),
         np.float32(HIGHLIGHT_HUE_SIGMA),
+        float(HIGHLIGHT_HUE_SPREAD),
         shares,
         lows,
         threads,

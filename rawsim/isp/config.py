@@ -110,6 +110,12 @@ HIGHLIGHT_WHITE_MARGIN = 0.5
 #: hue against white light (equal shares): each is trusted by how well it predicts
 #: that ratio, a Gaussian of this width in the log of the ratio.
 HIGHLIGHT_HUE_SIGMA = 0.2
+#: ``reconstruct``: where two or three colours clip and the border's hue gives green
+#: the least share, that hue is kept by 1 − (its spread over the border / this), the
+#: spread being the root of the summed variances of the border blocks' shares: brown
+#: branches and a blue sky around a blown sky average to a purple no border block has,
+#: which the block would take (magenta); a border of one hue keeps it.
+HIGHLIGHT_HUE_SPREAD = 0.15
 #: ``reconstruct``: a rebuilt value is at most this many times its colour's clip level.
 HIGHLIGHT_HEADROOM = 4.0
 #: ``reconstruct``: no colour's share of a block's sum is taken below this.

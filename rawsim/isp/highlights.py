@@ -31,6 +31,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_SIGMA,
+    HIGHLIGHT_HUE_SPREAD,
     HIGHLIGHT_MODES,
     HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
@@ -113,7 +114,10 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue;
     unless the border's hue is refuted too, putting a clipped colour below its clipped
     mean (:func:`_hue_refuted`): then neither is kept, and the block goes neutral, however
-    near the border (the hue's κ falls by how surely it is refuted).
+    near the border (the hue's κ falls by how surely it is refuted). Where two or three
+    clipped and the hue gives green the least share, κ also falls by the border's spread
+    of hue (``HIGHLIGHT_HUE_SPREAD``): brown and blue borders average to a purple that
+    none of them has.
 
     Each site that clipped (in a block where its colour clipped; its unclipped
     neighbours measured their light and keep it) then becomes max(its value, share ×
@@ -217,13 +221,17 @@ def _estimates(means, clipped, anyclip, g):
     bright = (around / g.reshape(1, 3, 1, 1)).amax(1, keepdim=True).clamp(0.0, 1.0)
     weight = torch.where(border & lit, bright**HIGHLIGHT_BORDER_POWER, 0.0)
     hue_of = around / torch.where(lit, around_total, 1.0)
-    fields = torch.cat([weight * hue_of, weight], 1).double()
+    fields = torch.cat([weight * hue_of, weight, weight * hue_of**2], 1).double()
     hue_sum = 0.0
     for k, s in enumerate(HIGHLIGHT_SCALES):
         box = _box(fields, s) / float((2 * s + 1) ** 2)
         hue_sum = hue_sum + box * HIGHLIGHT_SCALE_WEIGHT**k
     has = hue_sum[:, 3:4] > 0
     hue = torch.where(has, hue_sum[:, :3] / torch.where(has, hue_sum[:, 3:4], 1.0), 1.0 / 3.0)
+    # the border's spread of hue: the root of its shares' summed variances
+    second = torch.where(has, hue_sum[:, 4:] / torch.where(has, hue_sum[:, 3:4], 1.0), 0.0)
+    spread = (second - torch.where(has, hue, 0.0) ** 2).clamp_min(0.0).sum(1, keepdim=True)
+    agree = (1 - spread.sqrt() / HIGHLIGHT_HUE_SPREAD).clamp(0.0, 1.0).to(dtype)
     s = HIGHLIGHT_NEUTRAL
     free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
     kappa = (2 * free).clamp(max=1.0).to(dtype)
@@ -235,6 +243,10 @@ def _estimates(means, clipped, anyclip, g):
     hue_kept = 1 - _hue_refuted(means, clipped, hue)
     refuted = _white_refuted(means, clipped, g) * hue_kept
     kappa = torch.where(count == 2, torch.maximum(kappa * hue_kept, refuted), kappa)
+    # A hue with the least green, averaged from a border that disagrees (brown and
+    # blue: purple), is no border block's: kept by how well the border agrees.
+    least_green = hue[:, 1:2] <= hue.amin(1, keepdim=True)
+    kappa = torch.where((count >= 2) & least_green, kappa * agree, kappa)
     blown = count >= 2  # one colour left at most
     single = count == 1
     seen = share
