@@ -623,17 +623,21 @@ def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
     assert not any("blown render" in w for w in record["warnings"])
 
 
-@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
-def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
-    """The sky of the test above, in DN: G and B clipped, R low, in a brown ground."""
+def _sky_in_dn(pattern, radius, sky, ground):
+    """A synthetic raw (420 × 606, white balance 2.1, 1, 1.6) of a disc of ``radius``
+    px whose sites are at ``sky`` (R, G, B: shares of the range) in a ground whose
+    sites are at ``ground`` (the left half's and the right half's R, G, B); and the
+    engine's and the reference's mosaics of it (:func:`_engine_and_reference_mosaics`),
+    checked equal to half a DN × the largest gain where sites were rebuilt."""
     raw = synthetic_raw(pattern, h=420, w=606)
     span = 16383 - 516
     cmap = np.tile(
         np.array(raw.cfa.colors).reshape(raw.cfa.period), (420 // raw.cfa.period[0] + 1, 606)
     )[:420, :606]
     y, x = np.mgrid[0:420, 0:606]
-    sky = (y - 210) ** 2 + (x - 303) ** 2 < 170**2
-    level = np.where(sky, np.array([0.15, 1.0, 1.0])[cmap], np.array([0.35, 0.25, 0.12])[cmap])
+    left, right = (np.array(c)[cmap] for c in ground)
+    level = np.where(x < 303, left, right)
+    level = np.where((y - 210) ** 2 + (x - 303) ** 2 < radius**2, np.array(sky)[cmap], level)
     data = (516 + level * span).astype(np.uint16)
     raw = replace_raw(raw, data=data)
     config = override(default_config(), highlights="reconstruct")
@@ -641,6 +645,14 @@ def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
     assert (rebuilt != data).sum() > 10000  # sites were rebuilt
     dn = 2.1 * 0.5 / span
     assert np.abs(ours - ref).max() <= dn * 1.01
+    return raw, config, ref, dn
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
+    """The sky of the test above, in DN: G and B clipped, R low, in a brown ground."""
+    brown = (0.35, 0.25, 0.12)
+    _sky_in_dn(pattern, 170, (0.15, 1.0, 1.0), (brown, brown))
 
 
 def test_a_border_of_two_hues_does_not_make_a_purple():
@@ -670,24 +682,8 @@ def test_engine_equals_the_reference_where_the_border_disagrees(pattern, monkeyp
     rebuilt sky, and the engine rebuilds it as the reference does."""
     import rawsim.isp.highlights as reference
 
-    raw = synthetic_raw(pattern, h=420, w=606)  # white balance 2.1, 1, 1.6
-    span = 16383 - 516
-    cmap = np.tile(
-        np.array(raw.cfa.colors).reshape(raw.cfa.period), (420 // raw.cfa.period[0] + 1, 606)
-    )[:420, :606]
-    y, x = np.mgrid[0:420, 0:606]
-    sky = (y - 210) ** 2 + (x - 303) ** 2 < 150**2
-    ground = np.where(
-        x < 303, np.array([0.61, 0.77, 0.32])[cmap], np.array([0.18, 0.77, 0.77])[cmap]
-    )
-    level = np.where(sky, np.array([0.75, 1.0, 1.0])[cmap], ground)
-    data = (516 + level * span).astype(np.uint16)
-    raw = replace_raw(raw, data=data)
-    config = override(default_config(), highlights="reconstruct")
-    ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
-    assert (rebuilt != data).sum() > 10000  # sites were rebuilt
-    dn = 2.1 * 0.5 / span
-    assert np.abs(ours - ref).max() <= dn * 1.01
+    ground = ((0.61, 0.77, 0.32), (0.18, 0.77, 0.77))  # brown, blue
+    raw, config, ref, dn = _sky_in_dn(pattern, 150, (0.75, 1.0, 1.0), ground)
     monkeypatch.setattr(reference, "HIGHLIGHT_HUE_SPREAD", 1e9)  # any border agrees
     _, trusting, _ = _engine_and_reference_mosaics(raw, config)
     assert np.abs(trusting - ref).max() > 100 * dn  # the spread mattered here
