@@ -258,21 +258,29 @@ def _box(sats, slot, i0, i1, j0, j1, out, first, last):
 
 
 @njit(inline="always", **_JIT)
-def _agreement(sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit):
-    """How well the border of block (y, j) agrees on its hue (0–1, float32): 1 − the
-    root of its shares' summed variances over ``spread_limit``. ``acc`` holds the
-    block's hue fields and weight (:func:`_estimates`); the squared shares are summed
-    here, over the same boxes, into ``acc[4:7]``."""
-    acc[4:7] = 0.0
+def _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, first, last):
+    """Fields [``first``, ``last``) of block (y, j)'s border into ``acc`` (same indices):
+    their box means over ``scales`` (half-widths in blocks), each ``lam`` times the one
+    before, summed in the reference's order (``box``: scratch of :data:`FIELDS`)."""
+    acc[first:last] = 0.0
     weight = 1.0
     for s in scales:
         i0, i1 = max(y - s, 0), min(y + s + 1, hb)
         j0, j1 = max(j - s, 0), min(j + s + 1, wb)
         area = np.float64((2 * s + 1) * (2 * s + 1))
-        _box(sats, slot, i0, i1, j0, j1, box, 4, NEAR)
-        for c in range(3):
-            acc[4 + c] += box[4 + c] / area * weight
+        _box(sats, slot, i0, i1, j0, j1, box, first, last)
+        for f in range(first, last):
+            acc[f] += box[f] / area * weight
         weight *= lam
+
+
+@njit(inline="always", **_JIT)
+def _agreement(sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit):
+    """How well the border of block (y, j) agrees on its hue (0–1, float32): 1 − the
+    root of its shares' summed variances over ``spread_limit``. ``acc`` holds the
+    block's hue fields and weight (:func:`_estimates`); the squared shares are summed
+    here, over the same boxes, into ``acc[4:7]``."""
+    _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 4, NEAR)
     spread = 0.0
     for c in range(3):
         centre = acc[c] / acc[3]
@@ -358,16 +366,7 @@ def _estimates(
                     f = _at(flags, slot, y, j)
                     if f == 0:
                         continue
-                    acc[:] = 0.0
-                    weight = 1.0
-                    for s in scales:
-                        i0, i1 = max(y - s, 0), min(y + s + 1, hb)
-                        j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                        area = np.float64((2 * s + 1) * (2 * s + 1))
-                        _box(sats, slot, i0, i1, j0, j1, box, 0, 4)
-                        for k in range(4):
-                            acc[k] += box[k] / area * weight
-                        weight *= lam
+                    _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 0, 4)
                     s = neutral
                     i0, i1 = max(y - s, 0), min(y + s + 1, hb)
                     j0, j1 = max(j - s, 0), min(j + s + 1, wb)

@@ -57,13 +57,7 @@ DEMOSAIC_METHODS = ("learned", "wcd", "menon", "malvar", "bilinear")
 #: What each demosaic method becomes on an X-Trans (6×6) mosaic: ``bilinear`` stays
 #: LibRaw's same-colour average; the Bayer interpolations all become ``icd``
 #: (:mod:`rawsim.isp.xtrans`).
-XTRANS_METHOD = {
-    "learned": "icd",
-    "wcd": "icd",
-    "menon": "icd",
-    "malvar": "icd",
-    "bilinear": "bilinear",
-}
+XTRANS_METHOD = {m: "bilinear" if m == "bilinear" else "icd" for m in DEMOSAIC_METHODS}
 #: The demosaic stage's ``half``: no interpolation, one pixel per 2×2 block of any
 #: mosaic (:mod:`rawsim.isp.half_size`; ``rawsim process --half-size``).
 HALF_SIZE = "half"

@@ -246,8 +246,8 @@ def _estimates(means, clipped, anyclip, g):
     # A hue with the least green, averaged from a border that disagrees (brown and
     # blue: purple), is no border block's: kept by how well the border agrees.
     least_green = hue[:, 1:2] <= hue.amin(1, keepdim=True)
-    kappa = torch.where((count >= 2) & least_green, kappa * agree, kappa)
     blown = count >= 2  # one colour left at most
+    kappa = torch.where(blown & least_green, kappa * agree, kappa)
     single = count == 1
     seen = share
     trust = _hue_or_white(means, seen, hue, clipped)
