@@ -95,6 +95,7 @@ def _noisy(scene: np.ndarray, k: float, read_sigma: float, seed: int) -> RawImag
     return simulated_raw(out, p, 100.0, "<simulated chart>")
 
 
+@pytest.mark.slow
 def test_synthetic_charts_cover_the_known_gain_at_two_sigma(chart):
     assert chart.cfa.pattern == SENSOR.profile.cfa.pattern == "RGGB"
     scene = _scene(chart)

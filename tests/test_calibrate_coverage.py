@@ -68,6 +68,7 @@ def patch_fits() -> list[tuple[str, float, float, object]]:
     return fits
 
 
+@pytest.mark.slow
 def test_patch_fits_cover_the_true_gain_at_two_sigma(patch_fits):
     assert len(patch_fits) >= 20
     accepted = [f for f in patch_fits if not f[3].problems]
@@ -82,6 +83,7 @@ def test_patch_fits_cover_the_true_gain_at_two_sigma(patch_fits):
     assert np.mean(covered) >= 0.9, report
 
 
+@pytest.mark.slow
 def test_the_uncertainty_splits_into_statistical_and_systematic(patch_fits):
     for _, _, _, fit in patch_fits:
         e = fit.errors

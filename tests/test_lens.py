@@ -267,12 +267,16 @@ def test_tall_image_strips_and_tiles():
         numba.set_num_threads(threads)
 
 
-@pytest.mark.parametrize("padding", PADDINGS)
-def test_gradcheck(padding):
+@pytest.mark.parametrize(
+    ("padding", "fast"),
+    [*((p, True) for p in PADDINGS), pytest.param("zeros", False, marks=pytest.mark.slow)],
+    ids=[*PADDINGS, "zeros-whole"],
+)
+def test_gradcheck(padding, fast):
+    """Random projections of the Jacobian for every padding (``fast_mode``); the whole
+    Jacobian for one, in the slow tier."""
     params = kit(3.5)
     x = torch.rand(1, 3, 7, 11, dtype=torch.float64, requires_grad=True)
-    # the whole Jacobian for one padding; random projections of it for the others
-    fast = padding != "zeros"
     assert torch.autograd.gradcheck(
         lambda t: correct_lens(t, params, padding), (x,), fast_mode=fast
     )

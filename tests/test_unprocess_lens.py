@@ -221,7 +221,9 @@ def test_a_prime_needs_no_focal_length():
     assert params.focal_length == 50.0 and params.camera == "Canon EOS 700D"
 
 
-def test_gradcheck_through_the_sensor_and_its_lens():
+@pytest.mark.parametrize("fast", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_gradcheck_through_the_sensor_and_its_lens(fast):
+    """Random projections of the Jacobian (``fast_mode``); the whole one in the slow tier."""
     profile = load_profile(PROFILE)
     lens = _lens()
     params = RGBSensor(profile).default_params(100)
@@ -231,7 +233,7 @@ def test_gradcheck_through_the_sensor_and_its_lens():
         def capture(t, sensor=sensor):
             return sensor.linrgb2raw(sensor.unprocess(t, "linear_rgb", params, lens), params)
 
-        assert torch.autograd.gradcheck(capture, (x,))
+        assert torch.autograd.gradcheck(capture, (x,), fast_mode=fast)
         # the lens moves the values: a pixel's gradient reaches its neighbours
         plain = sensor.linrgb2raw(sensor.unprocess(x, "linear_rgb", params), params)
         assert not torch.allclose(capture(x), plain)

@@ -434,6 +434,7 @@ def _cal_frame(iso: float, level: float, seed: int, h: int = 576, w: int = 768) 
     return CAL_SENSOR.simu_noise(dn, iso, "physics", seed)[0, 0].numpy().astype(np.uint16)
 
 
+@pytest.mark.slow
 def test_flat_field_calibration_of_xtrans_frames_recovers_the_model(tmp_path):
     """The Bayer calibrate test's tolerances: K 3 %, read σ 5 %, row σ 10 %, λ ± 0.05;
     the 36 sites of the period pooled into R, G and B, each with its dark bias."""
