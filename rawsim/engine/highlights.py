@@ -44,6 +44,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_BORDER_POWER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_HUE_PRIOR,
     HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_HUE_SPREAD,
     HIGHLIGHT_NEUTRAL,
@@ -294,9 +295,10 @@ def _log(v, floor):
 
 
 @njit(inline="always", **_JIT)
-def _hue_or_white(m, seen, hue, c, floor, sigma):
+def _hue_or_white(m, seen, hue, c, floor, sigma, prior):
     """Colour ``c`` alone clipped: the odds of ``hue`` over white light (the reference's
-    ``_hue_or_white``), ``m`` the block's means, ``seen`` its shares."""
+    ``_hue_or_white``), ``m`` the block's means, ``seen`` its shares, ``prior`` the
+    hue's log odds before the test."""
     a, b = (1, 2) if c == 0 else ((0, 2) if c == 1 else (0, 1))
     seen_ratio = _log(seen[a], floor) - _log(seen[b], floor)
     guess_ratio = _log(hue[a], floor) - _log(hue[b], floor)
@@ -307,7 +309,7 @@ def _hue_or_white(m, seen, hue, c, floor, sigma):
     short_hue = max(top - _log(guess, floor), np.float32(0.0))
     miss_white = seen_ratio * seen_ratio + short_white * short_white
     miss_hue = (seen_ratio - guess_ratio) ** 2 + short_hue * short_hue
-    z = (miss_white - miss_hue) / (np.float32(2.0) * sigma * sigma)
+    z = (miss_white - miss_hue) / (np.float32(2.0) * sigma * sigma) + prior
     return np.float32(1.0) / (np.float32(1.0) + np.exp(-z))
 
 
@@ -335,6 +337,7 @@ def _estimates(
     margin,
     floor,
     sigma,
+    prior,
     spread_limit,
     shares,
     lows,
@@ -345,7 +348,7 @@ def _estimates(
     ``tiles`` (those that hold clipped sites; see :func:`_site_value`) of the Hb × Wb
     blocks; ``sats``/``slot``: the fields' tables (:func:`_tile_sats`, :func:`_box`);
     ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``,
-    ``spread_limit``: ``HIGHLIGHT_HUE_SPREAD``."""
+    ``prior``: ``HIGHLIGHT_HUE_PRIOR``, ``spread_limit``: ``HIGHLIGHT_HUE_SPREAD``."""
     t = TILE
     third = np.float32(1.0 / 3.0)
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
@@ -405,7 +408,7 @@ def _estimates(
                         for k in range(3):
                             m[k] = _mean(means, slot, k, y, j)
                             seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
-                        trust = _hue_or_white(m, seen, hue, c, floor, sigma)
+                        trust = _hue_or_white(m, seen, hue, c, floor, sigma, prior)
                     for c in range(3):
                         h = hue[c]
                         if blown:
@@ -673,6 +676,7 @@ def reconstruct_mosaic(
         np.float32(HIGHLIGHT_WHITE_MARGIN),
         np.float32(HIGHLIGHT_RATIO_FLOOR),
         np.float32(HIGHLIGHT_HUE_SIGMA),
+        np.float32(HIGHLIGHT_HUE_PRIOR),
         float(HIGHLIGHT_HUE_SPREAD),
         shares,
         lows,

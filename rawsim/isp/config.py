@@ -104,6 +104,11 @@ HIGHLIGHT_WHITE_MARGIN = 0.5
 #: hue against white light (equal shares): each is trusted by how well it predicts
 #: that ratio, a Gaussian of this width in the log of the ratio.
 HIGHLIGHT_HUE_SIGMA = 0.2
+#: ``reconstruct``: where one colour clips, the log odds of the border's hue over white
+#: light before that test: where both predict the ratio alike (a sky whose hue differs
+#: from white in the clipped colour alone), the hue the border measured is kept
+#: (e^4 ≈ 55 to 1), not blended half-way to white.
+HIGHLIGHT_HUE_PRIOR = 4.0
 #: ``reconstruct``: where two or three colours clip and the border's hue gives green
 #: the least share, that hue is kept by 1 − (its spread over the border / this), the
 #: spread being the root of the summed variances of the border blocks' shares: brown

@@ -30,6 +30,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_BORDER_POWER,
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
+    HIGHLIGHT_HUE_PRIOR,
     HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_HUE_SPREAD,
     HIGHLIGHT_MODES,
@@ -103,8 +104,10 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     Where one colour clipped, the other two test that hue against white light
     (equal shares): the hue is blended with neutral by the odds of each predicting
     their ratio and raising the clipped colour to at least its clipped mean (misses
-    squared in logs, a Gaussian of width ``HIGHLIGHT_HUE_SIGMA``), so a white
-    highlight in coloured surroundings stays white and a coloured one keeps its hue.
+    squared in logs, a Gaussian of width ``HIGHLIGHT_HUE_SIGMA``; the hue ahead by
+    ``HIGHLIGHT_HUE_PRIOR`` in log odds, so where both predict alike the border's hue
+    is kept), so a white highlight in coloured surroundings stays white and a
+    coloured one keeps its hue.
     Where two or three clipped, one colour cannot test it: the hue is blended
     towards neutral by how little of the box around the block is unclipped (κ =
     min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the
@@ -314,7 +317,8 @@ def _level_estimates(seen, share, floor, free, g):
 def _hue_or_white(means, seen, hue, clipped):
     """Where one colour clipped: the odds (0–1) of ``hue`` over white light, from how
     well each predicts the other two colours' ratio (``seen``: the block's shares)
-    and raises the clipped colour to its clipped mean."""
+    and raises the clipped colour to its clipped mean, the hue ahead by
+    ``HIGHLIGHT_HUE_PRIOR`` in log odds."""
     floor = HIGHLIGHT_RATIO_FLOOR
     log = lambda t: t.clamp_min(floor).log()  # noqa: E731
     seen_ratio = guess_ratio = top = rest = hue_top = hue_rest = 0.0
@@ -334,7 +338,9 @@ def _hue_or_white(means, seen, hue, clipped):
     miss_hue = (seen_ratio - guess_ratio) ** 2 + short(
         hue_top.clamp_min(floor) * rest / hue_rest.clamp_min(floor)
     )
-    return torch.sigmoid((miss_white - miss_hue) / (2 * HIGHLIGHT_HUE_SIGMA**2))
+    return torch.sigmoid(
+        (miss_white - miss_hue) / (2 * HIGHLIGHT_HUE_SIGMA**2) + HIGHLIGHT_HUE_PRIOR
+    )
 
 
 def _pick(where: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
