@@ -108,6 +108,7 @@ TEXTURED = (
 )
 
 
+@pytest.mark.slow
 def test_textured_crops_that_the_6th_order_check_missed_are_covered():
     for name, where, iso, seed, _ in TEXTURED:
         image = _camera_photo(name, where)

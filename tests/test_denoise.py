@@ -447,6 +447,7 @@ def test_learned_on_x_trans_falls_back_to_profiled_with_a_warning(tmp_path):
     assert any("--denoise profiled" in w for w in describe(noisy, config)["warnings"])
 
 
+@pytest.mark.slow
 def test_training_runs_a_few_steps(tmp_path):
     from rawsim.denoise.training.train import main
 

@@ -136,6 +136,7 @@ def linear_photo_scores(tmp_path_factory):
     return scores
 
 
+@pytest.mark.slow
 def test_icd_beats_libraw_markesteijn_on_a_linear_photo(linear_photo_scores):
     """On linear data (a raw's), icd on square roots (as the pipeline runs it) beats
     LibRaw's 3-pass Markesteijn (by 1.0 dB here; 2.5 dB on the Kodak set,
