@@ -194,6 +194,29 @@ def test_a_sky_whose_green_alone_clipped_keeps_its_green(pattern):
     )
 
 
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_a_white_lamp_in_orange_surroundings_stays_white(pattern):
+    """G alone clipped over a white disc (R and B level, below their clip levels) in an
+    orange room: the two colours left refute the border's hue (R/B 2.5 against the
+    lamp's 1), so the prior that keeps a hue they cannot test does not tint the lamp:
+    its core's G/((R+B)/2) stays within 5 % of white's 1."""
+    cfa = CFA(pattern)
+    size = 200
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    lamp = torch.sigmoid(50 - r)  # a disc of radius 50 px
+    room = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * (1 - lamp)
+    truth, cmap = mosaic_of((room + 1.3 * lamp)[None], cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    assert sel.sum() > 2000 and not bool(sel[cmap != 1].any())  # G alone
+    core = torch.zeros_like(sel)
+    core[size // 2 - 25 : size // 2 + 25, size // 2 - 25 : size // 2 + 25] = True
+    got = block_rgb(out, cmap, core, 2)
+    assert float(2 * got[1] / (got[0] + got[2])) == pytest.approx(1.0, rel=0.05)
+
+
 def sky_core(pattern, colour, size=240):
     """A sky of G and B clipped, R not: ``colour(r)`` (3, H, W) camera RGB from each
     pixel's distance r to the centre, mosaicked, clipped and rebuilt. Returns the
