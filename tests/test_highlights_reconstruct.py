@@ -169,6 +169,29 @@ def test_a_large_region_takes_its_border_hue(pattern):
     assert abs(float(plain - want)) > 3 * abs(float(got - want))
 
 
+def rebuilt_core(pattern, colour, size=240, half=30):
+    """``colour(r)`` (3, H, W) camera RGB from each pixel's distance r to the centre,
+    mosaicked, clipped and rebuilt. Returns the truth's and the rebuilt colour (3,)
+    over the central (2 ``half``)² pixels, the colours that clipped somewhere and the
+    number of clipped sites."""
+    cfa = CFA(pattern)
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    truth, cmap = mosaic_of(colour(r)[None], cfa)
+    clipped = clip_sensor(truth, cmap)
+    out = reconstruct_highlights(clipped, GAINS, cfa)
+    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
+    core = torch.zeros_like(sel)
+    core[size // 2 - half : size // 2 + half, size // 2 - half : size // 2 + half] = True
+    colours = {int(c) for c in cmap[sel].unique()}
+    return block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2), colours, int(sel.sum())
+
+
+def _tint(rgb):
+    """G/((R+B)/2) of camera RGB (3,)."""
+    return float(2 * rgb[1] / (rgb[0] + rgb[2]))
+
+
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_a_sky_whose_green_alone_clipped_keeps_its_green(pattern):
     """G alone clipped over a broad dome of a green-cream sky (R/B that of white light,
@@ -176,22 +199,14 @@ def test_a_sky_whose_green_alone_clipped_keeps_its_green(pattern):
     unclipped site, keeps the border's G/((R+B)/2), 1.27 (it was blended half-way to
     white: 1.13, 11 % short; the Canon EOS 60D's real sky, clipped a stop lower, had
     its green 7 % short: ``test_real_sky_clipped_a_stop_lower_comes_back_closer_than_clip``)."""
-    cfa = CFA(pattern)
-    size = 240
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
-    lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
-    truth, cmap = mosaic_of((torch.tensor([0.75, 0.95, 0.75])[:, None, None] * lum)[None], cfa)
-    clipped = clip_sensor(truth, cmap)
-    out = reconstruct_highlights(clipped, GAINS, cfa)
-    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
-    assert sel.sum() > 5000 and not bool(sel[cmap != 1].any())  # G alone
-    core = torch.zeros_like(sel)
-    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
-    tint = lambda rgb: float(2 * rgb[1] / (rgb[0] + rgb[2]))  # noqa: E731
-    assert tint(block_rgb(out, cmap, core, 2)) == pytest.approx(
-        tint(block_rgb(truth, cmap, core, 2)), rel=0.03
-    )
+
+    def dome(r):
+        lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
+        return torch.tensor([0.75, 0.95, 0.75])[:, None, None] * lum
+
+    want, got, colours, count = rebuilt_core(pattern, dome)
+    assert count > 5000 and colours == {1}  # G alone
+    assert _tint(got) == pytest.approx(_tint(want), rel=0.03)
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
@@ -200,38 +215,22 @@ def test_a_white_lamp_in_orange_surroundings_stays_white(pattern):
     orange room: the two colours left refute the border's hue (R/B 2.5 against the
     lamp's 1), so the prior that keeps a hue they cannot test does not tint the lamp:
     its core's G/((R+B)/2) stays within 5 % of white's 1."""
-    cfa = CFA(pattern)
-    size = 200
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
-    lamp = torch.sigmoid(50 - r)  # a disc of radius 50 px
-    room = torch.tensor([0.5, 0.3, 0.2])[:, None, None] * (1 - lamp)
-    truth, cmap = mosaic_of((room + 1.3 * lamp)[None], cfa)
-    clipped = clip_sensor(truth, cmap)
-    out = reconstruct_highlights(clipped, GAINS, cfa)
-    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
-    assert sel.sum() > 2000 and not bool(sel[cmap != 1].any())  # G alone
-    core = torch.zeros_like(sel)
-    core[size // 2 - 25 : size // 2 + 25, size // 2 - 25 : size // 2 + 25] = True
-    got = block_rgb(out, cmap, core, 2)
-    assert float(2 * got[1] / (got[0] + got[2])) == pytest.approx(1.0, rel=0.05)
+
+    def lamp_in_room(r):
+        lamp = torch.sigmoid(50 - r)  # a disc of radius 50 px
+        return torch.tensor([0.5, 0.3, 0.2])[:, None, None] * (1 - lamp) + 1.3 * lamp
+
+    _, got, colours, count = rebuilt_core(pattern, lamp_in_room, size=200, half=25)
+    assert count > 2000 and colours == {1}  # G alone
+    assert _tint(got) == pytest.approx(1.0, rel=0.05)
 
 
 def sky_core(pattern, colour, size=240):
-    """A sky of G and B clipped, R not: ``colour(r)`` (3, H, W) camera RGB from each
-    pixel's distance r to the centre, mosaicked, clipped and rebuilt. Returns the
-    truth's and the rebuilt colour (3,) over the central 60 × 60 pixels."""
-    cfa = CFA(pattern)
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
-    truth, cmap = mosaic_of(colour(r)[None], cfa)
-    clipped = clip_sensor(truth, cmap)
-    out = reconstruct_highlights(clipped, GAINS, cfa)
-    sel = clipped[0, 0] >= 0.99 * GAINS[cmap]
-    assert sel.sum() > 10000 and not bool(sel[cmap == 0].any())  # G and B only
-    core = torch.zeros_like(sel)
-    core[size // 2 - 30 : size // 2 + 30, size // 2 - 30 : size // 2 + 30] = True
-    return block_rgb(truth, cmap, core, 2), block_rgb(out, cmap, core, 2)
+    """A sky of G and B clipped, R not (:func:`rebuilt_core`): the truth's and the
+    rebuilt colour (3,) over the central 60 × 60 pixels."""
+    want, got, colours, count = rebuilt_core(pattern, colour, size)
+    assert count > 10000 and 0 not in colours  # G and B only
+    return want, got
 
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])

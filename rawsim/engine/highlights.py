@@ -361,7 +361,7 @@ def _estimates(
             hue = np.empty(3, np.float32)
             seen = np.empty(3, np.float32)
             m = np.empty(3, np.float32)
-            acc = np.zeros(7, np.float64)  # hue fields, weight, shares squared
+            acc = np.zeros(NEAR, np.float64)  # hue fields, weight, shares squared
             box = np.zeros(FIELDS, np.float64)
             y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
             for y in range(y0, min(y0 + t, hb)):
