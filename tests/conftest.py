@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,41 @@ DATA = ROOT / "tests" / "data"
 PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: Absolute tolerance of round trips per dtype.
 TOL = {torch.float32: 2e-5, torch.float64: 1e-10}
+
+
+def pytest_configure(config):
+    """Under pytest-xdist, each worker keeps its share of the cores busy, as each of
+    rawsim's ``--jobs`` workers does (:func:`rawsim.run.jobs.set_threads`: torch, the
+    engine, and ``OMP_NUM_THREADS`` for the commands a test starts). Two workers of
+    two OpenMP threads each on two cores wait on each other's spinning threads: the
+    suite took a quarter longer."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if "PYTEST_XDIST_WORKER" in os.environ and workers > 1:
+        from rawsim.cores import usable_cores
+        from rawsim.run.jobs import set_threads
+
+        set_threads(max(1, usable_cores() // workers))
+
+
+@contextmanager
+def numba_threads(threads: int):
+    """Run the engine's parallel loops on ``threads`` threads inside the block."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
+def thread_counts() -> list[int]:
+    """One thread, and every thread numba may start: the counts a parallel loop's
+    result must not depend on (whatever share of the cores this process keeps)."""
+    import numba
+
+    return sorted({1, numba.config.NUMBA_NUM_THREADS})
 
 
 def pytest_collection_modifyitems(config, items):

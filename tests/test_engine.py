@@ -5,7 +5,6 @@ noise model, option (a lens too), CFA pattern, input kind, strip split and threa
 import json
 from dataclasses import replace
 
-import numba
 import numpy as np
 import pytest
 import rawpy
@@ -38,7 +37,7 @@ from rawsim.noise.poisson_table import (
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, code_table, simulate
 from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor, display_to_linear
-from tests.conftest import DATA, installed_command_imports
+from tests.conftest import DATA, installed_command_imports, numba_threads, thread_counts
 from tests.test_dark_shading import dark_profile
 
 KEY = ref.split_key(0x1234_5678_9ABC_DEF0)
@@ -407,10 +406,9 @@ def test_engine_output_does_not_depend_on_threads(dark, tmp_path):
     options = UnprocessOptions(profile=profile, iso=6400, noise="physics", clean=True)
     sensor = RGBSensor(profile)
     outputs = []
-    for threads in (1, numba.config.NUMBA_NUM_THREADS):
-        numba.set_num_threads(threads)
-        outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
-    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for threads in thread_counts():
+        with numba_threads(threads):
+            outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
     assert np.array_equal(*outputs)
 
 

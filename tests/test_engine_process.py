@@ -11,7 +11,6 @@ import subprocess
 import sys
 from dataclasses import replace
 
-import numba
 import numpy as np
 import pytest
 
@@ -20,7 +19,7 @@ from rawsim.io.images import to_samples
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.isp.config import DEMOSAIC_METHODS, default_config, override
 from rawsim.pipelines.process import ProcessOptions, engine_plan, engine_render, render
-from tests.conftest import DATA, installed_command_imports
+from tests.conftest import DATA, installed_command_imports, numba_threads, thread_counts
 
 XYZ_TO_CAMERA = np.array(
     [[0.5271, -0.0712, -0.0347], [-0.6153, 1.4814, 0.1324], [-0.0881, 0.2174, 0.8169]]
@@ -117,14 +116,10 @@ def test_xtrans_orientation_shading_and_tiles(orientation):
     base, ref = _both(raw, config)
     _assert_close(base, ref)
     plan = engine_plan(raw, config, "tiff")
-    threads = numba.get_num_threads()
-    try:
-        for tile in ((6, 6), (12, 30), (96, 504)):
-            for n in sorted({1, threads}):
-                numba.set_num_threads(n)
+    for tile in ((6, 6), (12, 30), (96, 504)):
+        for n in thread_counts():
+            with numba_threads(n):
                 assert np.array_equal(engine_render(raw, plan, "tiff", 16, tile), base)
-    finally:
-        numba.set_num_threads(threads)
 
 
 def test_xtrans_black_that_differs_within_a_colour_falls_back():
@@ -211,13 +206,9 @@ def test_tile_sizes_and_threads_give_identical_bits(tile):
         config = override(base_config(), demosaic=method)
         plan = engine_plan(raw, config, "tiff")
         base = engine_render(raw, plan, "tiff", 16)
-        threads = numba.get_num_threads()
-        try:
-            for n in sorted({1, threads}):
-                numba.set_num_threads(n)
+        for n in thread_counts():
+            with numba_threads(n):
                 assert np.array_equal(engine_render(raw, plan, "tiff", 16, tile), base)
-        finally:
-            numba.set_num_threads(threads)
 
 
 def test_reference_only_configs_fall_back():

@@ -69,6 +69,20 @@ def test_engine_threads_capped_by_usable_cores():
         assert numba.get_num_threads() <= usable_cores()
 
 
+def test_a_job_share_of_threads_keeps_the_fork_safe_layer():
+    """A batch worker sets its threads before importing any kernel: numba starts its
+    threads then, and must start them in the fork-safe layer, not GNU OpenMP."""
+    code = (
+        "from rawsim.run.jobs import set_threads; set_threads(1); import numba; "
+        "print(numba.threading_layer(), numba.get_num_threads())"
+    )
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING")}
+    said = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert said.returncode == 0, said.stderr
+    layer, threads = said.stdout.split()
+    assert layer in ("tbb", "workqueue") and threads == "1"
+
+
 def test_compile_is_logged_once_per_kernel(caplog):
     """A rawsim kernel's compile (a cache miss) logs its start, with how to compile
     ahead, and its end with the seconds; a second call (compiled) logs nothing."""

@@ -18,6 +18,7 @@ from rawsim.events.sensor import (
 )
 from rawsim.events.stream import EventParams, EventStream, voxel_grid
 from rawsim_cli.main import cli
+from tests.conftest import numba_threads, thread_counts
 
 
 def _pair(changes, base=0.1):
@@ -203,18 +204,16 @@ def test_shot_noise_rate_and_threshold_mismatch_are_seeded():
 
 
 def test_stream_is_the_same_for_any_thread_count():
-    import numba
 
     g = np.random.default_rng(3)
     frames = [np.log(g.random((64, 96)) + 0.05) for _ in range(4)]
     params = EventParams(sigma_threshold=0.03, leak_rate_hz=1.0, shot_noise_rate_hz=5.0)
     results = []
-    for threads in (1, numba.config.NUMBA_NUM_THREADS):
-        numba.set_num_threads(threads)
-        stream = EventStream(params, frames[0].shape, seed=4, refractory_s=1e-3)
-        stream.start(frames[0], 0.0)
-        results.append([stream.step(f, (k + 1) / 100) for k, f in enumerate(frames[1:])])
-    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for threads in thread_counts():
+        with numba_threads(threads):
+            stream = EventStream(params, frames[0].shape, seed=4, refractory_s=1e-3)
+            stream.start(frames[0], 0.0)
+            results.append([stream.step(f, (k + 1) / 100) for k, f in enumerate(frames[1:])])
     for a, b in zip(*results, strict=True):
         for name in ("t", "x", "y", "p", "counts"):
             assert np.array_equal(getattr(a, name), getattr(b, name))
@@ -251,7 +250,6 @@ def test_torch_reference_gives_the_engines_events_bit_for_bit(params, refractory
 def test_time_order_is_a_stable_sort_for_any_thread_count():
     """The parallel counting sort equals numpy's stable argsort (ties in input order),
     with many ties and clustered times, on 1 thread and on all."""
-    import numba
 
     from rawsim.events.kernels import time_order
 
@@ -261,14 +259,13 @@ def test_time_order_is_a_stable_sort_for_any_thread_count():
     x, y = g.integers(0, 640, n).astype(np.uint16), g.integers(0, 480, n).astype(np.uint16)
     p = g.integers(0, 2, n).astype(np.int8)
     order = np.argsort(t, kind="stable")
-    for threads in (1, numba.config.NUMBA_NUM_THREADS):
-        numba.set_num_threads(threads)
-        for buckets in (1, 7, 256, n // 2):
-            out = [np.empty_like(a) for a in (t, x, y, p)]
-            time_order(t, x, y, p, 0.5, 0.01, buckets, threads, *out)
-            for got, a in zip(out, (t, x, y, p), strict=True):
-                assert np.array_equal(got, a[order])
-    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for threads in thread_counts():
+        with numba_threads(threads):
+            for buckets in (1, 7, 256, n // 2):
+                out = [np.empty_like(a) for a in (t, x, y, p)]
+                time_order(t, x, y, p, 0.5, 0.01, buckets, threads, *out)
+                for got, a in zip(out, (t, x, y, p), strict=True):
+                    assert np.array_equal(got, a[order])
 
 
 def test_voxel_grid_keeps_every_event_once():

@@ -16,7 +16,6 @@ import json
 
 import exiv2
 import lensfunpy
-import numba
 import numpy as np
 import pytest
 import torch
@@ -39,7 +38,7 @@ from rawsim.isp.config import IspConfig, LensCorrectionStage, default_config, ov
 from rawsim.isp.lens import PADDINGS, LensCorrection, add_lens, correct_lens, remap_lens
 from rawsim.pipelines.process import engine_plan, engine_render, render, render_float
 from rawsim_cli.main import cli
-from tests.conftest import DATA, psnr
+from tests.conftest import DATA, numba_threads, psnr, thread_counts
 from tests.test_engine_process import _assert_close, _both, base_config, synthetic_raw
 
 #: A kit zoom with strong barrel distortion at its widest (8 % at the corners),
@@ -257,14 +256,10 @@ def test_tall_image_strips_and_tiles():
     base, ref = _both(raw, config)
     _assert_close(base, ref)
     plan = engine_plan(raw, config, "tiff")
-    threads = numba.get_num_threads()
-    try:
-        for tile in ((16, 16), (64, 512)):
-            for n in sorted({1, threads}):
-                numba.set_num_threads(n)
+    for tile in ((16, 16), (64, 512)):
+        for n in thread_counts():
+            with numba_threads(n):
                 assert np.array_equal(engine_render(raw, plan, "tiff", 16, tile), base)
-    finally:
-        numba.set_num_threads(threads)
 
 
 @pytest.mark.parametrize(

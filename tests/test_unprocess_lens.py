@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-import numba
 import numpy as np
 import pytest
 import torch
@@ -31,7 +30,7 @@ from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
 from rawsim.profiles import load_profile
 from rawsim.sensors import MonoSensor, RGBSensor
 from rawsim_cli.main import cli
-from tests.conftest import DATA, psnr
+from tests.conftest import DATA, numba_threads, psnr, thread_counts
 from tests.test_cli import digest
 from tests.test_engine import EXR, PHOTO, PHOTO16, _compare
 
@@ -144,14 +143,10 @@ def test_same_bits_for_any_strip_height_and_thread_count(monkeypatch):
     monkeypatch.setattr(pipeline, "STRIP_ROWS", 8)
     for got, want in zip(codes(False), whole, strict=True):
         np.testing.assert_array_equal(got, want)
-    threads = numba.get_num_threads()
-    try:
-        engine = []
-        for n in sorted({1, threads}):
-            numba.set_num_threads(n)
+    engine = []
+    for n in thread_counts():
+        with numba_threads(n):
             engine.append(codes(True))
-    finally:
-        numba.set_num_threads(threads)
     for got, want in zip(engine[0], engine[-1], strict=True):
         np.testing.assert_array_equal(got, want)
 

@@ -7,7 +7,6 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-import numba
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -49,7 +48,7 @@ from rawsim.profiles import SOURCED_KEYS, load_profile, profile_from_dict
 from rawsim.ray_data import RawPairs
 from rawsim.sensors import MonoSensor, RGBSensor
 from rawsim_cli.main import cli
-from tests.conftest import DATA, psnr
+from tests.conftest import DATA, numba_threads, psnr, thread_counts
 from tests.test_engine import EXR, OPTIONS, PHOTO, PHOTO16, _compare, _physics_profile
 
 XT = CFA("XTRANS")
@@ -301,10 +300,9 @@ def test_engine_output_does_not_depend_on_threads():
     options = UnprocessOptions(profile=profile, iso=6400, noise="physics", clean=True)
     sensor = RGBSensor(profile)
     outputs = []
-    for threads in (1, numba.config.NUMBA_NUM_THREADS):
-        numba.set_num_threads(threads)
-        outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
-    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    for threads in thread_counts():
+        with numba_threads(threads):
+            outputs.append(Simulation.codes(simulate(sensor, PHOTO, options, 3, engine=True).noisy))
     assert np.array_equal(*outputs)
 
 

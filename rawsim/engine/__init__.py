@@ -112,7 +112,12 @@ def _allow_runtime_overlap_checks() -> None:
 
 
 def set_threads(threads: int) -> None:
-    """Use ``threads`` threads in the engine's parallel loops (e.g. cores // jobs)."""
+    """Use ``threads`` threads in the engine's parallel loops (e.g. cores // jobs).
+
+    Configured first (:func:`configure`): numba starts its threads at the first
+    ``set_num_threads``, in the layer chosen then, for the life of the process.
+    """
     import numba
 
+    configure()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
