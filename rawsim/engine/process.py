@@ -89,7 +89,11 @@ def _span(q, r0, r1, c0, c1, h, w):
 
 @njit(**_JIT)
 def _mirror(b, q, r0, r1, c0, c1, h, w):
-    """Fill the out-of-image positions within reach ``q`` by reflection (no edge repeat)."""
+    """Fill the out-of-image positions within reach ``q`` by reflection (no edge repeat).
+
+    Callers pass ``q`` as ``np.int64``: numba compiles a function called with a literal
+    integer once for each literal (nine copies of this one, two of :func:`_wcd`).
+    """
     ia, ib, ja, jb = _span(q, r0, r1, c0, c1, h, w)
     jlo, jhi = HALO - q, c1 - c0 + HALO + q
     for i in range(ia, ib):
@@ -184,7 +188,7 @@ def _load_mosaic(raw, m, table, colors, ops, opf, r0, r1, c0, c1, h, w):
             site = (y & 1) * 2 + (x & 1)
             v = np.float32(raw[y, x])
             m[i, j] = _mosaic_value(v, site, colors[site], y, x, cy, cx, ops, opf)
-    _mirror(m, HALO, r0, r1, c0, c1, h, w)
+    _mirror(m, np.int64(HALO), r0, r1, c0, c1, h, w)
 
 
 @njit(inline="always", **_JIT)
@@ -627,7 +631,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_gv[k] = v if green else a + c
             o_cv[k] = zero if green else v - (a + c)
     for q in (g_h, g_v, c_h, c_v):
-        _mirror(q, 9, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(9), r0, r1, c0, c1, h, w)
     # 2. The decision: colour differences vary less along the edge.
     ia, ib, ja, jb = _span(7, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -638,7 +642,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_dh[k] = abs(ch0[k] - ch2[k])
             o_dv[k] = abs(cv0[k] - cv2[k])
     for q in (d_h, d_v):
-        _mirror(q, 7, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(7), r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         h00, h02, h11 = (
@@ -672,7 +676,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_hz[k] = np.float32(1.0) if horizontal else zero
             o_g[k] = gh[k] if horizontal else gv[k]
     for q in (hz, grn):
-        _mirror(q, 5, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(5), r0, r1, c0, c1, h, w)
     ia, ib, ja, jb = _span(5, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
         cm, x, g0 = cmap[i & 1, ja:jb], _at(m, i, ja, jb, 0), _at(grn, i, ja, jb, 0)
@@ -685,7 +689,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_rb[k] = g0[k] if c == 0 else zero  # green * r
             o_r0[k] = g0[k] if c == 2 else zero  # green * b (scratch)
     for q in (dif_r, dif_b, rb, red0):
-        _mirror(q, 5, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(5), r0, r1, c0, c1, h, w)
     # 3. Red and blue at green sites from the colour difference along the row/column.
     ia, ib, ja, jb = _span(4, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -707,7 +711,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_r[k] = red_g if c == 1 else (x[k] if c == 0 else zero)
             o_b[k] = blue_g if c == 1 else (x[k] if c == 2 else zero)
     for q in (red1, blue1):
-        _mirror(q, 4, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(4), r0, r1, c0, c1, h, w)
     # 4. Red at blue sites and blue at red sites, along the decided direction.
     ia, ib, ja, jb = _span(3, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -730,7 +734,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_dr[k] = r - g0[k]
             o_db[k] = bl - g0[k]
     for q in (red0, blue0, dif_r, dif_b):
-        _mirror(q, 3, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(3), r0, r1, c0, c1, h, w)
     # 5. Refining: green at R/B sites from the smoothed differences (reach 2) ...
     ia, ib, ja, jb = _span(2, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -749,7 +753,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_gh[k] = r0_0[k] - g2  # red − green (scratch)
             o_gv[k] = b0_0[k] - g2  # blue − green (scratch)
     for q in (grn2, g_h, g_v):
-        _mirror(q, 2, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(2), r0, r1, c0, c1, h, w)
     # ... red and blue at green sites from their neighbours' differences (reach 1) ...
     ia, ib, ja, jb = _span(1, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -773,7 +777,7 @@ def _menon(m, b, rgb, cmap, r0, r1, c0, c1, h, w):
             o_r[k], o_b[k] = r, bl
             o_c[k] = r - bl  # red − blue (scratch)
     for q in (red2, blue2, c_h):
-        _mirror(q, 1, r0, r1, c0, c1, h, w)
+        _mirror(q, np.int64(1), r0, r1, c0, c1, h, w)
     # ... and red at blue sites, blue at red sites from the smoothed R − B difference.
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     for i in range(ia, ib):
@@ -1023,12 +1027,12 @@ def process_kernel(
             elif method == 2:
                 _menon(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
             elif method == 3:
-                _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w, 0)
+                _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w, np.int64(0))
             else:
                 first = (bufs[13], bufs[14], bufs[15])  # wcd; bufs[:6] are free after it
-                _wcd(m, bufs, first, cmap, r0, r1, c0, c1, h, w, 2)
+                _wcd(m, bufs, first, cmap, r0, r1, c0, c1, h, w, np.int64(2))
                 for buf in first:
-                    _mirror(buf, 2, r0, r1, c0, c1, h, w)
+                    _mirror(buf, np.int64(2), r0, r1, c0, c1, h, w)
                 _correct(first, bufs, rgb, cmap, filters, r0, r1, c0, c1, h, w)
             _finish(
                 rgb,
