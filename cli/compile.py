@@ -29,61 +29,63 @@ BAYER = "unprocess: 8-bit photo, Bayer, physics noise"
 RENDER = "process: Bayer, every demosaic, 8/16-bit output"
 LENS = "unprocess: through a lens"
 XTRANS = "unprocess: X-Trans"
+FLOAT = "process: float output"
+LINEAR = "unprocess: linear EXR, Gaussian noise"
 
-#: (what it builds, the task whose outputs or kernels it needs or None, rawsim
-#: arguments), in the order they start: ``{in}`` is the folder of inputs, ``{out}``
-#: of outputs. Each command compiles what a user's run of its kind uses (input
-#: types, CFA, noise model, output type, lens). A task whose kernels share callees
-#: with another's waits for it, and loads those callees from the cache instead of
-#: compiling them a second time alongside.
-TASKS: tuple[tuple[str, str | None, str], ...] = (
+#: (what it builds, the tasks whose outputs or kernels it needs, rawsim arguments),
+#: in the order they start: ``{in}`` is the folder of inputs, ``{out}`` of outputs.
+#: Each command compiles what a user's run of its kind uses (input types, CFA, noise
+#: model, output type, lens). A task whose kernels (or their callees) another also
+#: compiles waits for it, and loads them from the cache instead of compiling them a
+#: second time alongside.
+TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
     (
         BAYER,
-        None,
+        (),
         "unprocess {in}/photo.png -o {out}/bayer -p sony_a7s2 --iso 1600 --noise physics --clean",
     ),
     (
         "unprocess: 16-bit photo, Poisson-Gaussian noise",
-        None,
+        (),
         "unprocess {in}/photo16.png -o {out}/u16 -p nikon_d850 --iso 3200 --noise poisson-gaussian",
     ),
-    (RENDER, BAYER, "process {out}/bayer/photo.dng -o {out}/png"),
-    ("process: float output", RENDER, "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
-    ("process: half size", RENDER, "process {out}/bayer/photo.dng -o {out}/half --half-size"),
+    (RENDER, (BAYER,), "process {out}/bayer/photo.dng -o {out}/png"),
+    (FLOAT, (RENDER,), "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
+    ("process: half size", (RENDER,), "process {out}/bayer/photo.dng -o {out}/half --half-size"),
     (
         "process: profiled denoise",
-        RENDER,
+        (RENDER,),
         "process {out}/bayer/photo.dng -o {out}/denoised --denoise profiled",
     ),
-    (XTRANS, BAYER, "unprocess {in}/photo.png -o {out}/xtrans -p fujifilm_xt3 --iso 800"),
-    ("process: X-Trans", XTRANS, "process {out}/xtrans/photo.dng -o {out}/xtrans_png"),
+    (XTRANS, (BAYER,), "unprocess {in}/photo.png -o {out}/xtrans -p fujifilm_xt3 --iso 800"),
+    ("process: X-Trans", (XTRANS,), "process {out}/xtrans/photo.dng -o {out}/xtrans_png"),
     (
         LENS,
-        BAYER,
+        (BAYER,),
         "unprocess {in}/photo.png -o {out}/lens -p canon_eos_700d --iso 800 "
         "--lens 'Canon EF-S 18-55mm f/3.5-5.6 IS STM' --focal-length 18 --aperture 3.5",
     ),
-    (
+    (  # the lens remap renders through the float output's kernel
         "process: lens correction",
-        LENS,
+        (LENS, FLOAT),
         "process {out}/lens/photo.dng -o {out}/lens_png --lens-correction auto",
     ),
     (
-        "unprocess: linear EXR, Gaussian noise",
-        None,
+        LINEAR,
+        (),
         "unprocess {in}/linear.exr -o {out}/linear -p nikon_d850 --iso 800 --noise gaussian",
     ),
-    (  # the linear EXR reaches 1.5: its DNG clips
+    (  # the linear EXR reaches 1.5: its DNG clips (the render's highlight kernels)
         "process: highlight reconstruction",
-        "unprocess: linear EXR, Gaussian noise",
+        (LINEAR, RENDER),
         "process {out}/linear/linear.dng -o {out}/reconstruct --highlights reconstruct",
     ),
     (
         "unprocess: monochrome sensor",
-        BAYER,
+        (BAYER,),
         "unprocess {in}/photo.png -o {out}/mono -p sony_a7s2 --iso 800 --sensor mono",
     ),
-    ("events", None, "events {in}/frames -o {out}/events --fps 100"),
+    ("events", (), "events {in}/frames -o {out}/events --fps 100"),
 )
 
 #: The line :mod:`rawsim.engine.compile_log` logs as a kernel's compile ends (its
@@ -178,13 +180,13 @@ def _bytecode(folder: Path) -> dict[Path, int]:
 
 
 def _schedule(folders: dict[str, Path], jobs: int):
-    """Run :data:`TASKS`, ``jobs`` at a time, each once the task it needs is done;
+    """Run :data:`TASKS`, ``jobs`` at a time, each once the tasks it needs are done;
     yield (what, seconds, kernels compiled) as each ends."""
     waiting, finished = list(TASKS), set()
     with ThreadPoolExecutor(jobs) as pool:
         running = {}
         while waiting or running:
-            for task in [t for t in waiting if t[1] is None or t[1] in finished]:
+            for task in [t for t in waiting if finished.issuperset(t[1])]:
                 if len(running) == jobs:
                     break
                 waiting.remove(task)

@@ -735,3 +735,27 @@ def test_engine_equals_the_reference_where_the_border_disagrees(pattern, monkeyp
     monkeypatch.setattr(reference, "HIGHLIGHT_HUE_SPREAD", 1e9)  # any border agrees
     _, trusting, _ = _engine_and_reference_mosaics(raw, config)
     assert np.abs(trusting - ref).max() > 100 * dn  # the spread mattered here
+
+
+def test_engine_pre_pass_has_one_signature_for_any_number_of_clipped_tiles():
+    """One clipped tile or many: the same compiled kernels (np.argwhere's tile lists
+    are C-ordered for one row, F-ordered for more; a second signature is a second
+    compile, after ``rawsim compile`` had built the first)."""
+    from rawsim.engine import highlights as eh
+    from rawsim.engine.highlights import TILE, reconstruct_mosaic
+    from rawsim.pipelines.process import engine_plan
+
+    kernels = (eh._blocks, eh._tile_sats, eh._estimates, eh._write)
+    raw = synthetic_raw("RGGB", h=2 * TILE * 4, w=2 * TILE * 4)
+    calm = (516 + (raw.data.astype(np.int64) - 516) // 3).astype(np.uint16)  # none clips
+    plan = engine_plan(raw, override(default_config(), highlights="reconstruct"), "tiff")
+    gains, at = plan.highlights
+    signatures = []
+    for spots in ([(10, 10)], [(10, 10), (200, 200), (10, 200)]):  # one tile, then three
+        data = calm.copy()
+        for y, x in spots:
+            data[y : y + 6, x : x + 6] = 16383
+        out, _ = reconstruct_mosaic(data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+        assert (out != data).any()
+        signatures.append([len(k.signatures) for k in kernels])
+    assert signatures[1] == signatures[0]

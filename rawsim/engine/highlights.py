@@ -649,7 +649,9 @@ def reconstruct_mosaic(
     clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
     if not clipped.any():
         return data, opf
-    listed = np.argwhere(_around(clipped))  # the tiles read: each one's index, its slot
+    # np.argwhere gives an F-ordered array of two or more rows, a C one of one: made C
+    # always, so that the kernels have one signature whatever clipped.
+    listed = np.ascontiguousarray(np.argwhere(_around(clipped)))  # the tiles read
     slot = np.full(clipped.shape, -1, np.int64)
     slot[listed[:, 0], listed[:, 1]] = np.arange(len(listed))
     means = np.empty((len(listed), 3, t, t), np.float32)
@@ -658,7 +660,7 @@ def reconstruct_mosaic(
     sats = _tile_sats(
         means, flags, slot, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
     )
-    tiles = np.argwhere(clipped)
+    tiles = np.ascontiguousarray(np.argwhere(clipped))
     shares = np.zeros((len(tiles), 3, t, t), np.float32)
     lows = np.zeros((len(tiles), t, t), np.float32)
     _estimates(
