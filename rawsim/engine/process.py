@@ -1135,7 +1135,9 @@ def periodic_kernel(
             r1, c1 = min(h, r0 + tile_rows), min(w, c0 + tile_cols)
             _load_planes(raw, m, rows, cols, r0, c0, cmap, table, pre_ops, pre_f, h, w)
             result = xt.demosaic_planes(m, est, buf, scratch, geometry)
-            xt.planes_to_image(result, halo_rows, halo_cols, r1 - r0, c1 - c0, rgb, HALO, HALO)
+            xt.planes_to_image(
+                result, halo_rows, halo_cols, r1 - r0, c1 - c0, rgb, np.int64(HALO), np.int64(HALO)
+            )
             _finish(
                 rgb,
                 post_ops,
