@@ -204,7 +204,6 @@ def test_shot_noise_rate_and_threshold_mismatch_are_seeded():
 
 
 def test_stream_is_the_same_for_any_thread_count():
-
     g = np.random.default_rng(3)
     frames = [np.log(g.random((64, 96)) + 0.05) for _ in range(4)]
     params = EventParams(sigma_threshold=0.03, leak_rate_hz=1.0, shot_noise_rate_hz=5.0)
@@ -250,7 +249,6 @@ def test_torch_reference_gives_the_engines_events_bit_for_bit(params, refractory
 def test_time_order_is_a_stable_sort_for_any_thread_count():
     """The parallel counting sort equals numpy's stable argsort (ties in input order),
     with many ties and clustered times, on 1 thread and on all."""
-
     from rawsim.events.kernels import time_order
 
     g = np.random.default_rng(8)
