@@ -391,7 +391,7 @@ def _estimates(
                             made = mu * hue[c] / max(hue[u], floor)
                             rho = min(rho, made / max(_mean(means, slot, c, y, j), floor))
                         kept = np.float32(1.0) - _refuted(rho, margin)
-                        kappa = max(kappa * kept, white * kept)
+                        kappa = white * kept  # at any depth
                     if blown and acc[3] > 0 and hue[1] <= min(hue[0], hue[2]):
                         # least green: a purple mixed from a border that disagrees?
                         kappa = kappa * _agreement(
@@ -426,8 +426,9 @@ def _estimates(
 
 @njit(inline="always", **_JIT)
 def _sums(raw, cmap, slots, table, y, x, sums):
-    """Each colour's sum and count over the 3 × 3 neighbourhood of site (y, x), into
-    ``sums`` (6, float64: R, G, B sums, then counts)."""
+    """Each colour's sums over the 3 × 3 neighbourhood of site (y, x), into ``sums`` (9,
+    float64: R, G, B sums of squares, sums, then counts; values below 0 taken as 0),
+    for the brightness-weighted means of :func:`_value`."""
     h, w = raw.shape
     ph, pw = cmap.shape
     sums[:] = 0.0
@@ -437,8 +438,10 @@ def _sums(raw, cmap, slots, table, y, x, sums):
         q = x0 % pw
         for xx in range(x0, x1):
             k = cmap[p, q]
-            sums[k] += np.float64(table[slots[p, q], raw[yy, xx]])
-            sums[3 + k] += 1.0
+            lit = max(np.float64(table[slots[p, q], raw[yy, xx]]), 0.0)
+            sums[k] += lit * lit
+            sums[3 + k] += lit
+            sums[6 + k] += 1.0
             q = q + 1 if q + 1 < pw else 0
         p = p + 1 if p + 1 < ph else 0
 
@@ -447,13 +450,15 @@ def _sums(raw, cmap, slots, table, y, x, sums):
 def _value(sums, c, f, share, low, headroom, gain):
     """The rebuilt value of colour ``c`` in a block with clip flags ``f``, hue ``share``
     (3) and least level ``low``: the block's hue at the brightness of the site's
-    neighbourhood (``sums``, :func:`_sums`), the means there of the colours the block
-    did not clip over their shares (float64), raised to ``low``, at most ``headroom``
-    × the colour's clip level ``gain`` (the reference's ``_level_estimates``)."""
+    neighbourhood (``sums``, :func:`_sums`), the brightness-weighted means there (Σ v²
+    / Σ v, 0 where all are 0) of the colours the block did not clip over their shares
+    (float64), raised to ``low``, at most ``headroom`` × the colour's clip level
+    ``gain`` (the reference's ``_level_estimates`` of its ``_local_levels``)."""
     num, den = 0.0, 0.0
     for k in range(3):
-        if not f >> k & 1 and sums[3 + k] > 0:
-            num += sums[k] / sums[3 + k]
+        if not f >> k & 1 and sums[6 + k] > 0:
+            if sums[3 + k] > 0:
+                num += sums[k] / sums[3 + k]
             den += np.float64(share[k])
     level = num / den if den > 0 else 0.0
     level = max(level, np.float64(low))
@@ -466,7 +471,7 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
     clip flags are ``f`` (``site``: as :func:`_write` takes it): :func:`_value` over
     the site's neighbourhood, where each neighbour of a colour the block did not clip
     that is itself a rebuilt site counts at its first fit's value (a clipped value is
-    only a lower bound). ``sums``, ``first``: scratch (6,) float64."""
+    only a lower bound). ``sums``, ``first``: scratch (9,) float64."""
     cmap, slots, table, flags, slot, shares, lows, _, hb, wb, b, headroom, gains, level, index = (
         site
     )
@@ -481,7 +486,7 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
             k = cmap[p, q]
             v = table[slots[p, q], raw[yy, xx]]
             q = q + 1 if q + 1 < pw else 0
-            sums[3 + k] += 1.0
+            sums[6 + k] += 1.0
             if not f >> k & 1 and v >= level[k]:  # read by the fit, and clipped
                 ny, nx = min(yy // b, hb - 1), min(xx // b, wb - 1)
                 g = _at(flags, slot, ny, nx)
@@ -490,7 +495,9 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
                     _sums(raw, cmap, slots, table, yy, xx, first)
                     share, low = shares[n, :, ny % t, nx % t], lows[n, ny % t, nx % t]
                     v = max(v, _value(first, k, g, share, low, headroom, gains[k]))
-            sums[k] += np.float64(v)
+            lit = max(np.float64(v), 0.0)
+            sums[k] += lit * lit
+            sums[3 + k] += lit
         p = p + 1 if p + 1 < ph else 0
     n = index[by // t, bx // t]
     return _value(
@@ -545,7 +552,7 @@ def _write(raw, out, site, scale, black, span, applied, threads):
             if n >= tiles.shape[0]:
                 break
             top = 0.0
-            sums, first = np.empty(6, np.float64), np.empty(6, np.float64)
+            sums, first = np.empty(9, np.float64), np.empty(9, np.float64)
             i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
             for by in range(i0, min(i0 + t, hb)):
                 for bx in range(j0, min(j0 + t, wb)):

@@ -108,25 +108,28 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     ``HIGHLIGHT_HUE_PRIOR`` in log odds, so where both predict alike the border's hue
     is kept), so a white highlight in coloured surroundings stays white and a
     coloured one keeps its hue.
-    Where two or three clipped, one colour cannot test it: the hue is blended
-    towards neutral by how little of the box around the block is unclipped (κ =
-    min(1, 2 × that share), the box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the
-    core of a large blown area is white (on the benchmark, white light at depth is
-    the better guess); but where two clipped and the third lies below their clip
-    levels, white light cannot have made the block, and κ is raised to how far below
-    (:func:`_white_refuted`), so a sky whose green and blue clipped stays blue;
-    unless the border's hue is refuted too, putting a clipped colour below its clipped
-    mean (:func:`_hue_refuted`): then neither is kept, and the block goes neutral, however
-    near the border (the hue's κ falls by how surely it is refuted). Where two or three
+    Where three clipped, nothing tests it: the hue is blended towards neutral by how
+    little of the box around the block is unclipped (κ = min(1, 2 × that share), the
+    box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the core of a large blown area is
+    white (on the benchmark, white light at depth is the better guess). Where two
+    clipped, the third tests white light, at any depth: white light would have put it
+    at least at their clip levels, so κ is how far below it lies
+    (:func:`_white_refuted`): a sky whose green and blue clipped stays blue, and a
+    highlight whose third colour nears their levels stays white, beside a coloured
+    border too; unless the border's hue is refuted as well, putting a clipped colour
+    below its clipped mean (:func:`_hue_refuted`): then neither is kept, and the block
+    goes neutral (κ falls by how surely the hue is refuted). Where two or three
     clipped and the hue gives green the least share, κ also falls by the border's spread
     of hue (``HIGHLIGHT_HUE_SPREAD``): brown and blue borders average to a purple that
     none of them has.
 
     Each site that clipped (in a block where its colour clipped; its unclipped
     neighbours measured their light and keep it) then becomes max(its value, share ×
-    level): the level is fitted, at that site, to the means over its 3 × 3 neighbourhood of the
-    colours its block did not clip (on RGB, the pixel's own), or raised to the
-    block's largest clipped mean over its share where that is higher. The fit is made
+    level): the level is fitted, at that site, to the brightness-weighted means
+    (:func:`_local_levels`) over its 3 × 3 neighbourhood of the colours its block did
+    not clip (on RGB, the pixel's own), so a site at an edge is lit as its bright side
+    is, or raised to the block's largest clipped mean over its share where that is
+    higher. The fit is made
     twice: the second reads the neighbours the first rebuilt at their rebuilt values
     (a clipped value is only a lower bound). Differentiable almost everywhere;
     support: (largest scale + border + 2) blocks.
@@ -170,7 +173,7 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     clip_site = (grow(clipped.to(x.dtype)).gather(1, index) > 0) & (x >= level)
     out = x
     for _ in range(2):  # the second fit reads rebuilt neighbours, not their clipped values
-        est_site = _level_estimates(_local_means(out, cmap), share, floor, free, g)
+        est_site = _level_estimates(_local_levels(out, cmap), share, floor, free, g)
         out = torch.where(clip_site, torch.maximum(x, est_site.gather(1, index)), x)
     return out
 
@@ -241,11 +244,12 @@ def _estimates(means, clipped, anyclip, g):
     count = clipped.sum(1, keepdim=True)  # colours clipped in each block
     hue = hue.to(dtype)
     # Two clipped: the border's hue wins over white light by how surely the third colour
-    # refutes white, unless the hue is refuted too (then neither is kept: neutral). A
-    # refuted hue is not kept near the border either: its κ falls by how surely.
+    # refutes white, at any depth (beside the border too: a white highlight in coloured
+    # surroundings stays white), unless the hue is refuted too (then neither is kept:
+    # neutral); its κ falls by how surely.
     hue_kept = 1 - _hue_refuted(means, clipped, hue)
     refuted = _white_refuted(means, clipped, g) * hue_kept
-    kappa = torch.where(count == 2, torch.maximum(kappa * hue_kept, refuted), kappa)
+    kappa = torch.where(count == 2, refuted, kappa)
     # A hue with the least green, averaged from a border that disagrees (brown and
     # blue: purple), is no border block's: kept by how well the border agrees.
     least_green = hue[:, 1:2] <= hue.amin(1, keepdim=True)
@@ -291,13 +295,19 @@ def _refuted(rho):
     return ((1 - rho.clamp(0.0, 1.0)) / HIGHLIGHT_WHITE_MARGIN).clamp(0.0, 1.0)
 
 
-def _local_means(x: torch.Tensor, cmap: torch.Tensor) -> torch.Tensor:
-    """(B, 3, H, W): each colour's mean over each site's 3 × 3 neighbourhood of the
-    mosaic ``x`` (B, 1, H, W) (sites inside the image; NaN where a colour has none)."""
+def _local_levels(x: torch.Tensor, cmap: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W): each colour's brightness-weighted mean, Σ v² / Σ v (values below 0
+    taken as 0; 0 where all are), over each site's 3 × 3 neighbourhood of the mosaic
+    ``x`` (B, 1, H, W) (sites inside the image; NaN where a colour has none). The
+    brighter neighbours count most: a clipped site at an edge (a twig across a blown
+    sky) is lit as its bright side is, not as the mean with the dark side."""
     onehot = (cmap == torch.arange(3, device=x.device).reshape(1, 3, 1, 1)).to(x.dtype)
-    sums = F.avg_pool2d(onehot * x, 3, stride=1, padding=1)
+    v = onehot * x.clamp_min(0.0)
+    squares = F.avg_pool2d(v * v, 3, stride=1, padding=1)
+    sums = F.avg_pool2d(v, 3, stride=1, padding=1)
     counts = F.avg_pool2d(onehot, 3, stride=1, padding=1).expand_as(sums)
-    return torch.where(counts > 0, sums / torch.where(counts > 0, counts, 1.0), torch.nan)
+    level = torch.where(sums > 0, squares / torch.where(sums > 0, sums, 1.0), 0.0)
+    return torch.where(counts > 0, level, torch.nan)
 
 
 def _level_estimates(seen, share, floor, free, g):
