@@ -286,7 +286,6 @@ def test_a_refuted_border_hue_is_not_kept_beside_the_border_either(pattern):
         assert abs(float(got[1] / got[2]) - 1) < 0.05, (lo, hi)
 
 
-
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_a_white_highlight_whose_green_and_blue_clipped_stays_white_beside_a_blue_border(
     pattern,
@@ -352,6 +351,7 @@ def test_local_levels_weigh_the_bright_side():
     assert float(levels[0, 1, 1, 1]) == 0.0
     one = torch.zeros(1, 1, 1, 1)
     assert bool(_local_levels(one, cmap[..., :1, :1])[0, 1:].isnan().all())
+
 
 def test_nothing_clipped_is_the_identity_and_values_are_never_lowered():
     cfa = CFA("RGGB")
@@ -770,7 +770,6 @@ def test_engine_equals_the_reference_where_the_border_hue_is_refuted(pattern):
     _sky_in_dn(pattern, 170, (0.15, 1.0, 1.0), (brown, brown))
 
 
-
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_engine_equals_the_reference_on_a_white_highlight_beside_a_blue_border(pattern):
     """White light (1.9 × white: G and B clipped, R not) in a blue ground, in DN, with
@@ -784,6 +783,7 @@ def test_engine_equals_the_reference_on_a_white_highlight_beside_a_blue_border(p
     ours, ref, rebuilt = _engine_and_reference_mosaics(replace_raw(raw, data=data), config)
     assert (rebuilt != data).sum() > 10000
     assert np.abs(ours - ref).max() <= dn * 1.01
+
 
 def test_a_border_of_two_hues_does_not_make_a_purple():
     """Blocks with G and B clipped and R measured, whose border is half brown and half
