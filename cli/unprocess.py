@@ -127,10 +127,12 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
 )
 @click.option(
     "--wb-inverse",
-    type=click.Choice(["safe", "exact"]),
-    default="safe",
+    type=click.Choice(["exact", "safe"]),
+    default="exact",
     show_default=True,
-    help="Inverse white balance: highlight-preserving, or exact.",
+    help="Inverse white balance: exact (divide by the gains), or Brooks et al.'s "
+    "highlight-preserving one, whose near-white highlights render pink unless "
+    "clipped (--highlights clip).",
 )
 @click.option(
     "--strip-metadata",

@@ -49,7 +49,7 @@ def unprocess(
     transfer: str = "srgb",
     exposure_ev: float = 0.0,
     vignetting: float = 0.0,
-    safe_white_balance: bool = True,
+    safe_white_balance: bool = False,
     display_referred: bool = True,
     code_max: int | None = None,
     lens: LensParams | dict | None = None,
@@ -76,7 +76,8 @@ def unprocess(
         transfer: as ``--transfer``.
         exposure_ev: as ``--exposure``.
         vignetting: as ``--vignetting``.
-        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
+        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact`` (the
+            default).
         display_referred: False for scene-linear float images (as EXR inputs).
         code_max: the full-scale code of integer ``images`` (255 for 8-bit).
         lens: as ``--lens``, ``--focal-length``, ``--aperture``: a

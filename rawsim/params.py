@@ -45,7 +45,8 @@ class UnprocessParams:
         tone: inverse tone curve applied to display-referred input.
         transfer: transfer function of display-referred input (``srgb``, ``gamma:G``, ``linear``).
         vignetting: strength of the radial lens-shading model added (0 = none).
-        safe_white_balance: use the highlight-preserving inverse white balance.
+        safe_white_balance: use the highlight-preserving inverse white balance (Brooks
+            et al.'s; off by default: the exact inverse, ``--wb-inverse exact``).
         ccm_bias: bias of a seed camera → sRGB matrix, subtracted before its inverse.
     """
 
@@ -57,7 +58,7 @@ class UnprocessParams:
     tone: str = "none"
     transfer: str = "srgb"
     vignetting: float = 0.0
-    safe_white_balance: bool = True
+    safe_white_balance: bool = False
     ccm_bias: tuple[float, float, float] | None = None
 
     @property

@@ -78,7 +78,8 @@ class RawPairs:
         transfer: as ``--transfer``.
         exposure_ev: as ``--exposure``.
         vignetting: as ``--vignetting``.
-        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact``.
+        safe_white_balance: True for ``--wb-inverse safe``, False for ``exact`` (the
+            default).
         sensor: ``rgb`` or ``mono``, as ``--sensor``.
         cfa: another CFA layout for the profile, as ``--cfa`` (e.g. ``"XTRANS"``);
             None keeps the profile's.
@@ -101,7 +102,7 @@ class RawPairs:
         transfer: str = "srgb",
         exposure_ev: float = 0.0,
         vignetting: float = 0.0,
-        safe_white_balance: bool = True,
+        safe_white_balance: bool = False,
         sensor: str = "rgb",
         cfa: str | None = None,
         clean: bool = True,

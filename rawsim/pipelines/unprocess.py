@@ -387,7 +387,8 @@ class UnprocessOptions:
         tone, transfer: display decoding of 8/16-bit inputs.
         exposure_ev: exposure in stops applied to linear light (all inputs).
         vignetting: strength of the added lens shading (0 = none).
-        safe_white_balance: highlight-preserving inverse white balance.
+        safe_white_balance: highlight-preserving inverse white balance (False: the
+            exact one, the default).
         device: ``cpu``, ``cuda`` or ``auto``.
         seed: the run's seed (recorded in the sidecar).
         sensor: ``rgb`` (the profile's CFA: Bayer, X-Trans or any periodic layout;
@@ -411,7 +412,7 @@ class UnprocessOptions:
     transfer: str = "srgb"
     exposure_ev: float = 0.0
     vignetting: float = 0.0
-    safe_white_balance: bool = True
+    safe_white_balance: bool = False
     device: str = "cpu"
     seed: int = 0
     sensor: str = "rgb"
