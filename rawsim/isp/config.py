@@ -91,9 +91,10 @@ HIGHLIGHT_BORDER = 4
 #: clip (the same sky or lamp, a step darker) outweigh darker things beside the
 #: region (branches across a sky).
 HIGHLIGHT_BORDER_POWER = 3
-#: ``reconstruct``: where two or three colours clip, the border's hue fades to neutral
+#: ``reconstruct``: where all three colours clip, the border's hue fades to neutral
 #: with depth: it keeps κ = min(1, 2 × the unclipped share of the box of this
 #: half-width around the block), so a blown area's core, ≳ 16 blocks deep, is white.
+#: (Where two clip, the third decides at any depth: ``HIGHLIGHT_WHITE_MARGIN``.)
 HIGHLIGHT_NEUTRAL = 16
 #: ``reconstruct``: where exactly two colours clip, white light would put the third at
 #: least at their clip levels. The lower it lies, the surer the light is coloured: at

@@ -129,10 +129,9 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     (:func:`_local_levels`) over its 3 × 3 neighbourhood of the colours its block did
     not clip (on RGB, the pixel's own), so a site at an edge is lit as its bright side
     is, or raised to the block's largest clipped mean over its share where that is
-    higher. The fit is made
-    twice: the second reads the neighbours the first rebuilt at their rebuilt values
-    (a clipped value is only a lower bound). Differentiable almost everywhere;
-    support: (largest scale + border + 2) blocks.
+    higher. The fit is made twice: the second reads the neighbours the first rebuilt
+    at their rebuilt values (a clipped value is only a lower bound). Differentiable
+    almost everywhere; support: (largest scale + border + 2) blocks.
     """
     check_image(x, "image")
     g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
