@@ -1,6 +1,7 @@
 """Train :class:`rawsim.denoise.learned.RefineNet` on pairs rawsim makes, and write its weights.
 
-1. **Pairs.** ``rawsim unprocess --randomize --clean --format npz`` turns each
+1. **Pairs.** ``rawsim unprocess --randomize --clean --format npz --wb-inverse safe``
+   (the shipped weights' inverse white balance, the default when they were made) turns each
    photo of ``--images`` (default: the photos vendored in tests/data: srgb,
    srgb16 and exr, none from the Kodak set) into a noisy Bayer capture and its
    noise-free twin, for every profile of :data:`PROFILES` and seed of
@@ -72,6 +73,9 @@ def make_pairs(images: list[Path], work: Path, profiles=PROFILES, seeds=SEEDS) -
             cmd = ["rawsim", "unprocess", *map(str, images), "-o", str(out), "--profile", profile]
             cmd += ["--iso-range", f"{iso[0]:g}", f"{iso[1]:g}", "--randomize", "--clean"]
             cmd += ["--format", "npz", "--seed", str(seed), "-q"]
+            # The shipped weights were trained on pairs made with Brooks's inverse white
+            # balance, unprocess's default until stop 57: kept, so this remakes them.
+            cmd += ["--wb-inverse", "safe"]
             subprocess.run(cmd, check=True)
 
 
