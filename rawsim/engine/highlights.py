@@ -370,18 +370,20 @@ def _estimates(
                     if f == 0:
                         continue
                     _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 0, 4)
-                    s = neutral
-                    i0, i1 = max(y - s, 0), min(y + s + 1, hb)
-                    j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                    _box(sats, slot, i0, i1, j0, j1, box, NEAR, FIELDS)
-                    free = ((i1 - i0) * (j1 - j0) - box[NEAR]) / np.float64(
-                        (2 * s + 1) * (2 * s + 1)
-                    )
-                    kappa = np.float32(min(2.0 * free, 1.0))
                     blown = f == 3 or f >= 5  # two or three colours clipped
                     for c in range(3):
                         hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
-                    if f == 3 or f == 5 or f == 6:  # two: are white light and the hue ruled out?
+                    kappa = np.float32(1.0)  # read only where blown
+                    if f == 7:  # three: the hue fades to white with depth
+                        s = neutral
+                        i0, i1 = max(y - s, 0), min(y + s + 1, hb)
+                        j0, j1 = max(j - s, 0), min(j + s + 1, wb)
+                        _box(sats, slot, i0, i1, j0, j1, box, NEAR, FIELDS)
+                        free = ((i1 - i0) * (j1 - j0) - box[NEAR]) / np.float64(
+                            (2 * s + 1) * (2 * s + 1)
+                        )
+                        kappa = np.float32(min(2.0 * free, 1.0))
+                    elif blown:  # two: are white light and the hue ruled out?
                         u = 2 if f == 3 else (1 if f == 5 else 0)
                         mu = _mean(means, slot, u, y, j)
                         need = max(level[(u + 1) % 3], level[(u + 2) % 3])
@@ -425,6 +427,16 @@ def _estimates(
 
 
 @njit(inline="always", **_JIT)
+def _add(sums, k, v):
+    """Site value ``v`` of colour ``k`` into ``sums`` (:func:`_sums`' layout): its square
+    and itself (below 0 taken as 0), and one to the count."""
+    lit = max(np.float64(v), 0.0)
+    sums[k] += lit * lit
+    sums[3 + k] += lit
+    sums[6 + k] += 1.0
+
+
+@njit(inline="always", **_JIT)
 def _sums(raw, cmap, slots, table, y, x, sums):
     """Each colour's sums over the 3 × 3 neighbourhood of site (y, x), into ``sums`` (9,
     float64: R, G, B sums of squares, sums, then counts; values below 0 taken as 0),
@@ -437,11 +449,7 @@ def _sums(raw, cmap, slots, table, y, x, sums):
     for yy in range(y0, y1):
         q = x0 % pw
         for xx in range(x0, x1):
-            k = cmap[p, q]
-            lit = max(np.float64(table[slots[p, q], raw[yy, xx]]), 0.0)
-            sums[k] += lit * lit
-            sums[3 + k] += lit
-            sums[6 + k] += 1.0
+            _add(sums, cmap[p, q], table[slots[p, q], raw[yy, xx]])
             q = q + 1 if q + 1 < pw else 0
         p = p + 1 if p + 1 < ph else 0
 
@@ -486,7 +494,6 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
             k = cmap[p, q]
             v = table[slots[p, q], raw[yy, xx]]
             q = q + 1 if q + 1 < pw else 0
-            sums[6 + k] += 1.0
             if not f >> k & 1 and v >= level[k]:  # read by the fit, and clipped
                 ny, nx = min(yy // b, hb - 1), min(xx // b, wb - 1)
                 g = _at(flags, slot, ny, nx)
@@ -495,9 +502,7 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
                     _sums(raw, cmap, slots, table, yy, xx, first)
                     share, low = shares[n, :, ny % t, nx % t], lows[n, ny % t, nx % t]
                     v = max(v, _value(first, k, g, share, low, headroom, gains[k]))
-            lit = max(np.float64(v), 0.0)
-            sums[k] += lit * lit
-            sums[3 + k] += lit
+            _add(sums, k, v)
         p = p + 1 if p + 1 < ph else 0
     n = index[by // t, bx // t]
     return _value(
