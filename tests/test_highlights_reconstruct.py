@@ -43,6 +43,13 @@ def scene(h, w, hue, peak, radius, base=0.25):
     return (colour * lum)[None].float()
 
 
+def radii(size):
+    """Pixel rows, columns and distances to the centre of a ``size`` × ``size`` image
+    ((H, W) each; the distances float32)."""
+    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
+    return y, x, (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+
+
 def mosaic_of(rgb, cfa):
     h, w = rgb.shape[-2:]
     ph, pw = cfa.period
@@ -151,8 +158,7 @@ def test_a_large_region_takes_its_border_hue(pattern):
     unclipped site, yet gets the border's hue (a clip alone gives a hue far off)."""
     cfa = CFA(pattern)
     size = 240
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    _, _, r = radii(size)
     lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5  # a broad sky-like dome
     rgb = (torch.tensor([1.6, 0.5, 0.35])[:, None, None] * lum)[None]  # R alone clips
     truth, cmap = mosaic_of(rgb, cfa)
@@ -175,8 +181,7 @@ def rebuilt_core(pattern, colour, size=240, half=30):
     over the central (2 ``half``)² pixels, the colours that clipped somewhere and the
     number of clipped sites."""
     cfa = CFA(pattern)
-    y, x = torch.meshgrid(torch.arange(size), torch.arange(size), indexing="ij")
-    r = (((y - size / 2) ** 2 + (x - size / 2) ** 2) ** 0.5).float()
+    _, _, r = radii(size)
     truth, cmap = mosaic_of(colour(r)[None], cfa)
     clipped = clip_sensor(truth, cmap)
     out = reconstruct_highlights(clipped, GAINS, cfa)
@@ -277,8 +282,7 @@ def test_a_refuted_border_hue_is_not_kept_beside_the_border_either(pattern):
     (G = B) as the core is; it took the ground's hue by nearness (G/B 1.18–1.29 at
     3–20 px: green, where the sky's is 0.83; in a real sky between branches, magenta)."""
     cfa = CFA(pattern)
-    y, x = torch.meshgrid(torch.arange(240), torch.arange(240), indexing="ij")
-    r = (((y - 120) ** 2 + (x - 120) ** 2) ** 0.5).float()
+    _, _, r = radii(240)
     truth, cmap = mosaic_of(sky_over_ground(r)[None], cfa)
     out = reconstruct_highlights(clip_sensor(truth, cmap), GAINS, cfa)
     for lo, hi in ((80, 90), (90, 97)):
@@ -295,8 +299,7 @@ def test_a_white_highlight_whose_green_and_blue_clipped_stays_white_beside_a_blu
     room's hue is not taken beside the border either. Its rim, 4–20 px inside, is
     rebuilt white: G = B = R (the room's hue by nearness gave G/B 0.73–0.80)."""
     cfa = CFA(pattern)
-    y, x = torch.meshgrid(torch.arange(240), torch.arange(240), indexing="ij")
-    r = (((y - 120) ** 2 + (x - 120) ** 2) ** 0.5).float()
+    _, _, r = radii(240)
     lamp = torch.sigmoid(60 - r)
     rgb = torch.tensor([0.3, 0.6, 0.9])[:, None, None] * (1 - lamp) + 1.9 * lamp
     truth, cmap = mosaic_of(rgb[None], cfa)
@@ -307,16 +310,21 @@ def test_a_white_highlight_whose_green_and_blue_clipped_stays_white_beside_a_blu
         assert abs(float(got[0] / got[1]) - 1) < 0.02, (lo, hi)
 
 
+def twig_lines(y, x):
+    """Where dark lines one pixel wide cross an image, every 23 px each way (rows and
+    columns ``y``, ``x``: tensors or arrays of one shape)."""
+    return ((x % 23) == 7) | ((y % 23) == 13)
+
+
 def sky_with_twigs(pattern):
     """A blue dome of sky (G and B clipped, R not) crossed by dark twigs one pixel wide
     (8 % of the sky, every 23 px each way): the CFA's colour map, the truth mosaic and
     its clipped copy, and where the twigs are (H, W)."""
     cfa = CFA(pattern)
-    y, x = torch.meshgrid(torch.arange(240), torch.arange(240), indexing="ij")
-    r = (((y - 120) ** 2 + (x - 120) ** 2) ** 0.5).float()
+    y, x, r = radii(240)
     lum = 0.6 + 1.0 * torch.clamp(1 - r / 110, min=0) ** 0.5
     sky = torch.tensor([0.3, 0.8, 1.5])[:, None, None] * lum
-    twig = ((x % 23) == 7) | ((y % 23) == 13)
+    twig = twig_lines(y, x)
     truth, cmap = mosaic_of(torch.where(twig, sky * 0.08, sky)[None], cfa)
     return cfa, cmap, truth, clip_sensor(truth, cmap), twig & (r < 60)
 
@@ -779,7 +787,7 @@ def test_engine_equals_the_reference_on_a_white_highlight_beside_a_blue_border(p
     raw, config, ref, dn = _sky_in_dn(pattern, 170, (1.9 / 2.1, 1.0, 1.0), (blue, blue))
     data = raw.data.copy()
     y, x = np.mgrid[0 : data.shape[0], 0 : data.shape[1]]
-    data[((x % 23) == 7) | ((y % 23) == 13)] = 516 + 800
+    data[twig_lines(y, x)] = 516 + 800
     ours, ref, rebuilt = _engine_and_reference_mosaics(replace_raw(raw, data=data), config)
     assert (rebuilt != data).sum() > 10000
     assert np.abs(ours - ref).max() <= dn * 1.01
@@ -857,8 +865,7 @@ def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inve
     from rawsim_cli.main import cli
     from tests.conftest import DATA
 
-    src = tmp_path / "kodim20_crop.png"
-    src.write_bytes((DATA / "kodak" / "kodim20_crop.png").read_bytes())
+    src = DATA / "kodak" / "kodim20_crop.png"
     runner = CliRunner()
     flags = [] if wb_inverse == "exact" else ["--wb-inverse", "safe"]
     args = ["unprocess", str(src), "-o", str(tmp_path / "raw"), "-p", "sony_a7s2"]
