@@ -8,7 +8,9 @@ the gain), then runs
 the same :func:`rawsim.engine.process._finish` as the other kernels (the RGB
 stages after the lens stage, tone/transfer, quantisation, orientation).
 :func:`correct_lens` and :func:`add_lens` are the numpy twins of the torch
-functions, for pipelines without gradients (unprocess).
+functions, for pipelines without gradients (unprocess). :func:`correct_mosaic_tca`
+is the process engine's pre-pass that takes lateral CA out of a Bayer mosaic
+(the twin of :func:`rawsim.isp.lens.correct_mosaic_tca`).
 
 Arithmetic is float32 in the reference's order of operations, so the two agree
 to rounding. numba caches this kernel keyed on this file only: after editing
@@ -22,10 +24,21 @@ import numpy as np
 from numba import njit, prange
 
 from rawsim.engine import configure
-from rawsim.engine.process import HALO, OUT_FLOAT, TILE_COLS, TILE_ROWS, _finish, _rgb_buffers
+from rawsim.engine.process import (
+    HALO,
+    OP_LEVELS,
+    OP_ROOT,
+    OUT_FLOAT,
+    TILE_COLS,
+    TILE_ROWS,
+    _finish,
+    _mosaic_value,
+    _rgb_buffers,
+    _to_root,
+)
 from rawsim.engine.tiles import next_tile
 from rawsim.errors import ParameterError, check_choice
-from rawsim.io.lensfun import LensField, LensParams, lens_field
+from rawsim.io.lensfun import LensField, LensParams, lens_field, mosaic_tca_fields
 from rawsim.resample import FIRST, PHASES, TAPS, lanczos_table
 
 configure()
@@ -59,61 +72,84 @@ def _tap(src, y, x, k, h, w, padding):
     return src[yy, xx, k]
 
 
+@njit(inline="always", **_JIT)
+def _sample(src, c, table, k, t, f, dx, dy, i, j, padding):
+    """Output pixel (i, j) of ``src``'s channel ``c`` through the table's channel ``k``,
+    at knot ``t`` + ``f`` of radius, (dx, dy) from the centre: the Lanczos-3 sample,
+    kept within the range of the 2 × 2 pixels around it, times the gain."""
+    h, w = src.shape[0], src.shape[1]
+    weights = _WEIGHTS
+    lo_r, hi_r = table[t, k, 0], table[t + 1, k, 0]
+    lo_g, hi_g = table[t, k, 1], table[t + 1, k, 1]
+    ratio = lo_r + f * (hi_r - lo_r)
+    gain = lo_g + f * (hi_g - lo_g)
+    m = ratio - np.float32(1.0)
+    ox, oy = dx * m, dy * m
+    fx, fy = np.floor(ox), np.floor(oy)
+    phases, half = np.float32(PHASES), np.float32(0.5)
+    px, py = int((ox - fx) * phases + half), int((oy - fy) * phases + half)
+    x0, y0 = j + int(fx) + FIRST, i + int(fy) + FIRST
+    inside = 0 <= x0 and x0 + TAPS <= w and 0 <= y0 and y0 + TAPS <= h
+    acc = np.float32(0.0)
+    if inside:  # all taps in the frame: no padding to look up
+        for b in range(TAPS):
+            row = np.float32(0.0)
+            for a in range(TAPS):
+                row += weights[px, a] * src[y0 + b, x0 + a, c]
+            acc += weights[py, b] * row
+    else:
+        for b in range(TAPS):
+            row = np.float32(0.0)
+            for a in range(TAPS):
+                row += weights[px, a] * _tap(src, y0 + b, x0 + a, c, h, w, padding)
+            acc += weights[py, b] * row
+    # no ringing: within the range of the 2 × 2 pixels around the sample
+    ya, xa = y0 - FIRST, x0 - FIRST  # the tap at the sample's floor
+    if inside:
+        a0, a1 = src[ya, xa, c], src[ya, xa + 1, c]
+        a2, a3 = src[ya + 1, xa, c], src[ya + 1, xa + 1, c]
+    else:
+        a0 = _tap(src, ya, xa, c, h, w, padding)
+        a1 = _tap(src, ya, xa + 1, c, h, w, padding)
+        a2 = _tap(src, ya + 1, xa, c, h, w, padding)
+        a3 = _tap(src, ya + 1, xa + 1, c, h, w, padding)
+    lo = min(min(a0, a1), min(a2, a3))
+    hi = max(max(a0, a1), max(a2, a3))
+    return min(max(acc, lo), hi) * gain
+
+
+@njit(inline="always", **_JIT)
+def _knot(table, knots, dx, dy):
+    """The knot t and fraction f of the radius of offset (dx, dy) (float32)."""
+    r = np.float32(np.sqrt(np.float64(dx * dx + dy * dy)))
+    u = r * knots
+    t = min(int(u), table.shape[0] - 2)
+    return t, u - np.float32(t)
+
+
 @njit(**_JIT)
 def _remap_tile(src, table, knots, cy, cx, padding, rgb, r0, r1, c0, c1):
     """Output pixels [r0, r1) × [c0, c1) into the tile buffers ``rgb`` (offset HALO)."""
-    h, w = src.shape[0], src.shape[1]
-    n = table.shape[0]
-    one = np.float32(1.0)
-    weights = _WEIGHTS
-    phases = np.float32(PHASES)
-    half = np.float32(0.5)
     for i in range(r0, r1):
         dy = np.float32(i) - cy
         for j in range(c0, c1):
             dx = np.float32(j) - cx
-            r = np.float32(np.sqrt(np.float64(dx * dx + dy * dy)))
-            u = r * knots
-            t = min(int(u), n - 2)
-            f = u - np.float32(t)
+            t, f = _knot(table, knots, dx, dy)
             for k in range(3):
-                lo_r, hi_r = table[t, k, 0], table[t + 1, k, 0]
-                lo_g, hi_g = table[t, k, 1], table[t + 1, k, 1]
-                ratio = lo_r + f * (hi_r - lo_r)
-                gain = lo_g + f * (hi_g - lo_g)
-                m = ratio - one
-                ox, oy = dx * m, dy * m
-                fx, fy = np.floor(ox), np.floor(oy)
-                px, py = int((ox - fx) * phases + half), int((oy - fy) * phases + half)
-                x0, y0 = j + int(fx) + FIRST, i + int(fy) + FIRST
-                inside = 0 <= x0 and x0 + TAPS <= w and 0 <= y0 and y0 + TAPS <= h
-                acc = np.float32(0.0)
-                if inside:  # all taps in the frame: no padding to look up
-                    for b in range(TAPS):
-                        row = np.float32(0.0)
-                        for a in range(TAPS):
-                            row += weights[px, a] * src[y0 + b, x0 + a, k]
-                        acc += weights[py, b] * row
-                else:
-                    for b in range(TAPS):
-                        row = np.float32(0.0)
-                        for a in range(TAPS):
-                            row += weights[px, a] * _tap(src, y0 + b, x0 + a, k, h, w, padding)
-                        acc += weights[py, b] * row
-                # no ringing: within the range of the 2 × 2 pixels around the sample
-                ya, xa = y0 - FIRST, x0 - FIRST  # the tap at the sample's floor
-                if inside:
-                    a0, a1 = src[ya, xa, k], src[ya, xa + 1, k]
-                    a2, a3 = src[ya + 1, xa, k], src[ya + 1, xa + 1, k]
-                else:
-                    a0 = _tap(src, ya, xa, k, h, w, padding)
-                    a1 = _tap(src, ya, xa + 1, k, h, w, padding)
-                    a2 = _tap(src, ya + 1, xa, k, h, w, padding)
-                    a3 = _tap(src, ya + 1, xa + 1, k, h, w, padding)
-                lo = min(min(a0, a1), min(a2, a3))
-                hi = max(max(a0, a1), max(a2, a3))
-                acc = min(max(acc, lo), hi)
-                rgb[k][HALO + i - r0, HALO + j - c0] = acc * gain
+                v = _sample(src, k, table, k, t, f, dx, dy, i, j, padding)
+                rgb[k][HALO + i - r0, HALO + j - c0] = v
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _remap_plane(src, table, knots, cy, cx, padding, out):
+    """``src`` (H, W, 1) float32 through a field's green channel into ``out`` (H, W)."""
+    h, w = src.shape[0], src.shape[1]
+    for i in prange(h):
+        dy = np.float32(i) - cy
+        for j in range(w):
+            dx = np.float32(j) - cx
+            t, f = _knot(table, knots, dx, dy)
+            out[i, j] = _sample(src, 0, table, 1, t, f, dx, dy, i, j, padding)
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -229,3 +265,83 @@ def correct_lens(
 def add_lens(image: np.ndarray, params: LensParams | dict, padding: str = "reflect") -> np.ndarray:
     """:func:`rawsim.isp.lens.add_lens` compiled, on (H, W, 3) float32."""
     return remap_lens(image, lens_field(params, *np.shape(image)[:2], reverse=True), padding)
+
+
+#: Codes a site's values are spread over when :func:`correct_mosaic_tca` re-encodes them.
+CODES = 65535 * (1 - 1e-6)
+
+
+def correct_mosaic_tca(
+    data: np.ndarray, colors: tuple[int, ...], ops: np.ndarray, opf: np.ndarray, params
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lateral CA of ``params``'s lens taken out of ``data`` (H, W) uint16, a Bayer
+    mosaic (``colors``: its 2 × 2 period's colours) read through the mosaic ops
+    ``ops``/``opf`` (:func:`rawsim.engine.process._mosaic_value`); returns (codes, ops,
+    numbers) for the demosaic kernels to read instead.
+
+    The ops before the demosaic's square root (:data:`OP_ROOT`, if last) give linear
+    values; each red and blue plane is remapped as
+    :func:`rawsim.isp.lens.correct_mosaic_tca` does it (the same float32 arithmetic);
+    the values, as square roots where the ops took them, are spread per site over
+    :data:`CODES` codes (uint16), which one levels op reads back: within half a code
+    (a site's range / 131070) of the reference's values.
+    """
+    h, w = data.shape
+    ops = np.asarray(ops, np.int64)
+    root = ops.size > 0 and ops[-1] == OP_ROOT
+    values = np.empty((h, w), np.float32)
+    colours = np.asarray(colors, np.int64)
+    _linear_mosaic(np.ascontiguousarray(data), colours, ops[:-1] if root else ops, opf, values)
+    for oy, ox, field in mosaic_tca_fields(params, colors, h, w):
+        plane = np.ascontiguousarray(values[oy::2, ox::2])
+        out = np.empty(plane.shape, np.float32)
+        _remap_plane(plane[:, :, None], *field_args(field), PADDING_CODES["reflect"], out)
+        values[oy::2, ox::2] = out
+    if root:
+        values = _roots(values)
+    black, span = np.zeros(4), np.ones(4)
+    for site in range(4):
+        part = values[site // 2 :: 2, site % 2 :: 2]
+        if part.size == 0:
+            continue
+        lo, hi = float(part.min()), float(part.max())
+        span[site] = np.float32(CODES / (hi - lo)) if hi > lo else 1.0
+        black[site] = np.float32(-lo * span[site])
+    codes = np.empty((h, w), np.uint16)
+    _encode(values, black, span, codes)
+    numbers = np.zeros((1, opf.shape[1]))
+    numbers[0, :4], numbers[0, 4:8] = black, span
+    return codes, np.array([OP_LEVELS], np.int64), numbers
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _linear_mosaic(raw, colors, ops, opf, out):
+    """The mosaic ops at every site of ``raw`` (H, W) into ``out`` (float32), as the
+    process kernels evaluate them site by site."""
+    h, w = raw.shape
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+    for y in prange(h):
+        for x in range(w):
+            site = (y & 1) * 2 + (x & 1)
+            v = np.float32(raw[y, x])
+            out[y, x] = _mosaic_value(v, site, colors[site], y, x, cy, cx, ops, opf)
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _roots(values):
+    out = np.empty_like(values)
+    for y in prange(values.shape[0]):
+        for x in range(values.shape[1]):
+            out[y, x] = _to_root(values[y, x])
+    return out
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _encode(values, black, span, codes):
+    """``values`` (H, W) float32 as codes ``values · span + black`` (per site, float64),
+    rounded and held in [0, 65535]."""
+    for y in prange(values.shape[0]):
+        for x in range(values.shape[1]):
+            site = (y & 1) * 2 + (x & 1)
+            c = np.rint(np.float64(values[y, x]) * span[site] + black[site])
+            codes[y, x] = np.uint16(min(max(c, 0.0), 65535.0))

@@ -31,13 +31,20 @@ at the corner of the calibration sensor) is evaluated here, in lensfun's
 coordinates: lensfunpy gives its gains only for whole images. Correcting
 divides by V at the position each channel samples (lensfun devignettes the
 source before remapping it); adding multiplies by V at the output pixel.
+
+**Lateral CA on the mosaic.** lensfun applies TCA to the distorted (sensor)
+coordinates that its distortion gives green: correcting a lens is TCA's field
+(:func:`tca_field`, red and blue relative to green, in the sensor's frame) then the
+field without TCA (:func:`without_tca`, every colour moved as green), to 1e-4 px.
+:func:`mosaic_tca_fields` splits TCA's field into one field per red and blue
+plane of a Bayer mosaic, so that the CA is taken out before the demosaic.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -526,6 +533,49 @@ def _field(params: LensParams, height: int, width: int, reverse: bool) -> LensFi
     table = np.stack([ratio, gain], axis=-1).astype(np.float32)
     table.flags.writeable = False
     return LensField(height, width, (float(cy), float(cx)), scale, table, reverse)
+
+
+def without_tca(params: LensParams | dict) -> LensParams:
+    """``params`` without the TCA correction: its field moves every colour as green."""
+    params = LensParams.of(params)
+    return replace(params, corrections=tuple(c for c in params.corrections if c != "tca"))
+
+
+def tca_field(params: LensParams | dict, height: int, width: int) -> LensField:
+    """The field of ``params``'s lateral CA alone (gains 1, green's ratio 1): where
+    red and blue sit relative to green, in the frame the lens imaged."""
+    params = LensParams.of(params)
+    return lens_field(replace(params, corrections=("tca",)), height, width)
+
+
+def mosaic_tca_fields(
+    params: LensParams | dict, colors: tuple[int, ...], height: int, width: int
+) -> list[tuple[int, int, LensField]]:
+    """(row, column, field) for each red and blue site of a 2 × 2 Bayer period
+    (``colors``: the colour of sites (0, 0), (0, 1), (1, 0), (1, 1); 0 R, 1 G, 2 B) on
+    a mosaic of ``height`` × ``width``: the field (:func:`tca_field`) on that site's own
+    plane (``mosaic[row::2, column::2]``: half the pixels each way, its centre moved
+    and halved, its radius in plane pixels), every channel of its table the site's
+    colour's. A grey remap (:func:`rawsim.isp.lens.remap_lens`) of the plane through
+    it puts that colour where green is."""
+    full = tca_field(params, height, width)
+    cy, cx = full.centre
+    out = []
+    for site, colour in enumerate(colors):
+        if colour == 1:
+            continue
+        oy, ox = divmod(site, 2)
+        table = np.ascontiguousarray(full.table[:, [colour] * 3, :])
+        table.flags.writeable = False
+        plane = LensField(
+            (height - oy + 1) // 2,
+            (width - ox + 1) // 2,
+            ((cy - oy) / 2, (cx - ox) / 2),
+            float(np.float32(2 * full.scale)),
+            table,
+        )
+        out.append((oy, ox, plane))
+    return out
 
 
 def _radial_profile(modifier, cx: float, cy: float, radii: np.ndarray) -> np.ndarray:

@@ -1058,6 +1058,21 @@ class ResolvedIsp:
     def exposure_stops(self) -> float:
         return self.info["exposure_stops"]
 
+    @property
+    def tca_on_mosaic(self) -> bool:
+        """Whether the lens stage's lateral CA is taken out of the mosaic just before
+        the demosaic (:class:`~rawsim.isp.lens.MosaicTca`), so that the demosaic sees
+        red and blue where green is, and the lens stage corrects the rest: a Bayer raw
+        at full size and a lens with TCA to correct. Elsewhere (X-Trans, whose red and
+        blue sites lie on no grid; half size) the lens stage corrects TCA on RGB."""
+        lens = self.info.get("lens")
+        if lens is None or "tca" not in lens["corrections"]:
+            return False
+        if self.raw.cfa is None or not self.raw.cfa.is_bayer:
+            return False
+        demosaic = next((s for s in self.stages if isinstance(s, DemosaicStage)), None)
+        return demosaic is not None and demosaic.method != HALF_SIZE
+
 
 def monochrome(raw: RawImage) -> bool:
     """Grey data: no CFA and one channel (no colour stages)."""

@@ -6,7 +6,10 @@ samples the input at its own source position (Lanczos-3, :mod:`rawsim.resample`:
 the 6 × 6 pixels around it, kept within the range of the 2 × 2 nearest, so no
 edge rings) and is multiplied by its gain. :func:`correct_lens` takes the lens out
 of a photo (what ``rawsim process --lens-correction auto`` does after the demosaic);
-:func:`add_lens` puts it into a clean image (the unprocessing direction). The
+:func:`add_lens` puts it into a clean image (the unprocessing direction).
+:func:`correct_mosaic_tca` takes the lateral CA out of a Bayer mosaic before the
+demosaic (:class:`MosaicTca`), so that the demosaic sees red and blue where green
+is; the lens stage then corrects the rest (:func:`~rawsim.io.lensfun.without_tca`). The
 compiled engine's twin is :mod:`rawsim.engine.lens`; both evaluate the same float32
 arithmetic.
 
@@ -21,8 +24,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from rawsim.cfa import CFA
 from rawsim.errors import ParameterError, check_choice, check_image
-from rawsim.io.lensfun import LensField, LensParams, lens_field
+from rawsim.io.lensfun import LensField, LensParams, lens_field, mosaic_tca_fields
 from rawsim.resample import FIRST, PHASES, TAPS, lanczos_table
 
 PADDINGS = ("zeros", "border", "reflect")
@@ -170,3 +174,35 @@ class LensCorrection(nn.Module):
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
         return x if self.params is None else add_lens(x, self.params)
+
+
+def correct_mosaic_tca(mosaic: torch.Tensor, cfa: CFA, params: LensParams | dict) -> torch.Tensor:
+    """Take the lateral CA of ``params``'s lens out of ``mosaic`` (B, 1, H, W), linear
+    values of a Bayer ``cfa``: each red and blue site is resampled on its colour's own
+    plane (a quarter of the sites; Lanczos-3, mirrored at the edges) where lensfun's
+    TCA puts that colour relative to green (:func:`~rawsim.io.lensfun.mosaic_tca_fields`);
+    green sites are kept. Returns a new tensor of the mosaic's shape and dtype;
+    differentiable in the mosaic."""
+    check_image(mosaic, "mosaic")
+    if mosaic.shape[1] != 1 or not cfa.is_bayer:
+        raise ParameterError(
+            f"lateral CA on the mosaic takes a Bayer mosaic (B, 1, H, W), got shape "
+            f"{tuple(mosaic.shape)} of a {cfa.pattern} pattern"
+        )
+    out = mosaic.clone()
+    for oy, ox, field in mosaic_tca_fields(params, cfa.colors, *mosaic.shape[-2:]):
+        out[..., oy::2, ox::2] = remap_lens(mosaic[..., oy::2, ox::2], field, "reflect")
+    return out
+
+
+class MosaicTca(nn.Module):
+    """The lens stage's lateral CA, corrected on a Bayer mosaic just before the demosaic
+    (:func:`correct_mosaic_tca`); ``params`` the lens's record (a dict)."""
+
+    def __init__(self, cfa: CFA, params: LensParams | dict) -> None:
+        super().__init__()
+        self.cfa = cfa
+        self.params = LensParams.of(params)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return correct_mosaic_tca(x, self.cfa, self.params)

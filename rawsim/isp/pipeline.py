@@ -8,7 +8,9 @@ per stage type (:data:`MODULES`).
 Data flow: DN mosaic (B, 1, H, W) — or (B, 3, H, W) for raws without a CFA —
 through black level (→ white = 1), raw denoising, optional mosaic filters, white balance,
 highlights, demosaic (→ RGB), denoise, lens correction, colour matrix, exposure,
-tone curve, transfer, YCbCr and orientation.
+tone curve, transfer, YCbCr and orientation. Where the lens stage corrects a Bayer
+raw's lateral CA (:attr:`~rawsim.isp.config.ResolvedIsp.tca_on_mosaic`), a module
+named ``lens_tca`` takes it out of the mosaic just before the demosaic.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.denoise.noise_model import stage_model
+from rawsim.io.lensfun import without_tca
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
     HALF_SIZE,
@@ -52,7 +55,7 @@ from rawsim.isp.exposure import Exposure
 from rawsim.isp.filters import AntiAliasing, Denoise
 from rawsim.isp.half_size import HalfSize
 from rawsim.isp.highlights import Highlights
-from rawsim.isp.lens import LensCorrection
+from rawsim.isp.lens import LensCorrection, MosaicTca
 from rawsim.isp.lens_shading import LensShading
 from rawsim.isp.levels import Levels
 from rawsim.isp.orientation import Orientation
@@ -141,7 +144,7 @@ class Isp(nn.Module):
 STRIP_ROWS = 256
 #: Stages that run once on the whole image (they move pixels across strips, or, as
 #: raw denoising, work through the image in chunks of their own).
-WHOLE_IMAGE = (RawDenoise, LensCorrection, Orientation)
+WHOLE_IMAGE = (RawDenoise, MosaicTca, LensCorrection, Orientation)
 
 
 def build_isp(config: IspConfig | list[dict], raw) -> Isp:
@@ -152,7 +155,11 @@ def build_isp(config: IspConfig | list[dict], raw) -> Isp:
 
 def isp_for(resolved: ResolvedIsp) -> Isp:
     """The :class:`Isp` of a config resolved for one raw (its stages, its values)."""
-    modules = [(s.name, MODULES[type(s)](s, resolved)) for s in resolved.stages]
+    modules = []
+    for s in resolved.stages:
+        if isinstance(s, DemosaicStage) and resolved.tca_on_mosaic:
+            modules.append(("lens_tca", MosaicTca(resolved.raw.cfa, resolved.info["lens"])))
+        modules.append((s.name, MODULES[type(s)](s, resolved)))
     cfa = resolved.raw.cfa
     return Isp(modules, resolved.info, int(np.lcm(*cfa.period)) if cfa else 2)
 
@@ -182,7 +189,9 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
         s.sigma,
         s.sigma_color,
     ),
-    LensCorrectionStage: lambda s, r: LensCorrection(r.info.get("lens")),
+    LensCorrectionStage: lambda s, r: LensCorrection(
+        without_tca(r.info["lens"]) if r.tca_on_mosaic else r.info.get("lens")
+    ),
     ColorMatrixStage: lambda s, r: ColorMatrix(
         torch.as_tensor(r.color_matrix, dtype=torch.float32)
     ),

@@ -28,6 +28,7 @@ from rawsim.denoise.noise_model import stage_model
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
+from rawsim.io.lensfun import without_tca
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawFacts, RawImage, read_raw
@@ -154,8 +155,9 @@ class EnginePlan:
     gamma: float
     orientation: int
     info: dict
-    #: The lens stage's lens (:meth:`~rawsim.io.lensfun.LensParams.to_dict`), or None:
-    #: then the kernel renders in two passes, the post ops before ``lens_at`` first.
+    #: The lens stage's lens (:meth:`~rawsim.io.lensfun.LensParams.to_dict`; without
+    #: its TCA where ``tca`` takes that out of the mosaic), or None: then the kernel
+    #: renders in two passes, the post ops before ``lens_at`` first.
     lens: dict | None = None
     lens_at: int = 0
     #: The raw denoise stage's (gain, offset, strength, learned) (see
@@ -166,6 +168,10 @@ class EnginePlan:
     #: ``highlights reconstruct``: (white-balance gains, the count of mosaic ops before
     #: the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
     highlights: tuple | None = None
+    #: The lens whose lateral CA :func:`rawsim.engine.lens.correct_mosaic_tca` takes out
+    #: of the mosaic before the kernels (:attr:`~rawsim.isp.config.ResolvedIsp.tca_on_mosaic`;
+    #: the lens pass then moves every colour as green), or None.
+    tca: dict | None = None
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -247,6 +253,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     method = "bilinear"
     lens, lens_at = None, 0
     denoise = highlights = None
+    tca = resolved.info["lens"] if resolved.tca_on_mosaic else None
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
             learned = resolved.info["raw_denoise"] == "learned"
@@ -267,6 +274,8 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
             if tail:
                 return None  # after tone/transfer: the reference's order
             lens, lens_at = resolved.info.get("lens"), len(post)
+            if tca is not None:  # taken out of the mosaic: the lens pass moves colours as green
+                lens = without_tca(lens).to_dict()
             continue
         if isinstance(stage, DemosaicStage):
             bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
@@ -308,6 +317,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         lens_at,
         denoise,
         highlights,
+        tca,
     )
 
 
@@ -420,6 +430,13 @@ def engine_render(
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
         raw, plan = replace(raw, data=data), replace(plan, pre_f=pre_f, highlights=None)
+    if plan.tca is not None:
+        from rawsim.engine.lens import correct_mosaic_tca
+
+        data, ops, numbers = correct_mosaic_tca(
+            raw.data, raw.cfa.colors, plan.pre_ops, plan.pre_f, plan.tca
+        )
+        raw, plan = replace(raw, data=data), replace(plan, pre_ops=ops, pre_f=numbers, tca=None)
     try:
         return _kernels(raw, plan, fmt, bits, tile, reuse)
     finally:
