@@ -22,7 +22,9 @@ or more, its round trip cannot be expected above this.
 
 Speed: one 24 MP (6000 × 4000) linear frame through the engine's remap
 (:func:`rawsim.engine.lens.correct_lens`), beside the copy of the same frame (the
-floor of any pass that reads and writes it).
+floor of any pass that reads and writes it); and the pre-pass that takes lateral CA
+out of a 24 MP Bayer mosaic (:func:`rawsim.engine.lens.correct_mosaic_tca`) beside
+the copy of the mosaic.
 
 Run: ``python benchmarks/bench_lens.py --images /tmp/kodak``
 """
@@ -140,14 +142,26 @@ def quality(images: list[Path]) -> None:
 
 
 def speed(repeats: int) -> None:
-    from rawsim.engine.lens import correct_lens
+    from rawsim.engine import process as ep
+    from rawsim.engine.lens import correct_lens, correct_mosaic_tca
     from rawsim.io.lensfun import lens_params
 
     params, _ = lens_params(*LENSES[0], None, "Canon", "EOS 700D")
     rng = np.random.default_rng(0)
     frame = rng.random((4000, 6000, 3), dtype=np.float32)
-    correct_lens(frame[:64, :96], params)  # compile or load the kernel
-    times: dict[str, list[float]] = {"copy (floor)": [], "lens correction": []}
+    mosaic = rng.integers(512, 16383, (4000, 6000), dtype=np.uint16)
+    colors = (0, 1, 1, 2)
+    ops = np.array([ep.OP_LEVELS, ep.OP_WB, ep.OP_ROOT])
+    opf = np.zeros((3, 18))
+    opf[0, :4], opf[0, 4:8], opf[1, :3] = 512.0, 16383.0 - 512, (2.0, 1.0, 1.5)
+    correct_lens(frame[:64, :96], params)  # compile or load the kernels
+    correct_mosaic_tca(mosaic[:64, :96], colors, ops, opf, params)
+    times: dict[str, list[float]] = {
+        "copy (floor)": [],
+        "lens correction": [],
+        "mosaic copy (floor)": [],
+        "mosaic lateral CA": [],
+    }
     for _ in range(repeats):
         t = time.perf_counter()
         frame.copy()
@@ -155,9 +169,18 @@ def speed(repeats: int) -> None:
         t = time.perf_counter()
         correct_lens(frame, params)
         times["lens correction"].append(time.perf_counter() - t)
-    print(f"\nseconds per 24 MP (6000 × 4000 × 3 float32), median of {repeats}:")
+        t = time.perf_counter()
+        mosaic.copy()
+        times["mosaic copy (floor)"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        correct_mosaic_tca(mosaic, colors, ops, opf, params)
+        times["mosaic lateral CA"].append(time.perf_counter() - t)
+    print(
+        f"\nseconds per 24 MP (6000 × 4000 × 3 float32; the mosaic 6000 × 4000 uint16, "
+        f"levels, white balance, square roots), median of {repeats}:"
+    )
     for name, ts in times.items():
-        print(f"  {name:16s} {statistics.median(ts):6.3f} s   {[round(t, 3) for t in ts]}")
+        print(f"  {name:20s} {statistics.median(ts):6.3f} s   {[round(t, 3) for t in ts]}")
 
 
 def main() -> None:

@@ -423,7 +423,8 @@ def test_engine_mosaic_tca_equals_torch(pattern, root):
     black, span = numbers[0, :4].astype(np.float32), numbers[0, 4:8].astype(np.float32)
     ours = (codes.astype(np.float32) - black[site]) / span[site]
     linear = np.empty((h, w), np.float32)
-    engine_lens._linear_mosaic(raw.data, np.array(raw.cfa.colors), np.array(ops[:3]), opf, linear)
+    colours, none = np.array(raw.cfa.colors), np.empty((0, 0), np.float32)
+    engine_lens._linear_mosaic(raw.data, colours, none, np.array(ops[:3]), opf, linear)
     ref = correct_mosaic_tca(torch.from_numpy(linear)[None, None], raw.cfa, kit())
     if root:
         ref = to_root(ref)

@@ -28,6 +28,7 @@ from rawsim.engine.process import (
     HALO,
     OP_LEVELS,
     OP_ROOT,
+    OP_SHADING,
     OUT_FLOAT,
     TILE_COLS,
     TILE_ROWS,
@@ -35,6 +36,7 @@ from rawsim.engine.process import (
     _mosaic_value,
     _rgb_buffers,
     _to_root,
+    mosaic_table,
 )
 from rawsim.engine.tiles import next_tile
 from rawsim.errors import ParameterError, check_choice
@@ -289,24 +291,29 @@ def correct_mosaic_tca(
     h, w = data.shape
     ops = np.asarray(ops, np.int64)
     root = ops.size > 0 and ops[-1] == OP_ROOT
-    values = np.empty((h, w), np.float32)
+    linear_ops = ops[:-1] if root else ops
     colours = np.asarray(colors, np.int64)
-    _linear_mosaic(np.ascontiguousarray(data), colours, ops[:-1] if root else ops, opf, values)
+    if (linear_ops == OP_SHADING).any():  # a gain that depends on position: site by site
+        table = np.empty((0, 0), np.float32)
+    else:
+        table = mosaic_table(colours, linear_ops, opf)
+    values = np.empty((h, w), np.float32)
+    _linear_mosaic(np.ascontiguousarray(data), colours, table, linear_ops, opf, values)
     for oy, ox, field in mosaic_tca_fields(params, colors, h, w):
         plane = np.ascontiguousarray(values[oy::2, ox::2])
         out = np.empty(plane.shape, np.float32)
         _remap_plane(plane[:, :, None], *field_args(field), PADDING_CODES["reflect"], out)
         values[oy::2, ox::2] = out
-    if root:
-        values = _roots(values)
+    ranges = np.empty((h, 2, 4), np.float32)
+    _roots_and_ranges(values, root, ranges)
     black, span = np.zeros(4), np.ones(4)
     for site in range(4):
-        part = values[site // 2 :: 2, site % 2 :: 2]
-        if part.size == 0:
-            continue
-        lo, hi = float(part.min()), float(part.max())
-        span[site] = np.float32(CODES / (hi - lo)) if hi > lo else 1.0
-        black[site] = np.float32(-lo * span[site])
+        lo = float(ranges[site // 2 :: 2, 0, site].min(initial=np.inf))
+        hi = float(ranges[site // 2 :: 2, 1, site].max(initial=-np.inf))
+        if hi > lo:
+            span[site] = np.float32(CODES / (hi - lo))
+        if np.isfinite(lo):
+            black[site] = np.float32(-lo * span[site])
     codes = np.empty((h, w), np.uint16)
     _encode(values, black, span, codes)
     numbers = np.zeros((1, opf.shape[1]))
@@ -315,12 +322,18 @@ def correct_mosaic_tca(
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _linear_mosaic(raw, colors, ops, opf, out):
+def _linear_mosaic(raw, colors, table, ops, opf, out):
     """The mosaic ops at every site of ``raw`` (H, W) into ``out`` (float32), as the
-    process kernels evaluate them site by site."""
+    process kernels evaluate them: through ``table``
+    (:func:`rawsim.engine.process.mosaic_table`) where it has rows, else site by site."""
     h, w = raw.shape
     cy, cx = (h - 1) / 2, (w - 1) / 2
     for y in prange(h):
+        if table.shape[0]:
+            even, odd = table[(y & 1) * 2], table[(y & 1) * 2 + 1]
+            for x in range(w):
+                out[y, x] = even[raw[y, x]] if x & 1 == 0 else odd[raw[y, x]]
+            continue
         for x in range(w):
             site = (y & 1) * 2 + (x & 1)
             v = np.float32(raw[y, x])
@@ -328,12 +341,19 @@ def _linear_mosaic(raw, colors, ops, opf, out):
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _roots(values):
-    out = np.empty_like(values)
-    for y in prange(values.shape[0]):
-        for x in range(values.shape[1]):
-            out[y, x] = _to_root(values[y, x])
-    return out
+def _roots_and_ranges(values, root, ranges):
+    """``values`` (H, W) as square roots in place where ``root``; each row's smallest
+    and largest value per site into ``ranges`` (H, 2, 4) (±inf where a row has none)."""
+    h, w = values.shape
+    for y in prange(h):
+        for site in range(4):
+            ranges[y, 0, site], ranges[y, 1, site] = np.inf, -np.inf
+        for x in range(w):
+            v = _to_root(values[y, x]) if root else values[y, x]
+            values[y, x] = v
+            site = (y & 1) * 2 + (x & 1)
+            ranges[y, 0, site] = min(ranges[y, 0, site], v)
+            ranges[y, 1, site] = max(ranges[y, 1, site], v)
 
 
 @njit(parallel=True, nogil=True, **_JIT)
