@@ -631,10 +631,13 @@ def _column_std(draws: np.ndarray) -> np.ndarray:
 
 
 def fit_lambda(residual: np.ndarray, max_samples: int = 400_000, seed: int = 0) -> float:
-    """Tukey-lambda shape of a zero-mean sample: the λ of largest probability-plot correlation."""
+    """Tukey-lambda shape of a zero-mean sample: the λ of :data:`LAMBDA_GRID` of largest
+    probability-plot correlation (the sorted sample against the law's quantiles at the
+    plotting positions). One pass per λ: the quantiles' logs are shared, and the
+    correlation is Σ x̂·q / (n·σ_q) with x̂ the standardised sample (mean 0)."""
     import torch
 
-    from rawsim.noise.models import tukey_lambda_quantile  # torch: only when dark frames are given
+    from rawsim.noise.models import tukey_from_logs  # torch: only when dark frames are given
 
     x = np.asarray(residual, dtype=np.float64).reshape(-1)
     if x.size > max_samples:
@@ -642,12 +645,13 @@ def fit_lambda(residual: np.ndarray, max_samples: int = 400_000, seed: int = 0) 
     x = np.sort(x)
     n = x.size
     p = torch.from_numpy((np.arange(1, n + 1) - 0.3175) / (n + 0.365))
-    xc = (x - x.mean()) / x.std()
+    low, high = p.log(), p.neg().log1p_()
+    xc = torch.from_numpy((x - x.mean()) / x.std())
+    xc -= xc.mean()  # exactly centred in float64, so Σ x̂·(q − q̄) = Σ x̂·q
     best, best_r = 0.0, -2.0
     for lam in LAMBDA_GRID:
-        q = tukey_lambda_quantile(p, float(lam)).numpy()
-        qc = (q - q.mean()) / q.std()
-        r = float((xc * qc).mean())
+        q = tukey_from_logs(low, high, float(lam))
+        r = float(torch.dot(xc, q) / (n * q.std(correction=0)))
         if r > best_r:
             best, best_r = float(lam), r
     return best

@@ -66,21 +66,15 @@ def tukey_lambda_quantile(u: torch.Tensor, lam: float) -> torch.Tensor:
 
     ``Q(u) = (u^λ − (1 − u)^λ) / λ``, and the logistic ``ln(u / (1 − u))`` at λ = 0.
     """
-    return _tukey_numerator(u.clone(), lam).div_(_tukey_divisor(lam))
+    return tukey_from_logs(u.log(), u.neg().log1p_(), lam)
 
 
-def _tukey_numerator(u: torch.Tensor, lam: float) -> torch.Tensor:
-    """``u^λ − (1 − u)^λ`` (``ln u − ln(1 − u)`` at λ = 0), overwriting ``u``."""
-    low = u.log()
-    high = u.neg_().log1p_()
+def tukey_from_logs(low: torch.Tensor, high: torch.Tensor, lam: float) -> torch.Tensor:
+    """:func:`tukey_lambda_quantile` from ``low`` = ln u and ``high`` = ln(1 − u) (left
+    as they are), for evaluating many λ at the same u: the same arithmetic, in order."""
     if abs(lam) < LOGISTIC_LAMBDA:
-        return low.sub_(high)
-    return low.mul_(lam).exp_().sub_(high.mul_(lam).exp_())
-
-
-def _tukey_divisor(lam: float) -> float:
-    """What divides :func:`_tukey_numerator` to give the quantile: λ, or 1 in the limit."""
-    return 1.0 if abs(lam) < LOGISTIC_LAMBDA else lam
+        return (low - high).div_(1.0)
+    return (low * lam).exp_().sub_((high * lam).exp_()).div_(lam)
 
 
 def _uniform(shape, generator, device, dtype) -> torch.Tensor:
