@@ -71,12 +71,11 @@ def _both(raw, config, fmt="tiff", bits=16, tile=None):
     return ours, to_samples(ref[0], fmt, bits)
 
 
-def _assert_close(ours, ref, atol=1e-5):
-    """16-bit codes within 1, floats within ``atol``."""
+def _assert_close(ours, ref):
     assert ours.shape == ref.shape and ours.dtype == ref.dtype
     if ours.dtype.kind == "f":
         diff = np.abs(ours.astype(np.float64) - ref)
-        assert diff.max() <= atol, float(diff.max())
+        assert diff.max() <= 1e-5, float(diff.max())
     else:
         diff = np.abs(ours.astype(np.int64) - ref)
         assert diff.max() <= 1, (int(diff.max()), np.argwhere(diff > 1)[:5].tolist())

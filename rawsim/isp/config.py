@@ -41,7 +41,7 @@ from rawsim.colorspaces import OUTPUT_SPACES as COLOR_SPACES
 from rawsim.colorspaces import space_from_srgb, space_transfer
 from rawsim.errors import ParameterError
 from rawsim.io.lensfun import CORRECTIONS as LENS_CORRECTIONS
-from rawsim.io.lensfun import DEFAULT_DISTANCE
+from rawsim.io.lensfun import DEFAULT_DISTANCE, without_tca
 from rawsim.isp.curves import TransferSpec
 
 if TYPE_CHECKING:
@@ -1072,6 +1072,13 @@ class ResolvedIsp:
             return False
         demosaic = next((s for s in self.stages if isinstance(s, DemosaicStage)), None)
         return demosaic is not None and demosaic.method != HALF_SIZE
+
+    @property
+    def rgb_lens(self) -> dict | None:
+        """What the lens stage corrects on RGB: ``info["lens"]``, without its TCA where
+        :attr:`tca_on_mosaic`; None where no lens is corrected."""
+        lens = self.info.get("lens")
+        return without_tca(lens).to_dict() if self.tca_on_mosaic else lens
 
 
 def monochrome(raw: RawImage) -> bool:

@@ -23,7 +23,6 @@ from torch import nn
 
 from rawsim.cfa import CFA
 from rawsim.denoise.noise_model import stage_model
-from rawsim.io.lensfun import without_tca
 from rawsim.isp.color_matrix import ColorMatrix
 from rawsim.isp.config import (
     HALF_SIZE,
@@ -189,9 +188,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
         s.sigma,
         s.sigma_color,
     ),
-    LensCorrectionStage: lambda s, r: LensCorrection(
-        without_tca(r.info["lens"]) if r.tca_on_mosaic else r.info.get("lens")
-    ),
+    LensCorrectionStage: lambda s, r: LensCorrection(r.rgb_lens),
     ColorMatrixStage: lambda s, r: ColorMatrix(
         torch.as_tensor(r.color_matrix, dtype=torch.float32)
     ),

@@ -73,7 +73,7 @@ def tukey_from_logs(low: torch.Tensor, high: torch.Tensor, lam: float) -> torch.
     """:func:`tukey_lambda_quantile` from ``low`` = ln u and ``high`` = ln(1 − u) (left
     as they are), for evaluating many λ at the same u: the same arithmetic, in order."""
     if abs(lam) < LOGISTIC_LAMBDA:
-        return (low - high).div_(1.0)
+        return low - high
     return (low * lam).exp_().sub_((high * lam).exp_()).div_(lam)
 
 

@@ -28,7 +28,6 @@ from rawsim.denoise.noise_model import stage_model
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
-from rawsim.io.lensfun import without_tca
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
 from rawsim.io.raw import RawFacts, RawImage, read_raw
@@ -273,9 +272,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         if isinstance(stage, LensCorrectionStage):
             if tail:
                 return None  # after tone/transfer: the reference's order
-            lens, lens_at = resolved.info.get("lens"), len(post)
-            if tca is not None:  # taken out of the mosaic: the lens pass moves colours as green
-                lens = without_tca(lens).to_dict()
+            lens, lens_at = resolved.rgb_lens, len(post)
             continue
         if isinstance(stage, DemosaicStage):
             bayer = raw.cfa.is_bayer or stage.method == HALF_SIZE
