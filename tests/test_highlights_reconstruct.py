@@ -721,14 +721,17 @@ def test_real_sky_clipped_a_stop_lower_comes_back_closer_than_clip():
 def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
     """A DNG whose BaselineExposure brings a bright scene back over white (as the
     Blackmagic Pocket 4K's +2.65 EV): the render warns, naming --baseline-exposure
-    ignore and --exposure; ignoring the baseline, it does not."""
+    ignore, --exposure, and the Reinhard curve that brightens as much and keeps the
+    highlights; ignoring the baseline, it does not. The curve it names keeps the sky
+    below white, with the shadows lifted by the baseline's stops."""
     import json
 
-    from rawsim.io.images import write_image
+    from rawsim.io.images import read_image, write_image
     from rawsim_cli.main import cli
 
     y, x = np.mgrid[0:120, 0:160].astype(np.float32)
     sky = np.stack([0.8 + 0 * x, 0.9 + 0 * x, 1.0 + 0 * x], -1) * (0.7 + 0.5 * (y < 70)[..., None])
+    sky[y >= 110] *= 0.15  # a shadow
     write_image(tmp_path / "sky.png", np.round(np.clip(sky, 0, 1) * 255).astype(np.uint8), "png")
     runner = CliRunner()
     args = ["unprocess", str(tmp_path / "sky.png"), "-o", str(tmp_path / "raw")]
@@ -741,9 +744,22 @@ def test_a_blown_render_warns_and_names_the_baseline_exposure(tmp_path):
     (warning,) = [w for w in record["warnings"] if "blown render" in w]
     assert "+2.00 EV" in warning and "--baseline-exposure ignore" in warning
     assert "--exposure" in warning
-    r = runner.invoke(cli, [*base, "--baseline-exposure", "ignore", "-o", str(tmp_path / "low")])
-    (record,) = [json.loads(line) for line in r.stdout.splitlines()]
-    assert not any("blown render" in w for w in record["warnings"])
+    hint = "--baseline-exposure ignore --tone reinhard --tone-white 4 lifts the shadows 2.00 EV"
+    assert hint in warning
+    ignore = ["--baseline-exposure", "ignore", "--bits", "16", "--transfer", "linear"]
+    renders = {}
+    for tone in ("none", "reinhard"):
+        out = tmp_path / tone
+        more = ["--tone-white", "4"] if tone == "reinhard" else []
+        r = runner.invoke(cli, [*base, *ignore, "--tone", tone, *more, "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        (record,) = [json.loads(line) for line in r.stdout.splitlines()]
+        assert not any("blown render" in w for w in record["warnings"])
+        renders[tone] = read_image(out / "sky.png").pixels.astype(np.float64)
+    plain, kept = renders["none"], renders["reinhard"]
+    assert kept.max() < 0.99 * 65535  # the sky is below white
+    dark = plain < 0.01 * 65535
+    assert dark.any() and np.allclose(kept[dark], 4 * plain[dark], rtol=0.05, atol=64)
 
 
 def _sky_in_dn(pattern, radius, sky, ground):

@@ -121,6 +121,8 @@ HIGHLIGHT_HEADROOM = 4.0
 #: ``reconstruct``: no colour's share of a block's sum is taken below this.
 HIGHLIGHT_RATIO_FLOOR = 0.01
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
+#: The filmic curves' white point W: the least and the most (in each curve's units).
+TONE_WHITE_RANGE = (0.25, 12.0)
 ANTI_ALIAS_METHODS = ("none", "weighted_average", "gaussian")
 DENOISE_METHODS = ("none", "gaussian", "bilateral")
 #: Denoising of the raw mosaic driven by its noise model (:mod:`rawsim.denoise`).
@@ -663,7 +665,7 @@ class ToneStage(Stage):
     )
     white: float | str = _param(
         "auto",
-        _auto_or(_number(0.25, 12)),
+        _auto_or(_number(*TONE_WHITE_RANGE)),
         "filmic curves: white point in the curve's units (auto: reinhard 4, aces 7.24, "
         "hable 11.2); larger compresses highlights more",
     )

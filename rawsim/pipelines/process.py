@@ -39,6 +39,7 @@ from rawsim.isp.config import (
     HALF_SIZE,
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
+    TONE_WHITE_RANGE,
     XTRANS_METHOD,
     BlackLevelStage,
     ColorMatrixStage,
@@ -766,11 +767,28 @@ def _warn_if_blown(samples: np.ndarray, bits: int, raw: RawImage, config: IspCon
             f"the DNG's BaselineExposure of {raw.baseline_exposure:+.2f} EV is applied "
             "(--baseline-exposure ignore leaves it out, as LibRaw does)"
         )
+        tone = config.enabled_stage(ToneStage)
+        if tone is None or tone.curve == "none":
+            why.append(_kept_highlights_hint(raw.baseline_exposure))
     stops = info.get("exposure_stops", 0.0)
     why.append(f"--exposure sets the brightness (now {stops:+.2f} EV in all; lower keeps more)")
     info["warnings"].append(
         f"blown render: {100 * share:.0f} % of its samples are at or above "
         f"{BLOWN_LEVEL * 255:.0f}/255 of full scale; " + "; ".join(why)
+    )
+
+
+def _kept_highlights_hint(stops: float) -> str:
+    """How to brighten as a BaselineExposure of ``stops`` > 0 does and keep the highlights.
+
+    Reinhard's curve of white point W, f(x) = g(W·x) with g(W) = 1, lifts the shadows
+    by W (its slope at 0), mid-grey by a quarter stop less, and maps the sensor's
+    white to display white: with W = 2^stops it stands in for the baseline gain,
+    which clips every value above 2^-stops of white (as the DNG SDK's render does)."""
+    white = min(2.0**stops, TONE_WHITE_RANGE[1])
+    return (
+        f"--baseline-exposure ignore --tone reinhard --tone-white {white:.3g} lifts the "
+        f"shadows {np.log2(white):.2f} EV and keeps the sensor's white at display white"
     )
 
 
