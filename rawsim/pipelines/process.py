@@ -487,7 +487,8 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
         else:  # unused; the kernel's one signature
             filters = np.zeros((2, 2, 2, 3, REACH + 1, REACH + 1), np.float32)
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
-        ep.process_kernel(data, colors, method, filters, table, *stages, *output, threads, *tile)
+        kernel = ep.bayer_kernel(method)
+        kernel(data, colors, method, filters, table, *stages, *output, threads, *tile)
     else:
         from rawsim.engine import xtrans
 
