@@ -26,7 +26,8 @@ import click
 from rawsim_cli.options import output_options, usage_errors
 
 BAYER = "unprocess: 8-bit photo, Bayer, physics noise"
-RENDER = "process: Bayer, every demosaic, 8/16-bit output"
+RENDER = "process: Bayer, 8/16-bit output"
+OTHERS = "process: Bayer, the other demosaics"
 LENS = "unprocess: through a lens"
 XTRANS = "unprocess: X-Trans"
 FLOAT = "process: float output"
@@ -51,6 +52,16 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
     ),
     (RENDER, (BAYER,), "process {out}/bayer/photo.dng -o {out}/png"),
     (FLOAT, (RENDER,), "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
+    (  # the default demosaic's kernel is its own (rawsim.engine.process.bayer_kernel)
+        OTHERS,
+        (RENDER,),
+        "process {out}/bayer/photo.dng -o {out}/wcd --demosaic wcd",
+    ),
+    (
+        "process: float output, the other demosaics",
+        (OTHERS, FLOAT),
+        "process {out}/bayer/photo.dng -o {out}/wcd_exr --format exr --demosaic wcd",
+    ),
     ("process: half size", (RENDER,), "process {out}/bayer/photo.dng -o {out}/half --half-size"),
     (
         "process: profiled denoise",
