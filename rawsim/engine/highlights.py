@@ -523,7 +523,8 @@ def _copy(raw, out, slots, black, scale, threads):
             if y >= h:
                 break
             if scale == 1.0:
-                out[y] = raw[y]
+                for x in range(w):  # a loop: a slice assignment compiles seconds longer
+                    out[y, x] = raw[y, x]
                 continue
             for x in range(w):
                 k = black[slots[y % ph, x % pw]]

@@ -102,9 +102,18 @@ def _mirror(b, q, r0, r1, c0, c1, h, w):
         for j in range(jb, jhi):  # vc ≥ w mirrors 2(w − 1) − vc
             b[i, j] = b[i, 2 * (w - 1 - c0 + HALO) - j]
     for i in range(HALO - q, ia):
-        b[i, jlo:jhi] = b[2 * (HALO - r0) - i, jlo:jhi]
+        _copy_row(b, i, 2 * (HALO - r0) - i, jlo, jhi)
     for i in range(ib, r1 - r0 + HALO + q):
-        b[i, jlo:jhi] = b[2 * (h - 1 - r0 + HALO) - i, jlo:jhi]
+        _copy_row(b, i, 2 * (h - 1 - r0 + HALO) - i, jlo, jhi)
+
+
+@njit(inline="always", **_JIT)
+def _copy_row(b, i, src, jlo, jhi):
+    """Row ``src`` of ``b`` into row ``i``, columns [jlo, jhi). A loop, not a slice
+    assignment: numba compiles a slice assignment's shape check with its error
+    message, 1.5–2.7 s of each kernel's first compile."""
+    for j in range(jlo, jhi):
+        b[i, j] = b[src, j]
 
 
 # ------------------------------------------------------------ mosaic stages

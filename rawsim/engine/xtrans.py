@@ -193,8 +193,11 @@ def init_own(m, est, out, cmap):
     for pr in range(ph):
         for pc in range(pw):
             own = cmap[pr, pc]
-            est[own, pr, pc] = m[0, pr, pc]
-            out[own, pr, pc] = m[0, pr, pc]
+            sample = m[0, pr, pc]
+            for y in range(sample.shape[0]):  # loops: a slice assignment compiles seconds longer
+                for x in range(sample.shape[1]):
+                    est[own, pr, pc, y, x] = sample[y, x]
+                    out[own, pr, pc, y, x] = sample[y, x]
 
 
 @njit(**_JIT)

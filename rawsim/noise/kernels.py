@@ -296,7 +296,8 @@ def normal_row(first, k0, k1, out):
         both[2 * q] = r * cos
         both[2 * q + 1] = r * sin
     if not whole:
-        out[:] = both[start : start + out.size]
+        for k in range(out.size):  # a loop: a slice assignment compiles seconds longer
+            out[k] = both[start + k]
 
 
 @njit(error_model="numpy")
