@@ -979,13 +979,23 @@ def _scratch_buffers(shape):
     return a + b + c + d + e + f
 
 
+_KERNEL_DOC = """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
+
+    ``colors``: the CFA's colour index at the 4 tile sites (row-major);
+    ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
+    for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
+    that shape for the others). ``threads``: numba's thread count (each thread gets its
+    own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
+    the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
+    """
+
+
 def _bayer_kernel(name: str, learned: bool):
     """A Bayer render kernel named ``name``: ``learned``'s demosaic if ``learned``,
     else the others. ``learned`` is a constant of each kernel's closure, so numba
     compiles only its branch: a first render with the default demosaic compiles
-    neither ``menon``, ``malvar`` nor ``bilinear`` (27 s against 46 s on a 2-core
-    AMD EPYC, and as much less for each output type that ``rawsim compile``
-    builds)."""
+    neither ``menon``, ``malvar`` nor ``bilinear`` (a first ``process`` took 30 s
+    against 49 s with one kernel for all, on a 2-core AMD EPYC)."""
 
     def kernel(
         raw,
@@ -1064,15 +1074,6 @@ def _bayer_kernel(name: str, learned: bool):
     return njit(parallel=True, nogil=True, **_JIT)(kernel)
 
 
-_KERNEL_DOC = """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
-
-    ``colors``: the CFA's colour index at the 4 tile sites (row-major);
-    ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
-    for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
-    that shape for the others). ``threads``: numba's thread count (each thread gets its
-    own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
-    the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
-    """
 #: The default demosaic's kernel, and the other Bayer demosaics' (:func:`_bayer_kernel`).
 learned_kernel = _bayer_kernel("learned_kernel", True)
 process_kernel = _bayer_kernel("process_kernel", False)
