@@ -24,7 +24,7 @@ that peak memory (max RSS) is its own:
   * (``--io`` runs this alone) the I/O floor and batches (issue 28), in
     interleaved rounds, medians: marginal seconds per file over 3 copies of the
     file (a batch of 4 less a batch of 1, fresh processes) of ``rawsim process``
-    (wcd → 16-bit TIFF; also with ``--highlights clip``, against the default's
+    (the defaults → 16-bit TIFF; also with ``--highlights clip``, against the default's
     reconstruction of the photo's clipped sites) and of the floor, rawpy reading the raw plus
     OpenImageIO writing a 16-bit TIFF of the render's size; and 8 copies with
     ``--jobs 2`` beside ``dcraw_emu -T -6`` (LibRaw's AHD, 16-bit TIFF) run two at
@@ -481,7 +481,8 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     for name, t in times.items():
         print(f"  {name:<28} median {med[name]:6.2f} s  ({min(t):.2f}–{max(t):.2f})")
     print(
-        f"  per file in a batch (marginal over 3 copies): rawsim wcd → TIFF 16 {ours:.3f} s, "
+        f"  per file in a batch (marginal over 3 copies): rawsim (defaults) → TIFF 16 "
+        f"{ours:.3f} s, "
         f"floor (rawpy read + OIIO TIFF 16 write) {theirs:.3f} s = {ours / theirs:.2f}× "
         f"(target ≤ 2.0×); with --highlights clip {clip:.3f} s = {clip / theirs:.2f}× (what the "
         f"default's reconstruction of the sites that clip costs: {ours - clip:+.3f} s)"

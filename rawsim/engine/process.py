@@ -995,7 +995,7 @@ def _bayer_kernel(name: str, learned: bool):
     else the others. ``learned`` is a constant of each kernel's closure, so numba
     compiles only its branch: a first render with the default demosaic compiles
     neither ``menon``, ``malvar`` nor ``bilinear`` (a first ``process`` took 30 s
-    against 49 s with one kernel for all, on a 2-core AMD EPYC)."""
+    against 49 s with one kernel for all, on a 2-core AMD EPYC Zen 5)."""
 
     def kernel(
         raw,
