@@ -979,17 +979,6 @@ def _scratch_buffers(shape):
     return a + b + c + d + e + f
 
 
-_KERNEL_DOC = """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
-
-    ``colors``: the CFA's colour index at the 4 tile sites (row-major);
-    ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
-    for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
-    that shape for the others). ``threads``: numba's thread count (each thread gets its
-    own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
-    the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
-    """
-
-
 def _bayer_kernel(name: str, learned: bool):
     """A Bayer render kernel named ``name``: ``learned``'s demosaic if ``learned``,
     else the others. ``learned`` is a constant of each kernel's closure, so numba
@@ -1017,6 +1006,15 @@ def _bayer_kernel(name: str, learned: bool):
         tile_rows,
         tile_cols,
     ):
+        """Render the (H, W) uint16 mosaic ``raw`` into ``out`` (see :func:`_finish`).
+
+        ``colors``: the CFA's colour index at the 4 tile sites (row-major);
+        ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
+        for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
+        that shape for the others). ``threads``: numba's thread count (each thread gets its
+        own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
+        the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
+        """
         h, w = raw.shape
         rows, cols = (h + tile_rows - 1) // tile_rows, (w + tile_cols - 1) // tile_cols
         tiles = rows * cols
@@ -1070,7 +1068,6 @@ def _bayer_kernel(name: str, learned: bool):
                 )
 
     kernel.__name__ = kernel.__qualname__ = name
-    kernel.__doc__ = _KERNEL_DOC
     return njit(parallel=True, nogil=True, **_JIT)(kernel)
 
 
