@@ -623,14 +623,15 @@ def test_engine_scales_the_mosaic_when_codes_run_out():
 
 @pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
 def test_engine_render_equals_the_reference(pattern):
-    """Whole renders: 16-bit codes within 16, and all but 0.1 % within 1 (the rebuilt
+    """Whole renders: 16-bit codes within 16, and all but 0.2 % within 1 (the rebuilt
     sites agree to their rounding to whole DN, which the demosaic carries on: 13 codes
-    at one pixel of the X-Trans render, where a direction of its demosaic flips);
-    unclip exactly as the reference (to the usual one code)."""
+    at one pixel of the X-Trans render, where a direction of its demosaic flips; the
+    magenta guard's green raise follows red and blue, 2–3 codes across the X-Trans
+    render's blown disc); unclip exactly as the reference (to the usual one code)."""
     raw = synthetic_raw(pattern, h=84, w=150)
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"))
     diff = np.abs(ours.astype(np.int64) - ref)
-    assert diff.max() <= 16 and (diff > 1).mean() < 1e-3
+    assert diff.max() <= 16 and (diff > 1).mean() < 2e-3
     ours, ref = _both(raw, override(default_config(), highlights="reconstruct"), "exr", 32)
     assert np.abs(ours - ref).max() <= 2e-3
     _assert_close(*_both(raw, override(default_config(), highlights="unclip")))

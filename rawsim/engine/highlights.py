@@ -618,6 +618,85 @@ def _slots(cfa: CFA) -> np.ndarray:
     return np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
 
 
+def _check_ops(ops) -> np.ndarray:
+    """``ops`` as int64 codes, checked: levels, then white balance, only."""
+    ops = np.asarray(ops, dtype=np.int64)
+    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
+        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
+    return ops
+
+
+def _clip_codes(data, cfa: CFA, ops, opf, g, colours):
+    """What tells a clipped site of ``colours`` (of R=0, G=1, B=2) in the uint16 mosaic
+    ``data``: (cmap, slots, table, level, lines) (:func:`_clip_lines`, 65536 at the
+    other colours' sites), or None where no site of them reaches its clip code."""
+    _check_ops(ops)
+    ph, pw = cfa.period
+    cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
+    slots = _slots(cfa)
+    level = np.float32(HIGHLIGHT_CLIPPED) * g
+    # A site clips at black + 0.99 of the span: below the lowest such code, none can
+    # (a margin for float32 rounding), and one max over the codes is all the work.
+    used = np.unique(slots[np.isin(cmap, list(colours))])
+    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
+    if int(data.max()) < lowest:
+        return None
+    slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
+    slot_colour[slots.ravel()] = cmap.ravel()
+    table = mosaic_table(slot_colour, ops, opf)
+    lines = _clip_lines(table, slots, level, cmap, data.shape[1])
+    others = ~np.isin(np.tile(cmap, (1, -(-data.shape[1] // pw)))[:, : data.shape[1]], colours)
+    lines[others] = 65536
+    return cmap, slots, table, level, lines
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _green_near(raw, lines, threads):
+    """(H, W) uint8, 1 within 1 px (3 × 3, inside the image) of a site at or above its
+    code in ``lines`` (:func:`_clip_codes`), and whether any is. Row by row: a row's
+    three source rows are compared, then their hits spread a column either way."""
+    h, w = raw.shape
+    ph = lines.shape[0]
+    near = np.zeros((h, w), np.uint8)
+    rows = np.zeros(h, np.uint8)
+    counter = np.zeros(1, np.int64)  # the next band of rows (rawsim.engine.tiles)
+    band = 64
+    for _ in prange(threads):
+        hit = np.empty(w, np.uint8)
+        while True:
+            k = next_tile(counter)
+            if k * band >= h:
+                break
+            for y in range(k * band, min(h, k * band + band)):
+                for x in range(w):
+                    hit[x] = 0
+                for yy in range(max(0, y - 1), min(h, y + 2)):
+                    line, src = lines[yy % ph], raw[yy]
+                    for x in range(w):
+                        hit[x] |= np.int32(src[x]) >= line[x]
+                row, any_ = near[y], np.uint8(0)
+                for x in range(w):
+                    v = hit[x] | hit[max(x - 1, 0)] | hit[min(x + 1, w - 1)]
+                    row[x] = v
+                    any_ |= v
+                rows[y] = any_
+    return near, rows.any()
+
+
+def clipped_green(data: np.ndarray, cfa: CFA, ops, opf, gains) -> np.ndarray | None:
+    """The magenta guard's pixels (:mod:`rawsim.engine.magenta_guard`): (H, W) uint8, 1
+    within 1 px of a green site of the uint16 mosaic ``data`` at or above its clip
+    level (as :func:`reconstruct_mosaic` reads it: ``ops``/``opf``, ``gains``), or None
+    where none is."""
+    data = np.ascontiguousarray(data)
+    g = np.asarray(gains, dtype=np.float32)
+    codes = _clip_codes(data, cfa, ops, np.asarray(opf, dtype=np.float64), g, (1,))
+    if codes is None:
+        return None
+    near, any_ = _green_near(data, codes[-1], numba.get_num_threads())
+    return near if any_ else None
+
+
 def reconstruct_mosaic(
     data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains, out=None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -632,33 +711,21 @@ def reconstruct_mosaic(
     and ``opf`` with the levels' span scaled where the rebuilt values needed more
     codes than 65535.
     """
-    ops = np.asarray(ops, dtype=np.int64)
-    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
-        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
+    ops = _check_ops(ops)
     g = np.asarray(gains, dtype=np.float32)
     h, w = data.shape
     b = highlight_block(cfa.colors, cfa.period)
     hb, wb = h // b, w // b
     if hb == 0 or wb == 0:
         return data, opf
-    ph, pw = cfa.period
-    cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
-    slots = _slots(cfa)
-    level = np.float32(HIGHLIGHT_CLIPPED) * g
     data = np.ascontiguousarray(data)
     opf = np.asarray(opf, dtype=np.float64)
-    # A site clips at black + 0.99 of the span: below the lowest such code, none can
-    # (a margin for float32 rounding), and one max over the codes is all the work.
-    used = np.unique(slots)
-    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
-    if int(data.max()) < lowest:
+    codes = _clip_codes(data, cfa, ops, opf, g, (0, 1, 2))
+    if codes is None:
         return data, opf
-    slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
-    slot_colour[slots.ravel()] = cmap.ravel()
-    table = mosaic_table(slot_colour, ops, opf)
+    cmap, slots, table, level, lines = codes
     t = TILE
     threads = numba.get_num_threads()
-    lines = _clip_lines(table, slots, level, cmap, w)
     clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
     if not clipped.any():
         return data, opf

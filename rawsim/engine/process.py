@@ -6,7 +6,8 @@ taking the next tile while any are left: :mod:`rawsim.engine.tiles`).
 For each tile every stage runs while the data is in cache: the mosaic stages
 (black level, lens shading, white balance, highlight clip, in the config's
 order) on the tile and a :data:`HALO` of context, the demosaic
-(:mod:`rawsim.isp.demosaic`: ``bilinear``, ``malvar``, ``menon``, ``wcd``), then
+(:mod:`rawsim.isp.demosaic`: ``bilinear``, ``malvar``, ``menon``, ``wcd``), where
+``reconstruct`` rebuilt the mosaic its magenta guard (:func:`_guard`), then
 per pixel the RGB stages (white balance, highlights, lens shading after
 demosaic; colour matrix; exposure; tone and transfer) and the quantisation,
 written straight to the oriented output.
@@ -34,6 +35,7 @@ from numba import njit, prange
 
 from rawsim.engine import configure
 from rawsim.engine import xtrans as xt
+from rawsim.engine.magenta_guard import green_raise
 from rawsim.engine.tiles import next_tile
 from rawsim.isp.config import DEMOSAIC_ROOT_EPS
 
@@ -837,6 +839,29 @@ def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0,
 
 
 @njit(**_JIT)
+def _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w):
+    """``reconstruct``'s magenta guard (:mod:`rawsim.engine.magenta_guard`) on the
+    tile's pixels that ``near`` (H, W) uint8 marks, in ``rgb`` as the demosaic left
+    it: square roots where the post ops start by squaring them. ``to_xyz``: camera →
+    XYZ over the white (3, 3) float64."""
+    root = post_ops.size > 0 and post_ops[0] == OP_SQUARE
+    ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
+    red, green, blue = rgb
+    for i in range(ia, ib):
+        marks = near[r0 - HALO + i]
+        for j in range(ja, jb):
+            if not marks[c0 - HALO + j]:
+                continue
+            r, g, b = red[i, j], green[i, j], blue[i, j]
+            if root:
+                r, g, b = _from_root(r), _from_root(g), _from_root(b)
+            d = green_raise(np.float64(r), np.float64(g), np.float64(b), to_xyz)
+            if d > 0.0:
+                g = np.float32(g + np.float32(d))
+                green[i, j] = _to_root(g) if root else g
+
+
+@njit(**_JIT)
 def _rgb_stage(op, p, r, g, b, y, x0, h, w):
     """One RGB stage on a row: ``r``, ``g``, ``b`` (views) in place; its first pixel is (y, x0)."""
     one = np.float32(1.0)
@@ -992,6 +1017,8 @@ def _bayer_kernel(name: str, learned: bool):
         method,
         filters,
         table,
+        near,
+        to_xyz,
         pre_ops,
         pre_f,
         post_ops,
@@ -1011,7 +1038,8 @@ def _bayer_kernel(name: str, learned: bool):
         ``colors``: the CFA's colour index at the 4 tile sites (row-major);
         ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
         for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
-        that shape for the others). ``threads``: numba's thread count (each thread gets its
+        that shape for the others). ``near``/``to_xyz``: the magenta guard's (:func:`_guard`).
+        ``threads``: numba's thread count (each thread gets its
         own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
         the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
         """
@@ -1049,6 +1077,8 @@ def _bayer_kernel(name: str, learned: bool):
                     _menon(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w)
                 else:
                     _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w, np.int64(0))
+                if near.shape[0]:
+                    _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w)
                 _finish(
                     rgb,
                     post_ops,
@@ -1120,6 +1150,8 @@ def periodic_kernel(
     cols,
     geometry,
     table,
+    near,
+    to_xyz,
     pre_ops,
     pre_f,
     post_ops,
@@ -1140,6 +1172,7 @@ def periodic_kernel(
     colour, the demosaic of :mod:`rawsim.engine.xtrans` (``geometry``: its
     ``Planes.args()``) in phase planes, then the same RGB stages and output.
 
+    ``near``/``to_xyz``: the magenta guard's (:func:`_guard`).
     ``rows``/``cols``: :func:`rawsim.engine.xtrans.tile_index` of the image for tiles of
     ``tile_rows`` × ``tile_cols`` (whole periods) and halos ``halo_rows``/``halo_cols``.
     Levels ops hold black and white − black per colour (R, G, B) in their site slots.
@@ -1166,6 +1199,8 @@ def periodic_kernel(
             xt.planes_to_image(
                 result, halo_rows, halo_cols, r1 - r0, c1 - c0, rgb, np.int64(HALO), np.int64(HALO)
             )
+            if near.shape[0]:
+                _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w)
             _finish(
                 rgb,
                 post_ops,

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from rawsim.color import srgb_from_camera
+from rawsim.color import SRGB_TO_XYZ, XYZ_D65, srgb_from_camera
 from rawsim.colorspaces import OUTPUT_SPACES as COLOR_SPACES
 from rawsim.colorspaces import space_from_srgb, space_transfer
 from rawsim.errors import ParameterError
@@ -120,6 +120,18 @@ HIGHLIGHT_HUE_SPREAD = 0.15
 HIGHLIGHT_HEADROOM = 4.0
 #: ``reconstruct``: no colour's share of a block's sum is taken below this.
 HIGHLIGHT_RATIO_FLOOR = 0.01
+#: ``reconstruct``'s magenta guard (:mod:`rawsim.isp.magenta_guard`): the CIELAB hues
+#: (degrees, D65) it keeps rebuilt light out of, where green clipped: magenta and
+#: purple, the hues a green rebuilt too low beside red and blue takes.
+HIGHLIGHT_MAGENTA = (290.0, 345.0)
+#: The guard takes hues this many degrees beyond the band's edges, so that rounding
+#: (float32 values, 16-bit codes, another reader's D65) leaves none inside it.
+HIGHLIGHT_GUARD_MARGIN = 1.0
+#: The guard's search for the least green raise: halvings of [0, this × the pixel's
+#: largest value].
+HIGHLIGHT_GUARD_REACH = 4.0
+HIGHLIGHT_GUARD_STEPS = 20
+
 TONE_CURVES = ("none", "smoothstep", "reinhard", "aces", "hable")
 #: The filmic curves' white point W: the least and the most (in each curve's units).
 TONE_WHITE_RANGE = (0.25, 12.0)
@@ -150,6 +162,14 @@ def highlight_block(colors: tuple[int, ...], period: tuple[int, int]) -> int:
         if all(block == {0, 1, 2} for block in blocks):
             return b
     return math.lcm(ph, pw)
+
+
+def magenta_edges() -> tuple[tuple[float, float], tuple[float, float]]:
+    """The unit vectors (a, b) of the hues the magenta guard clears: ``HIGHLIGHT_MAGENTA``
+    widened by ``HIGHLIGHT_GUARD_MARGIN`` on each side."""
+    lo, hi = HIGHLIGHT_MAGENTA
+    lo, hi = math.radians(lo - HIGHLIGHT_GUARD_MARGIN), math.radians(hi + HIGHLIGHT_GUARD_MARGIN)
+    return (math.cos(lo), math.sin(lo)), (math.cos(hi), math.sin(hi))
 
 
 #: dcraw's lightness/chroma transform of the highlight blend (rows: L, C1, C2).
@@ -611,12 +631,7 @@ class ColorMatrixStage(Stage):
         (through XYZ; Bradford-adapted to D50 for ProPhoto)."""
         if self.output_space == "camera":
             return np.eye(3)
-        if raw.xyz_to_camera is not None:
-            to_srgb = srgb_from_camera(raw.xyz_to_camera)
-        elif raw.camera_to_srgb is not None:
-            to_srgb = raw.camera_to_srgb
-        else:
-            to_srgb = np.eye(3)
+        to_srgb = camera_to_srgb(raw)
         if self.output_space == "srgb":
             return to_srgb
         return space_from_srgb(self.output_space) @ to_srgb
@@ -624,6 +639,16 @@ class ColorMatrixStage(Stage):
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
         """``info["color_matrix"]``: :meth:`matrix` as nested lists."""
         info["color_matrix"] = self.matrix(raw).tolist()
+
+
+def camera_to_srgb(raw: RawImage) -> np.ndarray:
+    """(3, 3) float64 white-balanced camera RGB → linear sRGB, as LibRaw does: from the
+    raw's XYZ → camera matrix, else its own camera → sRGB matrix, else the identity."""
+    if raw.xyz_to_camera is not None:
+        return srgb_from_camera(raw.xyz_to_camera)
+    if raw.camera_to_srgb is not None:
+        return np.asarray(raw.camera_to_srgb, dtype=np.float64)
+    return np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -1074,6 +1099,25 @@ class ResolvedIsp:
             return False
         demosaic = next((s for s in self.stages if isinstance(s, DemosaicStage)), None)
         return demosaic is not None and demosaic.method != HALF_SIZE
+
+    @property
+    def magenta_guard(self) -> np.ndarray | None:
+        """The (3, 3) float64 matrix from white-balanced camera RGB to CIE XYZ over the
+        D65 white (each row divided by the white's X, Y, Z) that ``reconstruct``'s
+        magenta guard (:mod:`rawsim.isp.magenta_guard`) tests hues with, or None where
+        there is no guard: it runs on the full-size demosaic of a mosaic that comes
+        straight from ``reconstruct`` (the stage just before it; the lens's mosaic
+        TCA, which moves no green site, may come between)."""
+        kinds = [type(s) for s in self.stages]
+        if self.raw.cfa is None or DemosaicStage not in kinds or HighlightsStage not in kinds:
+            return None
+        at = kinds.index(DemosaicStage)
+        highlights = self.stages[kinds.index(HighlightsStage)]
+        if kinds.index(HighlightsStage) != at - 1 or highlights.mode != "reconstruct":
+            return None
+        if self.stages[at].method == HALF_SIZE:
+            return None
+        return (SRGB_TO_XYZ / XYZ_D65[:, None]) @ camera_to_srgb(self.raw)
 
     @property
     def rgb_lens(self) -> dict | None:

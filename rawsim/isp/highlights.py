@@ -143,7 +143,7 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
         if cfa is None:
             raise ParameterError("a mosaic (B, 1, H, W) needs its CFA pattern")
         b = highlight_block(cfa.colors, cfa.period)
-        cmap = _colour_map(cfa, *x.shape[-2:], x.device)
+        cmap = colour_map(cfa, *x.shape[-2:], x.device)
     else:
         raise ParameterError(f"reconstruct needs a mosaic or RGB, got shape {tuple(x.shape)}")
     h, w = x.shape[-2:]
@@ -177,7 +177,7 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     return out
 
 
-def _colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
+def colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
     """(1, 1, H, W) int64: the colour (R=0, G=1, B=2) of each site."""
     ph, pw = cfa.period
     tile = torch.tensor(cfa.colors, device=device).reshape(ph, pw)

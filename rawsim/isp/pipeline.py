@@ -57,6 +57,7 @@ from rawsim.isp.highlights import Highlights
 from rawsim.isp.lens import LensCorrection, MosaicTca
 from rawsim.isp.lens_shading import LensShading
 from rawsim.isp.levels import Levels
+from rawsim.isp.magenta_guard import MagentaGuard
 from rawsim.isp.orientation import Orientation
 from rawsim.isp.raw_denoise import RawDenoise
 from rawsim.isp.tone import ToneCurve
@@ -155,10 +156,15 @@ def build_isp(config: IspConfig | list[dict], raw) -> Isp:
 def isp_for(resolved: ResolvedIsp) -> Isp:
     """The :class:`Isp` of a config resolved for one raw (its stages, its values)."""
     modules = []
+    guard = resolved.magenta_guard
     for s in resolved.stages:
         if isinstance(s, DemosaicStage) and resolved.tca_on_mosaic:
             modules.append(("lens_tca", MosaicTca(resolved.raw.cfa, resolved.info["lens"])))
-        modules.append((s.name, MODULES[type(s)](s, resolved)))
+        module = MODULES[type(s)](s, resolved)
+        if isinstance(s, DemosaicStage) and guard is not None:
+            green = resolved.info.get("white_balance", (1.0, 1.0, 1.0))[1]
+            module = MagentaGuard(module, resolved.raw.cfa, green, guard)
+        modules.append((s.name, module))
     cfa = resolved.raw.cfa
     return Isp(modules, resolved.info, int(np.lcm(*cfa.period)) if cfa else 2)
 

@@ -172,6 +172,12 @@ class EnginePlan:
     #: of the mosaic before the kernels (:attr:`~rawsim.isp.config.ResolvedIsp.tca_on_mosaic`;
     #: the lens pass then moves every colour as green), or None.
     tca: dict | None = None
+    #: ``reconstruct``'s magenta guard: camera → XYZ over the white (3, 3)
+    #: (:attr:`~rawsim.isp.config.ResolvedIsp.magenta_guard`), or None; and once the
+    #: highlight pre-pass has run, the pixels it looks at
+    #: (:func:`rawsim.engine.highlights.clipped_green`; None where none).
+    guard: np.ndarray | None = None
+    near: np.ndarray | None = None
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -252,7 +258,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
     orientation = 1
     method = "bilinear"
     lens, lens_at = None, 0
-    denoise = highlights = None
+    denoise = highlights = guard = None
     tca = resolved.info["lens"] if resolved.tca_on_mosaic else None
     for stage in resolved.stages:
         if isinstance(stage, RawDenoiseStage):
@@ -269,6 +275,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
             ):
                 return None  # the pre-pass reads levels and white balance only
             highlights = (tuple(resolved.info.get("white_balance", (1.0, 1.0, 1.0))), len(pre))
+            guard = resolved.magenta_guard
             continue
         if isinstance(stage, LensCorrectionStage):
             if tail:
@@ -316,6 +323,7 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
         denoise,
         highlights,
         tca,
+        guard,
     )
 
 
@@ -419,15 +427,19 @@ def engine_render(
             data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
         raw, plan = replace(raw, data=data), replace(plan, denoise=None)
     if plan.highlights is not None:
-        from rawsim.engine.highlights import reconstruct_mosaic
+        from rawsim.engine.highlights import clipped_green, reconstruct_mosaic
 
         gains, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
+        near = None
+        if plan.guard is not None:
+            near = clipped_green(raw.data, raw.cfa, ops, numbers, gains)
         spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
         data, numbers = reconstruct_mosaic(raw.data, raw.cfa, ops, numbers, gains, out=spare)
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
-        raw, plan = replace(raw, data=data), replace(plan, pre_f=pre_f, highlights=None)
+        plan = replace(plan, pre_f=pre_f, highlights=None, near=near)
+        raw = replace(raw, data=data)
     if plan.tca is not None:
         from rawsim.engine.lens import correct_mosaic_tca
 
@@ -469,6 +481,11 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
     else:
         table = ep.mosaic_table(colors, plan.pre_ops, plan.pre_f)
     stages = (plan.pre_ops, plan.pre_f, plan.post_ops, plan.post_f, plan.out_mode, plan.lut)
+    guard = (  # the magenta guard's pixels and matrix (none: an empty mask)
+        (plan.near, np.ascontiguousarray(plan.guard, dtype=np.float64))
+        if plan.near is not None
+        else (np.zeros((0, 0), np.uint8), np.zeros((3, 3)))
+    )
     output = (plan.gamma, scale, np.array([transpose, flip_rows, flip_cols]), out)
     threads = numba.get_num_threads()
     data = np.ascontiguousarray(raw.data)
@@ -488,7 +505,7 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
             filters = np.zeros((2, 2, 2, 3, REACH + 1, REACH + 1), np.float32)
         tile = tile or (ep.TILE_ROWS, ep.TILE_COLS)
         kernel = ep.bayer_kernel(method)
-        kernel(data, colors, method, filters, table, *stages, *output, threads, *tile)
+        kernel(data, colors, method, filters, table, *guard, *stages, *output, threads, *tile)
     else:
         from rawsim.engine import xtrans
 
@@ -496,7 +513,7 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
         tile = tile or geo.tile_shape()
         rows, cols = geo.index(h, 0, tile[0]), geo.index(w, 1, tile[1])
         ep.periodic_kernel(
-            data, rows, cols, geo.args(), table, *stages, *output, threads, *tile, *geo.halo
+            data, rows, cols, geo.args(), table, *guard, *stages, *output, threads, *tile, *geo.halo
         )
     return _reused(out, fmt, bits, reuse)
 

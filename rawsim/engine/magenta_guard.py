@@ -1,0 +1,51 @@
+"""``reconstruct``'s magenta guard, compiled: the engine's form of
+:mod:`rawsim.isp.magenta_guard` (the torch reference, which defines it).
+
+The render kernels of :mod:`rawsim.engine.process` call :func:`green_raise` on each
+demosaicked pixel that :func:`rawsim.engine.highlights.clipped_green` marked (within
+1 px of a clipped green site), in float64 as the reference, and raise its green by
+the result.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from rawsim.engine import configure
+from rawsim.isp.config import HIGHLIGHT_GUARD_REACH, HIGHLIGHT_GUARD_STEPS, magenta_edges
+
+configure()
+
+_JIT = {"cache": True, "error_model": "numpy"}
+(_X1, _Y1), (_X2, _Y2) = magenta_edges()
+_REACH = float(HIGHLIGHT_GUARD_REACH)
+_STEPS = int(HIGHLIGHT_GUARD_STEPS)
+
+
+@njit(inline="always", **_JIT)
+def _in_band(r, g, b, m):
+    """Whether camera RGB (r, g, b) has its CIELAB hue strictly inside the band
+    (``m``: camera → XYZ over the white, (3, 3) float64)."""
+    fx = np.cbrt(max(m[0, 0] * r + m[0, 1] * g + m[0, 2] * b, 0.0))
+    fy = np.cbrt(max(m[1, 0] * r + m[1, 1] * g + m[1, 2] * b, 0.0))
+    fz = np.cbrt(max(m[2, 0] * r + m[2, 1] * g + m[2, 2] * b, 0.0))
+    a, bb = 500.0 * (fx - fy), 200.0 * (fy - fz)
+    return _X1 * bb - _Y1 * a > 0.0 and _X2 * bb - _Y2 * a < 0.0
+
+
+@njit(inline="always", **_JIT)
+def green_raise(r, g, b, m):
+    """The least raise of green (float64) that takes (r, g, b) out of the band, found
+    by halving as the reference does; 0 where it is outside or nothing is positive."""
+    top = max(r, max(g, b))
+    if top <= 0.0 or not _in_band(r, g, b, m):
+        return 0.0
+    lo, hi = 0.0, _REACH * top
+    for _ in range(_STEPS):
+        mid = (lo + hi) / 2
+        if _in_band(r, g + mid, b, m):
+            lo = mid
+        else:
+            hi = mid
+    return hi
