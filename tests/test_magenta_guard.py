@@ -4,6 +4,7 @@ rebuilt highlights turned magenta without it."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,16 @@ def test_no_guard_where_reconstruct_does_not_feed_the_demosaic():
         assert not any(isinstance(m, MagentaGuard) for m in isp.stages)
     isp = build_isp(default_config(), raw)
     assert sum(isinstance(m, MagentaGuard) for m in isp.stages) == 1
+
+
+@pytest.mark.parametrize("pattern,h,w", [("RGGB", 86, 150), ("XTRANS", 85, 151)])
+def test_engine_guard_equals_the_reference_at_the_edges(pattern, h, w):
+    """Clipped green sites along the image's last row, and (X-Trans at sizes that are
+    no multiple of 3) beyond the last whole highlight block: the engine marks the
+    same pixels as the reference."""
+    raw = synthetic_raw(pattern, h=h, w=w)
+    data = raw.data.copy()
+    data[-1, :] = 16383  # the last row clipped, every colour
+    raw = replace(raw, data=data)
+    ours, ref = _both(raw, override(default_config(), highlights="reconstruct"), "exr", 32)
+    assert np.abs(ours - ref).max() <= 2e-3

@@ -653,48 +653,58 @@ def _clip_codes(data, cfa: CFA, ops, opf, g, colours):
 @njit(parallel=True, nogil=True, **_JIT)
 def _green_near(raw, lines, threads):
     """(H, W) uint8, 1 within 1 px (3 × 3, inside the image) of a site at or above its
-    code in ``lines`` (:func:`_clip_codes`), and whether any is. Row by row: a row's
-    three source rows are compared, then their hits spread a column either way."""
+    code in ``lines`` (:func:`_clip_codes`), and (H,) uint8, whether each row has any.
+    One comparison per site finds the rows that hold such a site; only the rows
+    beside them are marked (each ORs its three source rows' hits, then spreads them
+    a column either way)."""
     h, w = raw.shape
     ph = lines.shape[0]
     near = np.zeros((h, w), np.uint8)
-    rows = np.zeros(h, np.uint8)
-    counter = np.zeros(1, np.int64)  # the next band of rows (rawsim.engine.tiles)
+    hits, rows = np.zeros(h, np.uint8), np.zeros(h, np.uint8)
     band = 64
-    for _ in prange(threads):
-        hit = np.empty(w, np.uint8)
-        while True:
-            k = next_tile(counter)
-            if k * band >= h:
-                break
-            for y in range(k * band, min(h, k * band + band)):
-                for x in range(w):
-                    hit[x] = 0
-                for yy in range(max(0, y - 1), min(h, y + 2)):
-                    line, src = lines[yy % ph], raw[yy]
+    for step in range(2):
+        counter = np.zeros(1, np.int64)  # the next band of rows (rawsim.engine.tiles)
+        for _ in prange(threads):
+            hit = np.empty(w, np.uint8)
+            while True:
+                k = next_tile(counter)
+                if k * band >= h:
+                    break
+                for y in range(k * band, min(h, k * band + band)):
+                    if step == 0:
+                        line, src, any_ = lines[y % ph], raw[y], np.uint8(0)
+                        for x in range(w):
+                            any_ |= np.int32(src[x]) >= line[x]
+                        hits[y] = any_
+                        continue
+                    y0, y1 = max(0, y - 1), min(h, y + 2)
+                    if not hits[y0:y1].any():
+                        continue
                     for x in range(w):
-                        hit[x] |= np.int32(src[x]) >= line[x]
-                row, any_ = near[y], np.uint8(0)
-                for x in range(w):
-                    v = hit[x] | hit[max(x - 1, 0)] | hit[min(x + 1, w - 1)]
-                    row[x] = v
-                    any_ |= v
-                rows[y] = any_
-    return near, rows.any()
+                        hit[x] = 0
+                    for yy in range(y0, y1):
+                        line, src = lines[yy % ph], raw[yy]
+                        for x in range(w):
+                            hit[x] |= np.int32(src[x]) >= line[x]
+                    row = near[y]
+                    for x in range(w):
+                        row[x] = hit[x] | hit[max(x - 1, 0)] | hit[min(x + 1, w - 1)]
+                    rows[y] = 1
+    return near, rows
 
 
-def clipped_green(data: np.ndarray, cfa: CFA, ops, opf, gains) -> np.ndarray | None:
+def clipped_green(data: np.ndarray, cfa: CFA, ops, opf, gains) -> tuple | None:
     """The magenta guard's pixels (:mod:`rawsim.engine.magenta_guard`): (H, W) uint8, 1
     within 1 px of a green site of the uint16 mosaic ``data`` at or above its clip
-    level (as :func:`reconstruct_mosaic` reads it: ``ops``/``opf``, ``gains``), or None
-    where none is."""
+    level (as :func:`reconstruct_mosaic` reads it: ``ops``/``opf``, ``gains``), and
+    (H,) uint8, whether each row has any; or None where none is."""
     data = np.ascontiguousarray(data)
     g = np.asarray(gains, dtype=np.float32)
     codes = _clip_codes(data, cfa, ops, np.asarray(opf, dtype=np.float64), g, (1,))
     if codes is None:
         return None
-    near, any_ = _green_near(data, codes[-1], numba.get_num_threads())
-    return near if any_ else None
+    near, rows = _green_near(data, codes[-1], numba.get_num_threads())
+    return (near, rows) if rows.any() else None
 
 
 def reconstruct_mosaic(

@@ -26,10 +26,15 @@ _STEPS = int(HIGHLIGHT_GUARD_STEPS)
 @njit(inline="always", **_JIT)
 def _in_band(r, g, b, m):
     """Whether camera RGB (r, g, b) has its CIELAB hue strictly inside the band
-    (``m``: camera → XYZ over the white, (3, 3) float64)."""
-    fx = np.cbrt(max(m[0, 0] * r + m[0, 1] * g + m[0, 2] * b, 0.0))
-    fy = np.cbrt(max(m[1, 0] * r + m[1, 1] * g + m[1, 2] * b, 0.0))
-    fz = np.cbrt(max(m[2, 0] * r + m[2, 1] * g + m[2, 2] * b, 0.0))
+    (``m``: camera → XYZ over the white, (3, 3) float64). The band lies where a > 0
+    and b < 0, that is X > Y < Z over the white: colours outside that are let go
+    before the cube roots (the reference takes them; the answer is the same)."""
+    x = max(m[0, 0] * r + m[0, 1] * g + m[0, 2] * b, 0.0)
+    y = max(m[1, 0] * r + m[1, 1] * g + m[1, 2] * b, 0.0)
+    z = max(m[2, 0] * r + m[2, 1] * g + m[2, 2] * b, 0.0)
+    if not (x > y and y < z):
+        return False
+    fx, fy, fz = np.cbrt(x), np.cbrt(y), np.cbrt(z)
     a, bb = 500.0 * (fx - fy), 200.0 * (fy - fz)
     return _X1 * bb - _Y1 * a > 0.0 and _X2 * bb - _Y2 * a < 0.0
 

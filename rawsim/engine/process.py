@@ -839,15 +839,17 @@ def _finish(rgb, ops, opf, out_mode, lut, gamma, scale, orient, out, r0, r1, c0,
 
 
 @njit(**_JIT)
-def _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w):
+def _guard(rgb, near, near_rows, to_xyz, post_ops, r0, r1, c0, c1, h, w):
     """``reconstruct``'s magenta guard (:mod:`rawsim.engine.magenta_guard`) on the
-    tile's pixels that ``near`` (H, W) uint8 marks, in ``rgb`` as the demosaic left
-    it: square roots where the post ops start by squaring them. ``to_xyz``: camera →
-    XYZ over the white (3, 3) float64."""
+    tile's pixels that ``near`` (H, W) uint8 marks (in the rows ``near_rows`` (H,)
+    marks), in ``rgb`` as the demosaic left it: square roots where the post ops start
+    by squaring them. ``to_xyz``: camera → XYZ over the white (3, 3) float64."""
     root = post_ops.size > 0 and post_ops[0] == OP_SQUARE
     ia, ib, ja, jb = _span(0, r0, r1, c0, c1, h, w)
     red, green, blue = rgb
     for i in range(ia, ib):
+        if not near_rows[r0 - HALO + i]:
+            continue
         marks = near[r0 - HALO + i]
         for j in range(ja, jb):
             if not marks[c0 - HALO + j]:
@@ -1018,6 +1020,7 @@ def _bayer_kernel(name: str, learned: bool):
         filters,
         table,
         near,
+        near_rows,
         to_xyz,
         pre_ops,
         pre_f,
@@ -1038,7 +1041,8 @@ def _bayer_kernel(name: str, learned: bool):
         ``colors``: the CFA's colour index at the 4 tile sites (row-major);
         ``method``: a :data:`DEMOSAIC_CODES` value (:func:`bayer_kernel` picks the kernel
         for it); ``filters``: the ``learned`` one's (:func:`_correct`; any float32 array of
-        that shape for the others). ``near``/``to_xyz``: the magenta guard's (:func:`_guard`).
+        that shape for the others). ``near``/``near_rows``/``to_xyz``: the magenta guard's
+        (:func:`_guard`).
         ``threads``: numba's thread count (each thread gets its
         own tile buffers); tiles are ``tile_rows`` × ``tile_cols`` (even numbers: tiles keep
         the CFA phase; default :data:`TILE_ROWS`, :data:`TILE_COLS`).
@@ -1078,7 +1082,7 @@ def _bayer_kernel(name: str, learned: bool):
                 else:
                     _wcd(m, bufs, rgb, cmap, r0, r1, c0, c1, h, w, np.int64(0))
                 if near.shape[0]:
-                    _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w)
+                    _guard(rgb, near, near_rows, to_xyz, post_ops, r0, r1, c0, c1, h, w)
                 _finish(
                     rgb,
                     post_ops,
@@ -1151,6 +1155,7 @@ def periodic_kernel(
     geometry,
     table,
     near,
+    near_rows,
     to_xyz,
     pre_ops,
     pre_f,
@@ -1172,7 +1177,7 @@ def periodic_kernel(
     colour, the demosaic of :mod:`rawsim.engine.xtrans` (``geometry``: its
     ``Planes.args()``) in phase planes, then the same RGB stages and output.
 
-    ``near``/``to_xyz``: the magenta guard's (:func:`_guard`).
+    ``near``/``near_rows``/``to_xyz``: the magenta guard's (:func:`_guard`).
     ``rows``/``cols``: :func:`rawsim.engine.xtrans.tile_index` of the image for tiles of
     ``tile_rows`` × ``tile_cols`` (whole periods) and halos ``halo_rows``/``halo_cols``.
     Levels ops hold black and white − black per colour (R, G, B) in their site slots.
@@ -1200,7 +1205,7 @@ def periodic_kernel(
                 result, halo_rows, halo_cols, r1 - r0, c1 - c0, rgb, np.int64(HALO), np.int64(HALO)
             )
             if near.shape[0]:
-                _guard(rgb, near, to_xyz, post_ops, r0, r1, c0, c1, h, w)
+                _guard(rgb, near, near_rows, to_xyz, post_ops, r0, r1, c0, c1, h, w)
             _finish(
                 rgb,
                 post_ops,

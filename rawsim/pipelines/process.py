@@ -175,9 +175,9 @@ class EnginePlan:
     #: ``reconstruct``'s magenta guard: camera → XYZ over the white (3, 3)
     #: (:attr:`~rawsim.isp.config.ResolvedIsp.magenta_guard`), or None; and once the
     #: highlight pre-pass has run, the pixels it looks at
-    #: (:func:`rawsim.engine.highlights.clipped_green`; None where none).
+    #: and their rows (:func:`rawsim.engine.highlights.clipped_green`; None where none).
     guard: np.ndarray | None = None
-    near: np.ndarray | None = None
+    near: tuple | None = None
 
 
 def _levels_op(ep, stage: BlackLevelStage, r: ResolvedIsp):
@@ -481,10 +481,10 @@ def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: 
     else:
         table = ep.mosaic_table(colors, plan.pre_ops, plan.pre_f)
     stages = (plan.pre_ops, plan.pre_f, plan.post_ops, plan.post_f, plan.out_mode, plan.lut)
-    guard = (  # the magenta guard's pixels and matrix (none: an empty mask)
-        (plan.near, np.ascontiguousarray(plan.guard, dtype=np.float64))
+    guard = (  # the magenta guard's pixels, their rows, its matrix (none: an empty mask)
+        (*plan.near, np.ascontiguousarray(plan.guard, dtype=np.float64))
         if plan.near is not None
-        else (np.zeros((0, 0), np.uint8), np.zeros((3, 3)))
+        else (np.zeros((0, 0), np.uint8), np.zeros(0, np.uint8), np.zeros((3, 3)))
     )
     output = (plan.gamma, scale, np.array([transpose, flip_rows, flip_cols]), out)
     threads = numba.get_num_threads()
