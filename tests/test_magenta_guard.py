@@ -18,6 +18,7 @@ from rawsim.color import SRGB_TO_XYZ, XYZ_D65
 from rawsim.io.raw import read_raw
 from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
+    HIGHLIGHT_GUARD_CHROMA,
     HIGHLIGHT_GUARD_MARGIN,
     HIGHLIGHT_GUARD_REACH,
     HIGHLIGHT_GUARD_STEPS,
@@ -37,15 +38,23 @@ TO_XYZ = SRGB_TO_XYZ / XYZ_D65[:, None]
 LO, HI = HIGHLIGHT_MAGENTA
 
 
-def hue(rgb: np.ndarray, to_xyz=TO_XYZ) -> np.ndarray:
-    """CIELAB hue (degrees) of camera RGB rows (N, 3): cube roots of X/Xn, Y/Yn, Z/Zn."""
+def _lab(rgb, to_xyz):
+    """Cube roots of X/Xn, Y/Yn, Z/Zn of camera RGB rows (N, 3), and CIELAB a, b."""
     f = np.cbrt(np.maximum(np.asarray(rgb, np.float64) @ np.asarray(to_xyz).T, 0.0))
-    return np.degrees(np.arctan2(200 * (f[:, 1] - f[:, 2]), 500 * (f[:, 0] - f[:, 1]))) % 360
+    return f, 500 * (f[:, 0] - f[:, 1]), 200 * (f[:, 1] - f[:, 2])
+
+
+def hue(rgb: np.ndarray, to_xyz=TO_XYZ) -> np.ndarray:
+    """CIELAB hue (degrees) of camera RGB rows (N, 3)."""
+    _, a, b = _lab(rgb, to_xyz)
+    return np.degrees(np.arctan2(b, a)) % 360
 
 
 def magenta(rgb, to_xyz=TO_XYZ) -> np.ndarray:
+    """Rows whose hue is in the band and whose chroma is no grey's."""
+    f, a, b = _lab(rgb, to_xyz)
     h = hue(rgb, to_xyz)
-    return (h > LO) & (h < HI)
+    return (h > LO) & (h < HI) & (np.hypot(a, b) > HIGHLIGHT_GUARD_CHROMA * 116 * f[:, 1])
 
 
 def _mosaic_with_clipped_green(h: int, w: int, site: tuple[int, int]) -> torch.Tensor:
@@ -84,7 +93,8 @@ def test_guard_raises_green_the_least_that_leaves_the_band():
 
 def test_guard_leaves_colours_it_may_not_touch():
     """A magenta light whose green was measured (no clipped green site within 1 px)
-    keeps its hue; a blue beside clipped green is not magenta and keeps its own."""
+    keeps its hue; beside clipped green, a blue (no magenta) and a white a shade pink
+    (a grey's chroma) keep theirs."""
     mosaic = torch.full((1, 1, 6, 6), 0.3, dtype=torch.float64)
     rgb = torch.tensor([0.8, 0.3, 0.9], dtype=torch.float64).reshape(1, 3, 1, 1).repeat(1, 1, 6, 6)
     assert torch.equal(guard_magenta(rgb, mosaic, CFA("RGGB"), 1.0, TO_XYZ), rgb)
@@ -92,6 +102,12 @@ def test_guard_leaves_colours_it_may_not_touch():
     blue = torch.tensor([0.05, 0.3, 1.0], dtype=torch.float64)
     assert not magenta(blue[None].numpy()).any()
     rgb = blue.reshape(1, 3, 1, 1).repeat(1, 1, 6, 6)
+    assert torch.equal(guard_magenta(rgb, mosaic, CFA("RGGB"), 1.0, TO_XYZ), rgb)
+    # a white a shade pink: its hue is in the band, its chroma a grey's
+    white = torch.tensor([1.0, 0.995, 1.0], dtype=torch.float64)
+    h = hue(white[None].numpy())[0]
+    assert LO < h < HI and not magenta(white[None].numpy()).any()
+    rgb = white.reshape(1, 3, 1, 1).repeat(1, 1, 6, 6)
     assert torch.equal(guard_magenta(rgb, mosaic, CFA("RGGB"), 1.0, TO_XYZ), rgb)
 
 
@@ -131,8 +147,9 @@ def clipped_photo(tmp_path_factory) -> Path:
 
 
 def test_reconstruct_turns_no_clipped_green_magenta(clipped_photo):
-    """On the photo, the demosaic of the rebuilt mosaic has hundreds of magenta pixels
-    within 1 px of clipped green; the guard leaves none, and changes no other pixel."""
+    """On the photo, the demosaic of the rebuilt mosaic has over a hundred magenta
+    pixels within 1 px of clipped green; the guard leaves none, and changes no other
+    pixel."""
     raw = read_raw(clipped_photo)
     config = ProcessOptions(default_config(), "exr", 32).effective_config()
     isp = build_isp(config, raw)

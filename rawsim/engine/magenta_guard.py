@@ -13,20 +13,26 @@ import numpy as np
 from numba import njit
 
 from rawsim.engine import configure
-from rawsim.isp.config import HIGHLIGHT_GUARD_REACH, HIGHLIGHT_GUARD_STEPS, magenta_edges
+from rawsim.isp.config import (
+    HIGHLIGHT_GUARD_CHROMA,
+    HIGHLIGHT_GUARD_REACH,
+    HIGHLIGHT_GUARD_STEPS,
+    magenta_edges,
+)
 
 configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
 (_X1, _Y1), (_X2, _Y2) = magenta_edges()
 _REACH = float(HIGHLIGHT_GUARD_REACH)
+_CHROMA = float(HIGHLIGHT_GUARD_CHROMA)
 _STEPS = int(HIGHLIGHT_GUARD_STEPS)
 
 
 @njit(inline="always", **_JIT)
 def _in_band(r, g, b, m):
-    """Whether camera RGB (r, g, b) has its CIELAB hue strictly inside the band
-    (``m``: camera → XYZ over the white, (3, 3) float64). The band lies where a > 0
+    """Whether camera RGB (r, g, b) has its CIELAB hue strictly inside the band and is
+    no grey (``m``: camera → XYZ over the white, (3, 3) float64). The band lies where a > 0
     and b < 0, that is X > Y < Z over the white: colours outside that are let go
     before the cube roots (the reference takes them; the answer is the same)."""
     x = max(m[0, 0] * r + m[0, 1] * g + m[0, 2] * b, 0.0)
@@ -36,7 +42,8 @@ def _in_band(r, g, b, m):
         return False
     fx, fy, fz = np.cbrt(x), np.cbrt(y), np.cbrt(z)
     a, bb = 500.0 * (fx - fy), 200.0 * (fy - fz)
-    return _X1 * bb - _Y1 * a > 0.0 and _X2 * bb - _Y2 * a < 0.0
+    grey = _CHROMA * 116.0 * fy
+    return _X1 * bb - _Y1 * a > 0.0 and _X2 * bb - _Y2 * a < 0.0 and a * a + bb * bb > grey * grey
 
 
 @njit(inline="always", **_JIT)

@@ -127,6 +127,10 @@ HIGHLIGHT_MAGENTA = (290.0, 345.0)
 #: The guard takes hues this many degrees beyond the band's edges, so that rounding
 #: (float32 values, 16-bit codes, another reader's D65) leaves none inside it.
 HIGHLIGHT_GUARD_MARGIN = 1.0
+#: The guard leaves greys alone: a colour is in the band only where its chroma C*ab
+#: exceeds this share of 116 f(Y) (its lightness before CIELAB's offset), 2 units of
+#: chroma at L* = 100; the hue of a near-neutral white is noise.
+HIGHLIGHT_GUARD_CHROMA = 0.02
 #: The guard's search for the least green raise: halvings of [0, this × the pixel's
 #: largest value].
 HIGHLIGHT_GUARD_REACH = 4.0

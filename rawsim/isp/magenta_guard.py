@@ -12,7 +12,8 @@ After the full-size demosaic of a mosaic straight from ``reconstruct``
 (:attr:`~rawsim.isp.config.ResolvedIsp.magenta_guard`), every pixel within 1 px of a
 green site at ≥ ``HIGHLIGHT_CLIPPED`` of its clip level whose colour (white-balanced
 camera RGB through the camera's matrix to CIE XYZ, D65) has a CIELAB hue inside
-``HIGHLIGHT_MAGENTA`` (widened by ``HIGHLIGHT_GUARD_MARGIN`` each side) gets the
+``HIGHLIGHT_MAGENTA`` (widened by ``HIGHLIGHT_GUARD_MARGIN`` each side), and is no
+grey (its chroma above ``HIGHLIGHT_GUARD_CHROMA`` of its lightness), gets the
 least green raise that takes it out: halvings
 (``HIGHLIGHT_GUARD_STEPS``) of [0, ``HIGHLIGHT_GUARD_REACH`` × its largest value],
 keeping the upper end. Hue does not depend on brightness (cube roots of the
@@ -30,6 +31,7 @@ from torch import nn
 from rawsim.cfa import CFA
 from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
+    HIGHLIGHT_GUARD_CHROMA,
     HIGHLIGHT_GUARD_REACH,
     HIGHLIGHT_GUARD_STEPS,
     magenta_edges,
@@ -40,12 +42,14 @@ from rawsim.isp.highlights import colour_map
 def in_band(rgb: torch.Tensor, to_xyz: torch.Tensor) -> torch.Tensor:
     """(N,) bool: whether each colour of ``rgb`` (N, 3), float64, white-balanced camera
     RGB, has its CIELAB hue strictly inside the guard's band
-    (:func:`~rawsim.isp.config.magenta_edges`; ``to_xyz``: camera → XYZ over the
+    (:func:`~rawsim.isp.config.magenta_edges`) and a chroma above
+    ``HIGHLIGHT_GUARD_CHROMA`` of its lightness (``to_xyz``: camera → XYZ over the
     white's XYZ, (3, 3) float64)."""
     f = (rgb @ to_xyz.T).clamp_min(0.0).pow(1.0 / 3.0)
     a, b = 500.0 * (f[:, 0] - f[:, 1]), 200.0 * (f[:, 1] - f[:, 2])
     (x1, y1), (x2, y2) = magenta_edges()
-    return (x1 * b - y1 * a > 0) & (x2 * b - y2 * a < 0)
+    grey = HIGHLIGHT_GUARD_CHROMA * 116.0 * f[:, 1]
+    return (x1 * b - y1 * a > 0) & (x2 * b - y2 * a < 0) & (a * a + b * b > grey * grey)
 
 
 def guard_magenta(
