@@ -531,7 +531,9 @@ def _engine_and_reference_mosaics(raw, config):
 
     plan = engine_plan(raw, config, "tiff")
     gains, at = plan.highlights
-    data, numbers = reconstruct_mosaic(raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+    data, numbers, _ = reconstruct_mosaic(
+        raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains
+    )
     isp = isp_for(resolve(config, raw))
     assert isp.names[:3] == ["black_level", "white_balance", "highlights"]
     x = raw_tensor(raw, "cpu")
@@ -646,7 +648,9 @@ def test_engine_skips_an_unclipped_raw():
     raw = replace_raw(raw, data=(raw.data // 2).astype(np.uint16))
     plan = engine_plan(raw, override(default_config(), highlights="reconstruct"), "tiff")
     gains, at = plan.highlights
-    data, numbers = reconstruct_mosaic(raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+    data, numbers, _ = reconstruct_mosaic(
+        raw.data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains
+    )
     assert data is raw.data
 
 
@@ -862,7 +866,7 @@ def test_engine_pre_pass_has_one_signature_for_any_number_of_clipped_tiles():
         data = calm.copy()
         for y, x in spots:
             data[y : y + 6, x : x + 6] = 16383
-        out, _ = reconstruct_mosaic(data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
+        out, _, _ = reconstruct_mosaic(data, raw.cfa, plan.pre_ops[:at], plan.pre_f[:at], gains)
         assert (out != data).any()
         signatures.append([len(k.signatures) for k in kernels])
     assert signatures[1] == signatures[0]

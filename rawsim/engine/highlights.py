@@ -618,26 +618,16 @@ def _slots(cfa: CFA) -> np.ndarray:
     return np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
 
 
-def _check_ops(ops) -> np.ndarray:
-    """``ops`` as int64 codes, checked: levels, then white balance, only."""
-    ops = np.asarray(ops, dtype=np.int64)
-    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
-        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
-    return ops
-
-
-def _clip_codes(data, cfa: CFA, ops, opf, g, colours):
-    """What tells a clipped site of ``colours`` (of R=0, G=1, B=2) in the uint16 mosaic
-    ``data``: (cmap, slots, table, level, lines) (:func:`_clip_lines`, 65536 at the
-    other colours' sites), or None where no site of them reaches its clip code."""
-    _check_ops(ops)
+def _clip_codes(data, cfa: CFA, ops, opf, g):
+    """What tells a clipped site in the uint16 mosaic ``data``: (cmap, slots, table,
+    level, lines) (:func:`_clip_lines`), or None where no site reaches its clip code."""
     ph, pw = cfa.period
     cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
     slots = _slots(cfa)
     level = np.float32(HIGHLIGHT_CLIPPED) * g
     # A site clips at black + 0.99 of the span: below the lowest such code, none can
     # (a margin for float32 rounding), and one max over the codes is all the work.
-    used = np.unique(slots[np.isin(cmap, list(colours))])
+    used = np.unique(slots)
     lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
     if int(data.max()) < lowest:
         return None
@@ -645,8 +635,6 @@ def _clip_codes(data, cfa: CFA, ops, opf, g, colours):
     slot_colour[slots.ravel()] = cmap.ravel()
     table = mosaic_table(slot_colour, ops, opf)
     lines = _clip_lines(table, slots, level, cmap, data.shape[1])
-    others = ~np.isin(np.tile(cmap, (1, -(-data.shape[1] // pw)))[:, : data.shape[1]], colours)
-    lines[others] = 65536
     return cmap, slots, table, level, lines
 
 
@@ -693,26 +681,24 @@ def _green_near(raw, lines, threads):
     return near, rows
 
 
-def clipped_green(data: np.ndarray, cfa: CFA, ops, opf, gains) -> tuple | None:
-    """The magenta guard's pixels (:mod:`rawsim.engine.magenta_guard`): (H, W) uint8, 1
-    within 1 px of a green site of the uint16 mosaic ``data`` at or above its clip
-    level (as :func:`reconstruct_mosaic` reads it: ``ops``/``opf``, ``gains``), and
-    (H,) uint8, whether each row has any; or None where none is."""
-    data = np.ascontiguousarray(data)
-    g = np.asarray(gains, dtype=np.float32)
-    codes = _clip_codes(data, cfa, ops, np.asarray(opf, dtype=np.float64), g, (1,))
-    if codes is None:
-        return None
-    near, rows = _green_near(data, codes[-1], numba.get_num_threads())
+def _clipped_green(data, cmap, lines):
+    """The magenta guard's pixels (:mod:`rawsim.engine.magenta_guard`) from the clip
+    codes ``lines`` of every site: (H, W) uint8, 1 within 1 px of a green site at or
+    above its code, and (H,) uint8, whether each row has any; or None where none is."""
+    w = data.shape[1]
+    green = lines.copy()
+    green[np.tile(cmap, (1, -(-w // cmap.shape[1])))[:, :w] != 1] = 65536  # others never
+    near, rows = _green_near(data, green, numba.get_num_threads())
     return (near, rows) if rows.any() else None
 
 
 def reconstruct_mosaic(
-    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains, out=None
-) -> tuple[np.ndarray, np.ndarray]:
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains, out=None, guard=False
+) -> tuple[np.ndarray, np.ndarray, tuple | None]:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt
-    (into ``out``, uint16 of its shape, where given), and the op numbers ``opf`` to read
-    it with.
+    (into ``out``, uint16 of its shape, where given), the op numbers ``opf`` to read
+    it with; and where ``guard``, the magenta guard's pixels, read with the same clip
+    codes (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`), else None.
 
     ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
     balance (:func:`rawsim.engine.process._mosaic_value`); ``gains``: the white
@@ -721,24 +707,29 @@ def reconstruct_mosaic(
     and ``opf`` with the levels' span scaled where the rebuilt values needed more
     codes than 65535.
     """
-    ops = _check_ops(ops)
+    ops = np.asarray(ops, dtype=np.int64)
+    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
+        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
     g = np.asarray(gains, dtype=np.float32)
     h, w = data.shape
     b = highlight_block(cfa.colors, cfa.period)
     hb, wb = h // b, w // b
     if hb == 0 or wb == 0:
-        return data, opf
+        return data, opf, None
     data = np.ascontiguousarray(data)
     opf = np.asarray(opf, dtype=np.float64)
-    codes = _clip_codes(data, cfa, ops, opf, g, (0, 1, 2))
+    codes = _clip_codes(data, cfa, ops, opf, g)
     if codes is None:
-        return data, opf
+        return data, opf, None
     cmap, slots, table, level, lines = codes
+    # the guard's pixels also where no whole block clipped (the rows and columns
+    # beyond the last whole block)
+    near = _clipped_green(data, cmap, lines) if guard else None
     t = TILE
     threads = numba.get_num_threads()
     clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
     if not clipped.any():
-        return data, opf
+        return data, opf, near
     # np.argwhere gives an F-ordered array of two or more rows, a C one of one: made C
     # always, so that the kernels have one signature whatever clipped.
     listed = np.ascontiguousarray(np.argwhere(_around(clipped)))  # the tiles read
@@ -808,4 +799,4 @@ def reconstruct_mosaic(
     if scale < 1:
         opf = opf.copy()
         opf[0, 4:8] = (span * scale).astype(np.float64)
-    return out, opf
+    return out, opf, near

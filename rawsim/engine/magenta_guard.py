@@ -2,7 +2,7 @@
 :mod:`rawsim.isp.magenta_guard` (the torch reference, which defines it).
 
 The render kernels of :mod:`rawsim.engine.process` call :func:`green_raise` on each
-demosaicked pixel that :func:`rawsim.engine.highlights.clipped_green` marked (within
+demosaicked pixel that :func:`rawsim.engine.highlights.reconstruct_mosaic` marked (within
 1 px of a clipped green site), in float64 as the reference, and raise its green by
 the result.
 """

@@ -175,7 +175,8 @@ class EnginePlan:
     #: ``reconstruct``'s magenta guard: camera → XYZ over the white (3, 3)
     #: (:attr:`~rawsim.isp.config.ResolvedIsp.magenta_guard`), or None; and once the
     #: highlight pre-pass has run, the pixels it looks at
-    #: and their rows (:func:`rawsim.engine.highlights.clipped_green`; None where none).
+    #: and their rows (:func:`rawsim.engine.highlights.reconstruct_mosaic`'s; None
+    #: where none).
     guard: np.ndarray | None = None
     near: tuple | None = None
 
@@ -427,15 +428,15 @@ def engine_render(
             data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
         raw, plan = replace(raw, data=data), replace(plan, denoise=None)
     if plan.highlights is not None:
-        from rawsim.engine.highlights import clipped_green, reconstruct_mosaic
+        from rawsim.engine.highlights import reconstruct_mosaic
 
         gains, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
-        near = None
-        if plan.guard is not None:
-            near = clipped_green(raw.data, raw.cfa, ops, numbers, gains)
         spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
-        data, numbers = reconstruct_mosaic(raw.data, raw.cfa, ops, numbers, gains, out=spare)
+        guard = plan.guard is not None
+        data, numbers, near = reconstruct_mosaic(
+            raw.data, raw.cfa, ops, numbers, gains, out=spare, guard=guard
+        )
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
         plan = replace(plan, pre_f=pre_f, highlights=None, near=near)
