@@ -15,6 +15,7 @@ from rawsim_cli.process import HIGHLIGHTS
 @click.argument("inputs", nargs=-1, required=True, metavar="RAW...")
 @click.option("--wb", help="White balance mode to resolve, as for 'rawsim process'.")
 @click.option("--white-level", type=click.Choice(["file", "auto"]), help="As for process.")
+@click.option("--saturation", type=click.Choice(["data", "white"]), help="As for process.")
 @click.option("--highlights", type=click.Choice(HIGHLIGHTS), help="As for process.")
 @click.option(
     "-c", "--config", "config_path", type=click.Path(dir_okay=False), help="ISP config (TOML)."
@@ -22,9 +23,10 @@ from rawsim_cli.process import HIGHLIGHTS
 @click.option("--json", "as_json", is_flag=True, help="One JSON record per file on stdout.")
 @click.pass_context
 @usage_errors
-def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
+def command(ctx, inputs, wb, white_level, saturation, highlights, config_path, as_json):
     """Print what rawsim reads from each raw and what 'rawsim process' would use:
-    camera, whether it can render it, CFA, black and white levels, the camera's
+    camera, whether it can render it, CFA, black and white levels, where each
+    colour saturates (DN) and how that was found in the data, the camera's
     and daylight multipliers, the white balance it applies and why, the colour
     matrix and its source, orientation, ISO, the DNG BaselineExposure and
     whether process applies it, the noise model '--denoise profiled' takes (and
@@ -48,7 +50,9 @@ def command(ctx, inputs, wb, white_level, highlights, config_path, as_json):
     from rawsim.run.batch import discover
 
     config = IspConfig.load(config_path) if config_path else IspConfig.default()
-    config = config.override(wb=wb, white_level=white_level, highlights=highlights)
+    config = config.override(
+        wb=wb, white_level=white_level, saturation=saturation, highlights=highlights
+    )
     found, missing, _ = discover(inputs, RAW_EXTENSIONS)
     failed = len(missing)
     for result in missing:
@@ -85,6 +89,11 @@ def _lines(facts: dict) -> list[str]:
             continue
         if key == "renderable":
             value = "yes" if value else f"no — {facts['reason']}"
+        elif key == "saturation":
+            value = "; ".join(
+                f"{colour} {level:g} ({found})"
+                for colour, level, found in zip("RGB", value["levels"], value["found"], strict=True)
+            )
         elif key == "noise_model":
             value = f"{value['source']}: {value['detail']}"
         elif key == "unprocess_profile":

@@ -46,6 +46,13 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "(LibRaw's default render).",
 )
 @click.option(
+    "--saturation",
+    type=click.Choice(["data", "white"]),
+    help="Where each colour saturates: data (default: where its sites pile up below the "
+    "white level, if they do; 'rawsim info' shows it) or white (the white level, as LibRaw "
+    "with adjust_maximum_thr 0).",
+)
+@click.option(
     "--demosaic",
     type=click.Choice(DEMOSAICS),
     help="Demosaic method. On X-Trans (6×6) raws, bilinear stays bilinear and the "
@@ -198,6 +205,7 @@ def command(
     config_path,
     wb,
     white_level,
+    saturation,
     demosaic,
     demosaic_domain,
     half_size,
@@ -265,6 +273,7 @@ def command(
     config = config.override(
         wb=wb,
         white_level=white_level,
+        saturation=saturation,
         demosaic=demosaic,
         demosaic_domain=demosaic_domain,
         highlights=highlights,

@@ -98,7 +98,12 @@ PERIODIC = ("XTRANS", "GRG/BGB/GRG")
 @pytest.mark.parametrize("method", ["bilinear", "wcd"])  # wcd is icd on these patterns
 def test_periodic_patterns(method, pattern):
     raw = synthetic_raw(pattern, h=83, w=151)  # not whole periods: ragged tiles, edges
-    for changes in ({}, dict(highlights="blend", wb="auto"), dict(tone="aces", exposure=1.5)):
+    for changes in (
+        {},
+        dict(highlights="blend", wb="auto"),
+        dict(highlights="unclip"),
+        dict(tone="aces", exposure=1.5),
+    ):
         config = override(base_config(), demosaic=method, **changes)
         _assert_close(*_both(raw, config))
         _assert_close(*_both(raw, config, "exr", 32))
@@ -139,6 +144,7 @@ OPTIONS = [
     dict(tone="aces", tone_white=0.25, transfer="gamma:2.2", tone_exposure=2.0),
     dict(transfer="gamma:1.8"),
     dict(highlights="blend", demosaic="menon"),
+    dict(highlights="unclip", demosaic="wcd"),
     dict(wb="daylight", output_space="xyz"),
     dict(wb="1.5,1,2.5", output_space="camera", exposure=-1),
     dict(wb="auto"),
@@ -164,6 +170,24 @@ def test_every_stage_option(changes):
     config = override(base_config(), **changes)
     _assert_close(*_both(raw, config))
     _assert_close(*_both(raw, config, "png", 8))
+
+
+@pytest.mark.parametrize("mode", ["clip", "unclip", "blend"])
+def test_a_colour_that_saturates_below_white(mode):
+    """Green saturates at 96 % of the white level (its sites pile up there): both
+    backends clip, fill and blend at the levels the data give, alike; ``clip`` and
+    ``unclip`` leave the disc, clipped in every colour, neutral."""
+    raw = synthetic_raw("GRBG")
+    green = np.asarray(raw.cfa.color_map(*raw.data.shape)).reshape(raw.data.shape) == 1
+    data = np.where(green, np.minimum(raw.data, 15750), raw.data).astype(np.uint16)
+    raw = replace(raw, data=data)
+    config = override(base_config(), highlights=mode)
+    ours, ref = _both(raw, config, "exr", 32)
+    _assert_close(ours, ref)
+    _assert_close(*_both(raw, config))
+    if mode != "blend":
+        disc = ours[43:46, 66:72].reshape(-1, 3)  # every site around clipped
+        assert np.abs(disc - disc[:, 1:2]).max() < 0.01, "the blown disc has a cast"
 
 
 def test_float_outputs_half_and_exr_config():

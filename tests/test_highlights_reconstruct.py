@@ -13,6 +13,7 @@ import torch
 from click.testing import CliRunner
 
 from rawsim.cfa import CFA
+from rawsim.errors import ParameterError
 from rawsim.isp.config import (
     HIGHLIGHT_TRANSFORM,
     DemosaicStage,
@@ -419,7 +420,7 @@ def test_gradcheck_float64():
 def test_errors_are_clear():
     with pytest.raises(Exception, match="CFA"):
         reconstruct_highlights(torch.rand(1, 1, 8, 8), GAINS)
-    with pytest.raises(Exception, match="gains"):
+    with pytest.raises(Exception, match="clip levels"):
         handle_highlights(torch.rand(1, 1, 8, 8), "reconstruct")
     with pytest.raises(Exception, match="positive"):
         reconstruct_highlights(torch.rand(1, 3, 8, 8), [1.0, 0.0, 1.0])
@@ -437,8 +438,32 @@ def test_block_side_per_cfa():
 
 
 def test_unclip_keeps_values_above_white():
-    x = torch.rand(1, 1, 8, 8) * 3
-    assert torch.equal(handle_highlights(x, "unclip"), x)
+    """Values above white pass; only pixels whose every colour reached its level
+    (0.99 of it) change: to the largest of their values and the levels, neutral."""
+    levels = (2.0, 1.0, 1.5)
+    x = torch.tensor(
+        [
+            [2.4, 1.0, 1.49],  # all three reached their levels: neutral at 2.4
+            [1.985, 0.995, 1.6],  # within 1 %: neutral at the highest level, 2.0
+            [2.4, 0.98, 1.6],  # green did not: kept, magenta as LibRaw's -H 1 keeps it
+            [0.5, 0.4, 0.3],
+        ]
+    ).T.reshape(1, 3, 1, 4)
+    out = handle_highlights(x, "unclip", levels)
+    assert torch.equal(out[0, :, 0, 0], torch.full((3,), 2.4))
+    assert torch.equal(out[0, :, 0, 1], torch.full((3,), 2.0))
+    assert torch.equal(out[..., 2:], x[..., 2:])
+    with pytest.raises(ParameterError, match="needs RGB"):
+        handle_highlights(torch.rand(1, 1, 8, 8) * 3, "unclip")
+
+
+def test_clip_at_the_least_level():
+    """``clip`` clips every colour at the least of the levels: with the gains scaled
+    so that it is 1, every colour that saturated reaches it (white)."""
+    x = torch.tensor([[1.1, 0.97, 1.5], [0.5, 0.4, 0.3]]).T.reshape(1, 3, 1, 2)
+    out = handle_highlights(x, "clip", (1.2, 0.96, 1.4))
+    assert torch.equal(out[..., 0].flatten(), torch.full((3,), 0.96))
+    assert torch.equal(out[..., 1], x[..., 1])
 
 
 def test_reconstruct_is_the_default():

@@ -153,7 +153,7 @@ def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, thre
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads):
+def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, threads):
     """Summed-area tables (n, TILE + 1, TILE + 1, 8) float64 of each listed tile
     (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks` gives
     them for these tiles, ``slot`` each tile's index in them): the border blocks' hue
@@ -214,7 +214,7 @@ def _tile_sats(means, flags, slot, gains, tiles, hb, wb, border, power, threads)
                         total = around[0] + around[1] + around[2]
                         if total > 0:
                             bright = max(
-                                around[0] / gains[0], around[1] / gains[1], around[2] / gains[2]
+                                around[0] / clips[0], around[1] / clips[1], around[2] / clips[2]
                             )
                             bright = np.float32(
                                 min(max(bright, np.float32(0.0)), np.float32(1.0)) ** power
@@ -480,7 +480,7 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
     the site's neighbourhood, where each neighbour of a colour the block did not clip
     that is itself a rebuilt site counts at its first fit's value (a clipped value is
     only a lower bound). ``sums``, ``first``: scratch (9,) float64."""
-    cmap, slots, table, flags, slot, shares, lows, _, hb, wb, b, headroom, gains, level, index = (
+    cmap, slots, table, flags, slot, shares, lows, _, hb, wb, b, headroom, clips, level, index = (
         site
     )
     h, w = raw.shape
@@ -501,12 +501,12 @@ def _site_value(raw, y, x, c, f, by, bx, site, sums, first):
                     n = index[ny // t, nx // t]
                     _sums(raw, cmap, slots, table, yy, xx, first)
                     share, low = shares[n, :, ny % t, nx % t], lows[n, ny % t, nx % t]
-                    v = max(v, _value(first, k, g, share, low, headroom, gains[k]))
+                    v = max(v, _value(first, k, g, share, low, headroom, clips[k]))
             _add(sums, k, v)
         p = p + 1 if p + 1 < ph else 0
     n = index[by // t, bx // t]
     return _value(
-        sums, c, f, shares[n, :, by % t, bx % t], lows[n, by % t, bx % t], headroom, gains[c]
+        sums, c, f, shares[n, :, by % t, bx % t], lows[n, by % t, bx % t], headroom, clips[c]
     )
 
 
@@ -539,13 +539,14 @@ def _write(raw, out, site, scale, black, span, applied, threads):
     colour clipped, takes max(its value, its rebuilt value, :func:`_site_value`); sites
     beyond the last whole block row or column go with that block (and clip at the
     same levels). ``site``: (cmap, slots, table, flags, slot, shares, lows, tiles,
-    Hb, Wb, b, headroom, gains, clip levels, each clipped tile's index in ``tiles``),
+    Hb, Wb, b, headroom, the colours' clip levels, the sites' clip thresholds, each
+    clipped tile's index in ``tiles``),
     as :func:`reconstruct_mosaic` builds it
     (``span``: the levels' divisor per levels slot). Returns the largest code a
     rebuilt value needs, unscaled: above 65535, the caller writes again with a scale
     that fits it."""
     h, w = raw.shape
-    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, gains, level, _ = (
+    cmap, slots, table, flags, slot, shares, lows, tiles, hb, wb, b, headroom, clips, level, _ = (
         site
     )
     ph, pw = cmap.shape
@@ -625,10 +626,13 @@ def _clip_codes(data, cfa: CFA, ops, opf, g):
     cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
     slots = _slots(cfa)
     level = np.float32(HIGHLIGHT_CLIPPED) * g
-    # A site clips at black + 0.99 of the span: below the lowest such code, none can
-    # (a margin for float32 rounding), and one max over the codes is all the work.
+    # A site clips at black + 0.99 × its colour's saturation share of the span (its
+    # level over its white-balance gain): below the lowest such code, none can (a
+    # margin for float32 rounding), and one max over the codes is all the work.
+    applied = opf[1, :3] if len(ops) > 1 else np.ones(3)
+    share = float(np.min(np.asarray(g, np.float64) / applied))
     used = np.unique(slots)
-    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED - 1e-3) * opf[0, 4 + used]))
+    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED * share - 1e-3) * opf[0, 4 + used]))
     if int(data.max()) < lowest:
         return None
     slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
@@ -693,7 +697,7 @@ def _clipped_green(data, cmap, lines):
 
 
 def reconstruct_mosaic(
-    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, gains, out=None, guard=False
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None, guard=False
 ) -> tuple[np.ndarray, np.ndarray, tuple | None]:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt
     (into ``out``, uint16 of its shape, where given), the op numbers ``opf`` to read
@@ -701,8 +705,8 @@ def reconstruct_mosaic(
     codes (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`), else None.
 
     ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
-    balance (:func:`rawsim.engine.process._mosaic_value`); ``gains``: the white
-    balance (R, G, B) that sets the clip levels, colour c clipping at ``gains[c]``.
+    balance (:func:`rawsim.engine.process._mosaic_value`); ``levels``: where each
+    colour (R, G, B) clips after them (:attr:`~rawsim.isp.config.ResolvedIsp.clip_levels`).
     Returns ``data`` itself and ``opf`` when nothing clipped; else a new mosaic (DN)
     and ``opf`` with the levels' span scaled where the rebuilt values needed more
     codes than 65535.
@@ -710,7 +714,7 @@ def reconstruct_mosaic(
     ops = np.asarray(ops, dtype=np.int64)
     if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
         raise ValueError("the highlight pre-pass takes levels, then white balance, only")
-    g = np.asarray(gains, dtype=np.float32)
+    g = np.asarray(levels, dtype=np.float32)
     h, w = data.shape
     b = highlight_block(cfa.colors, cfa.period)
     hb, wb = h // b, w // b

@@ -27,6 +27,7 @@ from rawsim.engine import configure
 from rawsim.engine.process import (
     HALO,
     OP_LEVELS,
+    OP_NUMBERS,
     OP_ROOT,
     OP_SHADING,
     OUT_FLOAT,
@@ -235,7 +236,7 @@ def remap_lens(image: np.ndarray, field: LensField, padding: str = "zeros") -> n
     if not np.isfinite(image).all():
         raise ParameterError("image contains NaN or infinite values")
     out = np.empty_like(image)
-    ops, opf = np.zeros(0, np.int64), np.zeros((1, 18))
+    ops, opf = np.zeros(0, np.int64), np.zeros((1, OP_NUMBERS))
     lut = np.zeros(2, np.float32)
     orient = np.zeros(3, np.bool_)
     lens_kernel(

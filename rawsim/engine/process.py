@@ -61,9 +61,22 @@ DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3, "learned": 4
 #: Pointwise op codes (mosaic and RGB stages).
 #: OP_ROOT/OP_SQUARE: into and out of the demosaic's root domain (the reference's
 #: ``rawsim.isp.demosaic.to_root``/``from_root``), the last mosaic op and the first RGB op.
-OP_LEVELS, OP_SHADING, OP_WB, OP_CLIP, OP_BLEND, OP_MATRIX, OP_EXPOSURE, OP_ROOT, OP_SQUARE = range(
-    9
-)
+#: OP_CLIP clips at its number; OP_UNCLIP (RGB) makes a pixel whose every colour reached
+#: its threshold (numbers 0–2) neutral at the largest of its values and number 3.
+(
+    OP_LEVELS,
+    OP_SHADING,
+    OP_WB,
+    OP_CLIP,
+    OP_BLEND,
+    OP_MATRIX,
+    OP_EXPOSURE,
+    OP_ROOT,
+    OP_SQUARE,
+    OP_UNCLIP,
+) = range(10)
+#: Numbers an op takes at most (the columns of the ops' number arrays).
+OP_NUMBERS = 20
 #: Transfer codes of the output: table (tone ∘ transfer on [0, 1]), power law, none.
 OUT_TABLE, OUT_GAMMA, OUT_FLOAT = range(3)
 LUT_SIZE = 65536
@@ -125,7 +138,7 @@ def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
 
     ``ops`` lists the stages in order; ``opf[k]`` holds op ``k``'s numbers: levels
     (black per site ×4, then white − black per site ×4), white balance (R, G, B
-    gains), shading (k1, k2, k3, strength). Clip has none.
+    gains), shading (k1, k2, k3, strength), clip (its level).
     """
     for k in range(ops.size):
         op = ops[k]
@@ -134,7 +147,7 @@ def _mosaic_value(v, site, color, y, x, cy, cx, ops, opf):
         elif op == OP_WB:
             v = v * np.float32(opf[k, color])
         elif op == OP_CLIP:
-            v = min(v, np.float32(1.0))
+            v = min(v, np.float32(opf[k, 0]))
         elif op == OP_SHADING:
             v = v * _shading_gain(y, x, cy, cx, opf[k])
         elif op == OP_ROOT:
@@ -174,7 +187,7 @@ def mosaic_table(colors, ops, opf):
 def load() -> None:
     """Initialise numba's CPU target and load a cached kernel (no work): what the
     first call would otherwise pay, done ahead (e.g. while a raw file is read)."""
-    mosaic_table(np.zeros(4, np.int64), np.zeros(0, np.int64), np.zeros((1, 18)))
+    mosaic_table(np.zeros(4, np.int64), np.zeros(0, np.int64), np.zeros((1, OP_NUMBERS)))
 
 
 @njit(**_JIT)
@@ -866,14 +879,20 @@ def _guard(rgb, near, near_rows, to_xyz, post_ops, r0, r1, c0, c1, h, w):
 @njit(**_JIT)
 def _rgb_stage(op, p, r, g, b, y, x0, h, w):
     """One RGB stage on a row: ``r``, ``g``, ``b`` (views) in place; its first pixel is (y, x0)."""
-    one = np.float32(1.0)
     if op == OP_WB:
         sr, sg, sb = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
         for q in range(r.size):
             r[q], g[q], b[q] = r[q] * sr, g[q] * sg, b[q] * sb
     elif op == OP_CLIP:
+        top = np.float32(p[0])
         for q in range(r.size):
-            r[q], g[q], b[q] = min(r[q], one), min(g[q], one), min(b[q], one)
+            r[q], g[q], b[q] = min(r[q], top), min(g[q], top), min(b[q], top)
+    elif op == OP_UNCLIP:
+        tr, tg, tb, most = np.float32(p[0]), np.float32(p[1]), np.float32(p[2]), np.float32(p[3])
+        for q in range(r.size):
+            if r[q] >= tr and g[q] >= tg and b[q] >= tb:
+                v = max(max(r[q], g[q]), max(b[q], most))
+                r[q], g[q], b[q] = v, v, v
     elif op == OP_MATRIX:
         m = (
             np.float32(p[0]),
@@ -969,9 +988,10 @@ def _matrix(p, at, r, g, b):
 def _blend(p, r, g, b):
     """dcraw's highlight blend (:func:`rawsim.isp.highlights.handle_highlights`).
 
-    p[0:9] is the lightness/chroma transform, p[9:18] its inverse.
+    p[0:9] is the lightness/chroma transform, p[9:18] its inverse, p[18] the least
+    colour's clip level.
     """
-    one = np.float32(1.0)
+    one = np.float32(p[18])
     if not (r > one or g > one or b > one):
         return r, g, b
     _, c1, c2 = _matrix(p, 0, r, g, b)

@@ -68,10 +68,16 @@ HALF_SIZE = "half"
 #: LibRaw). ε keeps the slope at 0 finite (50 per unit of white).
 DEMOSAIC_DOMAINS = ("sqrt", "linear")
 DEMOSAIC_ROOT_EPS = 1e-4
-#: ``clip`` at white (LibRaw -H 0); ``unclip``: none (-H 1); ``blend``: dcraw's blend
-#: (-H 2, on RGB); ``reconstruct``: clipped sites rebuilt from the unclipped colours and
-#: the hue around them, on the mosaic (:mod:`rawsim.isp.highlights`).
+#: Where each colour saturates (the black level stage's ``saturation``): where its sites
+#: pile up in the data below the white level, if they do, or the white level.
+SATURATION_SOURCES = ("data", "white")
+#: ``clip`` at white (LibRaw -H 0); ``unclip``: none (-H 1) but where every colour
+#: clipped (neutral there, on RGB); ``blend``: dcraw's blend (-H 2, on RGB);
+#: ``reconstruct``: clipped sites rebuilt from the unclipped colours and the hue around
+#: them, on the mosaic (:mod:`rawsim.isp.highlights`).
 HIGHLIGHT_MODES = ("clip", "blend", "reconstruct", "unclip")
+#: The highlight modes that work on RGB: after the demosaic.
+RGB_HIGHLIGHT_MODES = ("blend", "unclip")
 #: ``reconstruct``: a site is clipped at this share of its colour's clip level (the
 #: white-balance gain: white = 1 before it).
 HIGHLIGHT_CLIPPED = 0.99
@@ -367,17 +373,29 @@ class BlackLevelStage(Stage):
     white_level: str = _param(
         "file", _choice(("file", "auto")), "file, or auto (LibRaw's adjust_maximum_thr=0.75)"
     )
+    saturation: str = _param(
+        "data",
+        _choice(SATURATION_SOURCES),
+        "data: each colour saturates where its sites pile up below the white level, if they "
+        "do (rawsim.engine.saturation); white: every colour at the white level",
+    )
 
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
         """``info["white_level"]``: the file's white level (DN), or with ``white_level =
         "auto"`` the image's maximum where that lies between 75 % of the file's and the
-        file's (LibRaw's default render: the brightest value becomes white)."""
+        file's (LibRaw's default render: the brightest value becomes white).
+
+        ``info["saturation"]``: where each colour (R, G, B) saturates, ``levels`` (DN, at
+        most the white level) and ``found`` (how, in words): with ``saturation =
+        "data"`` where its sites pile up (:func:`rawsim.engine.saturation.find_saturation`),
+        else the white level. None for monochrome data."""
         level = float(raw.white_level)
         if self.white_level == "auto":
             top = float(raw.data.max())
             if ADJUST_MAXIMUM * level < top < level:
                 level = top
         info["white_level"] = level
+        info["saturation"] = None if monochrome(raw) else _saturation(raw, level, self.saturation)
 
 
 def _noise_profile(value):
@@ -487,10 +505,12 @@ class WhiteBalanceStage(Stage):
         in ``info["warnings"]``.
 
         With highlights reconstructed (the default) or clipped (LibRaw's default) the
-        gains are scaled so that the smallest is 1, as LibRaw does for its clip: no
-        colour clips below white, clipped highlights stay neutral, and the two modes
-        render what did not clip alike. With blend and unclip they keep G = 1: each
-        colour then clips at its own gain.
+        gains are scaled so that the colour that saturates lowest after them
+        (``info["saturation"]``: each colour c clips at gain × its saturation share
+        σ_c, :func:`saturation_fractions`) clips at 1, as LibRaw scales the smallest
+        multiplier to 1 for its clip: no colour clips below white, clipped highlights
+        stay neutral, and the two modes render what did not clip alike. With blend and
+        unclip they keep G = 1: each colour then clips at its own gain × σ_c.
         """
         mode, source = self.mode, self.mode
         if mode == "camera" and raw.as_shot_wb is None:
@@ -511,7 +531,8 @@ class WhiteBalanceStage(Stage):
             gains, source = parse_gains(mode), "user"
         highlights = config.enabled_stage(HighlightsStage)
         if highlights is not None and highlights.mode in ("clip", "reconstruct"):
-            low = min(gains)
+            sat = saturation_fractions(raw, info)
+            low = min(g * s for g, s in zip(gains, sat, strict=True))
             gains = tuple(float(g / low) for g in gains)
         info["white_balance"] = list(gains)
         info["white_balance_source"] = source
@@ -527,7 +548,8 @@ class HighlightsStage(Stage):
     mode: str = _param(
         "reconstruct",
         _choice(HIGHLIGHT_MODES),
-        "reconstruct (before demosaic; the default), clip, unclip (none) or blend (after demosaic)",
+        "reconstruct (before demosaic; the default), clip, unclip (none, but neutral where "
+        "every colour clipped) or blend (unclip and blend after demosaic)",
     )
 
 
@@ -784,6 +806,7 @@ STAGES: dict[str, type[Stage]] = {
 _FLAGS: dict[str, tuple[type[Stage], str]] = {
     "wb": (WhiteBalanceStage, "mode"),
     "white_level": (BlackLevelStage, "white_level"),
+    "saturation": (BlackLevelStage, "saturation"),
     "baseline_exposure": (ExposureStage, "baseline"),
     "demosaic": (DemosaicStage, "method"),
     "demosaic_domain": (DemosaicStage, "domain"),
@@ -888,14 +911,15 @@ class IspConfig:
         return "\n".join(lines) + "\n"
 
     def override(self, **flags) -> IspConfig:
-        """The config with the CLI's flags applied (``wb``, ``white_level``, ``demosaic``,
+        """The config with the CLI's flags applied (``wb``, ``white_level``, ``saturation``,
+        ``demosaic``,
         ``demosaic_domain``, ``highlights``, ``tone``, ``tone_exposure``, ``tone_white``,
         ``exposure``, ``baseline_exposure``, ``output_space``, ``transfer``, ``lens``,
         ``focal_length``, ``aperture``, ``lens_correction``); None leaves a value as it is.
         A flag enables its stage (adding it, if missing, where the default order has it);
-        ``highlights blend`` moves the stage to just after demosaic, ``reconstruct`` to just
-        before; ``lens_correction`` ``auto`` enables the lens stage, ``off`` disables it
-        (then no other lens flag may be given); ``denoise`` enables the ``raw_denoise``
+        ``highlights blend`` and ``unclip`` move the stage to just after demosaic,
+        ``reconstruct`` to just before; ``lens_correction`` ``auto`` enables the lens
+        stage, ``off`` disables it (then no other lens flag may be given); ``denoise`` enables the ``raw_denoise``
         stage for a raw method (``profiled``) or the ``denoise`` stage for a filter
         (``gaussian``, ``bilateral``), and disables the other (``none``: both). Errors name
         the flag."""
@@ -937,12 +961,12 @@ class IspConfig:
             table = _table_of(tables, stage)
             table[key] = value
             table["enabled"] = True
-            if stage is HighlightsStage and value in ("blend", "reconstruct"):
-                # Blending needs RGB: move the stage to just after demosaic;
-                # reconstruction reads the mosaic: just before it.
+            if stage is HighlightsStage and value in ("blend", "unclip", "reconstruct"):
+                # Blending and unclip's neutral fill need RGB: move the stage to just
+                # after demosaic; reconstruction reads the mosaic: just before it.
                 tables.remove(table)
                 at = next(i for i, t in enumerate(tables) if t["name"] == DemosaicStage.name)
-                tables.insert(at + (value == "blend"), table)
+                tables.insert(at + (value in RGB_HIGHLIGHT_MODES), table)
         return IspConfig.from_tables(tables, "options")
 
     def with_disabled(self, *kinds: type[Stage]) -> IspConfig:
@@ -1002,9 +1026,9 @@ def _check_order(enabled: tuple[Stage, ...], origin: str) -> None:
     if OrientationStage in kinds and kinds[-1] is not OrientationStage:
         raise ParameterError(f"{origin}: 'orientation' must be the last enabled stage")
     for i, stage in enumerate(enabled):
-        if isinstance(stage, HighlightsStage) and stage.mode == "blend" and i < split:
+        if isinstance(stage, HighlightsStage) and stage.mode in RGB_HIGHLIGHT_MODES and i < split:
             raise ParameterError(
-                f"{origin}: highlights mode 'blend' needs RGB: put it after 'demosaic'"
+                f"{origin}: highlights mode {stage.mode!r} needs RGB: put it after 'demosaic'"
             )
 
 
@@ -1079,6 +1103,15 @@ class ResolvedIsp:
     def white_balance(self) -> tuple[float, float, float]:
         """Gains (R, G, B)."""
         return tuple(self.info["white_balance"])
+
+    @property
+    def clip_levels(self) -> tuple[float, float, float]:
+        """Where each colour (R, G, B) clips after the stages before the highlights:
+        its white-balance gain × the share of its span where it saturates
+        (:func:`saturation_fractions`), white = 1 before the gains."""
+        gains = self.info.get("white_balance", (1.0, 1.0, 1.0))
+        sat = saturation_fractions(self.raw, self.info)
+        return tuple(float(g * s) for g, s in zip(gains, sat, strict=True))
 
     @property
     def color_matrix(self) -> np.ndarray:
@@ -1184,6 +1217,44 @@ def auto_white_balance(raw: RawImage) -> tuple[float, float, float]:
 #: LibRaw's default ``adjust_maximum_thr``: a data maximum above this share of the white
 #: level becomes the white level.
 ADJUST_MAXIMUM = 0.75
+
+
+def black_per_colour(raw: RawImage) -> np.ndarray:
+    """(3,) float64: each colour's black level (DN, R, G, B), the mean over its sites
+    of one CFA period, or the channels' for 3-channel data."""
+    black = np.asarray(raw.black_level, dtype=np.float64)
+    if raw.cfa is None:
+        return np.resize(black.ravel(), 3)
+    colours = np.asarray(raw.cfa.colors).reshape(raw.cfa.period)
+    black = np.broadcast_to(black.reshape(-1), (colours.size,)).reshape(colours.shape)
+    return np.array([black[colours == c].mean() for c in range(3)])
+
+
+def _saturation(raw: RawImage, white: float, source: str) -> dict:
+    """``info["saturation"]`` (:meth:`BlackLevelStage.resolve`)."""
+    if source == "white":
+        levels, found = [white] * 3, ["the white level (saturation = white)"] * 3
+    else:
+        from rawsim.engine.saturation import find_saturation
+
+        colours = None if raw.cfa is None else np.reshape(raw.cfa.colors, raw.cfa.period)
+        sat = find_saturation(raw.data, colours, black_per_colour(raw), white)
+        levels, found = list(sat.levels), list(sat.notes)
+    return {"levels": levels, "found": found}
+
+
+def saturation_fractions(raw: RawImage, info: dict) -> tuple[float, float, float]:
+    """Where each colour saturates as a share of its span, (level − black) / (white −
+    black), at most 1 (white = 1 after the levels): from ``info["saturation"]``, 1
+    for each colour where there is none."""
+    found = info.get("saturation")
+    if not found:
+        return (1.0, 1.0, 1.0)
+    white = float(info["white_level"])
+    return tuple(
+        float(min((lv - b) / (white - b), 1.0))
+        for lv, b in zip(found["levels"], black_per_colour(raw), strict=True)
+    )
 
 
 #: ``ev = "auto"``: the share of pixels allowed to clip (LibRaw's ``auto_bright_thr``),

@@ -1,20 +1,27 @@
 """Highlight handling after white balance: clip, unclip, blend (dcraw's method) or
 reconstruct.
 
-White-balance gains push saturated sites above 1 by different amounts per
-channel, which turns clipped highlights magenta. ``clip`` limits every value to
-1 (the one intended clipping here; value by value, so on a mosaic of any CFA
-as on RGB, as LibRaw does before demosaicking). ``unclip`` leaves every value as
-it is (LibRaw's ``-H 1``). ``blend`` (RGB only) keeps the clipped image's
+Each colour c clips at its own level L_c, white = 1 before the white balance: its
+white-balance gain × the share of its span where it saturates
+(:attr:`rawsim.isp.config.ResolvedIsp.clip_levels`; 1 × the gain where the data
+say nothing else). White balance pushes saturated sites to different levels per
+colour, which turns clipped highlights magenta. ``clip`` limits every value to the
+least level (the one intended clipping here; value by value, so on a mosaic of any
+CFA as on RGB, as LibRaw does before demosaicking): with the gains LibRaw scales
+for its clip, that least level is 1 and every saturated site reaches it, so what
+clipped in every colour is white. ``unclip`` (RGB) leaves every value as it is
+(LibRaw's ``-H 1``) except where every colour reached its level: there nothing
+tells the colours apart, and the pixel takes the highest of its values and the
+levels in every colour (a clipped value is a lower bound), neutral rather than the
+magenta of the levels' spread. ``blend`` (RGB only) keeps the clipped image's
 lightness and the unclipped image's hue, with the chroma scaled to the clipped
-chroma's size, where any channel exceeds 1 — dcraw's ``-H 2``.
+chroma's size, where any channel exceeds the least level — dcraw's ``-H 2``.
 
 ``reconstruct`` (:func:`reconstruct_highlights`) rebuilds the clipped colours of
 a mosaic (or RGB image) from the colours that did not clip and from the hue of
 the unclipped surround, in the spirit of darktable's "inpaint opposed": each
-colour clips at its own white-balance gain, so where one or two colours clip
-the others still measure the light. The compiled engine's form is
-:mod:`rawsim.engine.highlights`.
+colour clips at its own level, so where one or two colours clip the others still
+measure the light. The compiled engine's form is :mod:`rawsim.engine.highlights`.
 """
 
 from __future__ import annotations
@@ -48,28 +55,33 @@ _TRANS = torch.tensor(HIGHLIGHT_TRANSFORM, dtype=torch.float64)
 
 
 def handle_highlights(
-    x: torch.Tensor, mode: str = "clip", gains=None, cfa: CFA | None = None
+    x: torch.Tensor, mode: str = "clip", levels=None, cfa: CFA | None = None
 ) -> torch.Tensor:
-    """Apply ``mode`` to white-balanced linear data, white = 1: a mosaic (B, 1, H, W) of
-    any CFA or an image (B, C, H, W) for ``clip`` (values ≤ 1 out) and ``unclip``
-    (unchanged), RGB (B, 3, H, W) for ``blend`` (values above 1 may remain), a mosaic
-    with its ``cfa`` or RGB, and the white-balance ``gains``, for ``reconstruct``
-    (:func:`reconstruct_highlights`)."""
+    """Apply ``mode`` to white-balanced linear data, colour c clipping at ``levels[c]``
+    (R, G, B; default 1 each): a mosaic (B, 1, H, W) of any CFA or an image (B, C, H,
+    W) for ``clip`` (values ≤ the least level out), RGB (B, 3, H, W) for ``unclip``
+    (unchanged but where every colour reached ``HIGHLIGHT_CLIPPED`` × its level) and
+    ``blend`` (values above the least level may remain), a mosaic with its ``cfa`` or
+    RGB for ``reconstruct`` (:func:`reconstruct_highlights`)."""
     check_choice("highlight mode", mode, HIGHLIGHT_MODES)
     check_image(x, "image")
-    if mode == "clip":
-        return x.clamp(max=1.0)
-    if mode == "unclip":
-        return x
     if mode == "reconstruct":
-        if gains is None:
-            raise ParameterError("highlight mode 'reconstruct' needs the white-balance gains")
-        return reconstruct_highlights(x, gains, cfa)
+        if levels is None:
+            raise ParameterError("highlight mode 'reconstruct' needs the colours' clip levels")
+        return reconstruct_highlights(x, levels, cfa)
+    level = _levels(x, (1.0, 1.0, 1.0) if levels is None else levels)
+    least = float(level.min())
+    if mode == "clip":
+        return x.clamp(max=least)
     if x.shape[1] != 3:
-        raise ParameterError("highlight mode 'blend' needs RGB: put the stage after demosaic")
+        raise ParameterError(f"highlight mode {mode!r} needs RGB: put the stage after demosaic")
+    if mode == "unclip":
+        full = (x >= HIGHLIGHT_CLIPPED * level.reshape(1, 3, 1, 1)).all(dim=1, keepdim=True)
+        top = x.amax(dim=1, keepdim=True).clamp_min(float(level.max()))
+        return torch.where(full, top.expand_as(x), x)
     trans = _TRANS.to(x.dtype).to(x.device)
     inverse = torch.linalg.inv(_TRANS).to(x.dtype).to(x.device)
-    clipped = x.clamp(max=1.0)
+    clipped = x.clamp(max=least)
     cam = torch.einsum("ij,bjhw->bihw", trans, x)
     lab = torch.einsum("ij,bjhw->bihw", trans, clipped)
     chroma_cam = (cam[:, 1:] ** 2).sum(1, keepdim=True)
@@ -79,15 +91,24 @@ def handle_highlights(
     scale = torch.sqrt((chroma_lab / chroma_cam.clamp_min(1e-20)).clamp_min(1e-30))
     blended = torch.cat([lab[:, :1], cam[:, 1:] * scale], dim=1)
     out = torch.einsum("ij,bjhw->bihw", inverse, blended)
-    over = (x > 1).any(dim=1, keepdim=True)
+    over = (x > least).any(dim=1, keepdim=True)
     return torch.where(over, out, x)
 
 
-def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> torch.Tensor:
+def _levels(x: torch.Tensor, levels) -> torch.Tensor:
+    """The clip levels (3,) as a tensor of ``x``'s dtype and device, checked positive."""
+    g = torch.as_tensor(levels, dtype=x.dtype, device=x.device).reshape(3)
+    if not bool((g > 0).all()):
+        raise ParameterError("the colours' clip levels must be positive")
+    return g
+
+
+def reconstruct_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> torch.Tensor:
     """Rebuild clipped colours: a white-balanced mosaic (B, 1, H, W) of ``cfa``, or RGB
-    (B, 3, H, W), linear, white = 1 before the white-balance ``gains`` (R, G, B), so
-    colour c clips at ``gains[c]``. Returns the same shape; values may exceed 1 (at
-    most ``HIGHLIGHT_HEADROOM`` × the colour's clip level) and none is lowered.
+    (B, 3, H, W), linear, colour c clipping at ``levels[c]`` (R, G, B; its
+    white-balance gain where it saturates at white = 1). Returns the same shape; values
+    may exceed 1 (at most ``HIGHLIGHT_HEADROOM`` × the colour's clip level) and none is
+    lowered.
 
     The mosaic is read in b × b blocks that hold every colour (:func:`highlight_block`:
     2 for Bayer, 3 for X-Trans; a pixel of RGB). In each block: the mean of each
@@ -134,9 +155,7 @@ def reconstruct_highlights(x: torch.Tensor, gains, cfa: CFA | None = None) -> to
     almost everywhere; support: (largest scale + border + 2) blocks.
     """
     check_image(x, "image")
-    g = torch.as_tensor(gains, dtype=x.dtype, device=x.device).reshape(3)
-    if not bool((g > 0).all()):
-        raise ParameterError("white-balance gains must be positive")
+    g = _levels(x, levels)
     if x.shape[1] == 3:
         cmap, b = None, 1
     elif x.shape[1] == 1:
@@ -359,16 +378,17 @@ def _pick(where: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
 class Highlights(nn.Module):
     """Highlight stage; ``reverse`` is the identity (clipped values are lost).
 
-    ``reconstruct`` needs the white-balance ``gains`` and, on a mosaic, its ``cfa``;
-    :attr:`radius` is then its reach in rows (strips carry that much context).
+    ``levels``: where each colour clips (R, G, B; default 1 each; ``reconstruct``
+    needs them); ``reconstruct`` on a mosaic needs its ``cfa``, and :attr:`radius` is
+    then its reach in rows (strips carry that much context).
     """
 
-    def __init__(self, mode: str = "clip", gains=None, cfa: CFA | None = None) -> None:
+    def __init__(self, mode: str = "clip", levels=None, cfa: CFA | None = None) -> None:
         super().__init__()
         self.mode = check_choice("highlight mode", mode, HIGHLIGHT_MODES)
-        if mode == "reconstruct" and gains is None:
-            raise ParameterError("highlight mode 'reconstruct' needs the white-balance gains")
-        self.gains = None if gains is None else tuple(float(v) for v in gains)
+        if mode == "reconstruct" and levels is None:
+            raise ParameterError("highlight mode 'reconstruct' needs the colours' clip levels")
+        self.levels = None if levels is None else tuple(float(v) for v in levels)
         self.cfa = cfa
 
     @property
@@ -379,7 +399,7 @@ class Highlights(nn.Module):
         return (max(HIGHLIGHT_SCALES) + HIGHLIGHT_BORDER + 2) * b
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return handle_highlights(x, self.mode, self.gains, self.cfa)
+        return handle_highlights(x, self.mode, self.levels, self.cfa)
 
     def reverse(self, x: torch.Tensor) -> torch.Tensor:
         return x

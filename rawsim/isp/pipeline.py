@@ -162,8 +162,7 @@ def isp_for(resolved: ResolvedIsp) -> Isp:
             modules.append(("lens_tca", MosaicTca(resolved.raw.cfa, resolved.info["lens"])))
         module = MODULES[type(s)](s, resolved)
         if isinstance(s, DemosaicStage) and guard is not None:
-            green = resolved.info.get("white_balance", (1.0, 1.0, 1.0))[1]
-            module = MagentaGuard(module, resolved.raw.cfa, green, guard)
+            module = MagentaGuard(module, resolved.raw.cfa, resolved.clip_levels[1], guard)
         modules.append((s.name, module))
     cfa = resolved.raw.cfa
     return Isp(modules, resolved.info, int(np.lcm(*cfa.period)) if cfa else 2)
@@ -183,9 +182,7 @@ MODULES: dict[type[Stage], Callable[..., nn.Module]] = {
     LensShadingStage: lambda s, r: LensShading(s.k, s.strength),
     AntiAliasingStage: lambda s, r: AntiAliasing(r.raw.cfa, s.method, s.sigma),
     WhiteBalanceStage: lambda s, r: WhiteBalance(r.white_balance, r.raw.cfa),
-    HighlightsStage: lambda s, r: Highlights(
-        s.mode, r.info.get("white_balance", (1.0, 1.0, 1.0)), r.raw.cfa
-    ),
+    HighlightsStage: lambda s, r: Highlights(s.mode, r.clip_levels, r.raw.cfa),
     DemosaicStage: lambda s, r: _demosaic(r.raw.cfa, s.method, s.domain),
     DenoiseStage: lambda s, r: Denoise(
         r.raw.cfa if r.config.before_demosaic(s) else None,

@@ -37,6 +37,7 @@ from rawsim.io.task import Task
 from rawsim.io.thumbnail import read_thumbnail
 from rawsim.isp.config import (
     HALF_SIZE,
+    HIGHLIGHT_CLIPPED,
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
     TONE_WHITE_RANGE,
@@ -165,8 +166,8 @@ class EnginePlan:
     #: :func:`rawsim.denoise.learned.refine_mosaic`), or None: the kernels render the
     #: mosaic it gives.
     denoise: tuple | None = None
-    #: ``highlights reconstruct``: (white-balance gains, the count of mosaic ops before
-    #: the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
+    #: ``highlights reconstruct``: (the colours' clip levels, the count of mosaic ops
+    #: before the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
     highlights: tuple | None = None
     #: The lens whose lateral CA :func:`rawsim.engine.lens.correct_mosaic_tca` takes out
     #: of the mosaic before the kernels (:attr:`~rawsim.isp.config.ResolvedIsp.tca_on_mosaic`;
@@ -205,10 +206,15 @@ def _black_per_colour(raw: RawImage) -> np.ndarray | None:
 
 
 def _highlights_op(ep, stage: HighlightsStage, r: ResolvedIsp):
+    """``clip`` at the least clip level; ``unclip`` (RGB): neutral where every colour
+    reached ``HIGHLIGHT_CLIPPED`` × its level; ``blend`` (RGB): dcraw's, above the least."""
+    levels = np.asarray(r.clip_levels, dtype=np.float64)
     if stage.mode == "clip":
-        return ep.OP_CLIP, []
+        return ep.OP_CLIP, [levels.min()]
+    if stage.mode == "unclip":
+        return ep.OP_UNCLIP, [*(np.float32(HIGHLIGHT_CLIPPED) * levels), levels.max()]
     trans = np.array(HIGHLIGHT_TRANSFORM)
-    return ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel()]
+    return ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel(), levels.min()]
 
 
 @dataclass(frozen=True)
@@ -266,16 +272,14 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
             learned = resolved.info["raw_denoise"] == "learned"
             denoise = (*stage_model(resolved), stage.strength, learned)
             continue
-        if isinstance(stage, HighlightsStage) and stage.mode in ("unclip", "reconstruct"):
-            if stage.mode == "unclip":
-                continue  # no op: values above white reach the matrix
+        if isinstance(stage, HighlightsStage) and stage.mode == "reconstruct":
             codes = [op for op, _ in pre]
             if not resolved.config.before_demosaic(stage) or codes not in (
                 [ep.OP_LEVELS],
                 [ep.OP_LEVELS, ep.OP_WB],
             ):
                 return None  # the pre-pass reads levels and white balance only
-            highlights = (tuple(resolved.info.get("white_balance", (1.0, 1.0, 1.0))), len(pre))
+            highlights = (resolved.clip_levels, len(pre))
             guard = resolved.magenta_guard
             continue
         if isinstance(stage, LensCorrectionStage):
@@ -330,7 +334,9 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
 
 def _op_arrays(ops) -> tuple[np.ndarray, np.ndarray]:
     codes = np.array([op for op, _ in ops], dtype=np.int64)
-    numbers = np.zeros((max(len(ops), 1), 18), dtype=np.float64)
+    from rawsim.engine.process import OP_NUMBERS
+
+    numbers = np.zeros((max(len(ops), 1), OP_NUMBERS), dtype=np.float64)
     for k, (_, values) in enumerate(ops):
         numbers[k, : len(values)] = values
     return codes, numbers
@@ -430,12 +436,12 @@ def engine_render(
     if plan.highlights is not None:
         from rawsim.engine.highlights import reconstruct_mosaic
 
-        gains, at = plan.highlights
+        levels, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
         spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
         guard = plan.guard is not None
         data, numbers, near = reconstruct_mosaic(
-            raw.data, raw.cfa, ops, numbers, gains, out=spare, guard=guard
+            raw.data, raw.cfa, ops, numbers, levels, out=spare, guard=guard
         )
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
@@ -665,7 +671,8 @@ def _read_while_loading_engine(path: Path, device) -> RawImage:
 
 def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
     """What rawsim read from ``raw`` and what ``config`` will use on it (``rawsim info``):
-    camera, ``renderable`` (true), CFA, levels, the camera's and daylight multipliers,
+    camera, ``renderable`` (true), CFA, levels, where each colour saturates and how
+    that was found, the camera's and daylight multipliers,
     the white balance and matrix it will apply with where they come from,
     orientation, ISO, the DNG BaselineExposure and whether it is applied, the noise
     model ``--denoise profiled`` takes (:mod:`rawsim.denoise.noise_model`), the
@@ -695,6 +702,8 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
     }
     if "white_level" in info:
         out["white_level_used"] = info["white_level"]
+    if info.get("saturation"):
+        out["saturation"] = info["saturation"]
     exposure = resolved.config.enabled_stage(ExposureStage)
     out["baseline_exposure"] = raw.baseline_exposure
     out["baseline_exposure_applied"] = bool(
