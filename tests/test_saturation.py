@@ -14,6 +14,8 @@ RGGB = np.array([[0, 1], [1, 2]])
 @pytest.fixture
 def rng():
     return np.random.default_rng(7)
+
+
 WHITE, BLACK = 4095.0, (128.0, 128.0, 128.0)
 
 
@@ -39,9 +41,7 @@ def test_a_colour_that_saturates_below_white(rng):
     s = scene(rng)
     green_top = 128 + 0.96 * (WHITE - 128)
     blue = 128 + 0.6 * s * 3967  # tops out at 96 % of the span, thinning out
-    data = mosaic(
-        [np.minimum(128 + s * 3967, WHITE), np.minimum(128 + s * 3967, green_top), blue]
-    )
+    data = mosaic([np.minimum(128 + s * 3967, WHITE), np.minimum(128 + s * 3967, green_top), blue])
     sat = find_saturation(data, RGGB, BLACK, WHITE)
     assert sat.levels[0] == WHITE and "reaches" in sat.notes[0]
     assert sat.levels[1] == np.round(green_top) and "pile" in sat.notes[1]

@@ -17,10 +17,11 @@ site. :func:`find_saturation` looks for that pile in each colour's brightest cod
 * else, scanning down from its brightest code, the first band of
   ``PILE_BAND`` × (white − black) codes that holds at least ``PILE_SITES`` sites
   (and ``PILE_SHARE`` of the colour's) at ``PILE_DENSITY`` times the density of the
-  two bands below it, with at most ``PILE_ABOVE`` of its count in the two bands above it, is a pile (the mode of an
-  unsaturated highlight has its upper tail above it): the colour saturates at the
-  top of that band (sites within ``PILE_BAND`` below it
-  count as saturated, as :data:`~rawsim.isp.config.HIGHLIGHT_CLIPPED` counts them);
+  two bands below it, with at most ``PILE_ABOVE`` of its count in the two bands
+  above it, is a pile (the mode of an unsaturated highlight has its upper tail
+  above it): the colour saturates at the top of that band (sites within
+  ``PILE_BAND`` below it count as saturated, as
+  :data:`~rawsim.isp.config.HIGHLIGHT_CLIPPED` counts them);
   the scan goes ``PILE_REACH`` × (white − black) below the brightest code, so a
   few hot pixels above the pile do not hide it;
 * a colour without a pile, or whose pile lies below ``PILE_LEAST`` of the span,

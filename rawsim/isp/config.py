@@ -919,10 +919,10 @@ class IspConfig:
         A flag enables its stage (adding it, if missing, where the default order has it);
         ``highlights blend`` and ``unclip`` move the stage to just after demosaic,
         ``reconstruct`` to just before; ``lens_correction`` ``auto`` enables the lens
-        stage, ``off`` disables it (then no other lens flag may be given); ``denoise`` enables the ``raw_denoise``
-        stage for a raw method (``profiled``) or the ``denoise`` stage for a filter
-        (``gaussian``, ``bilateral``), and disables the other (``none``: both). Errors name
-        the flag."""
+        stage, ``off`` disables it (then no other lens flag may be given); ``denoise``
+        enables the ``raw_denoise`` stage for a raw method (``profiled``) or the
+        ``denoise`` stage for a filter (``gaussian``, ``bilateral``), and disables the
+        other (``none``: both). Errors name the flag."""
         tables = self.to_tables()
         denoise = flags.pop("denoise", None)
         if denoise is not None:
