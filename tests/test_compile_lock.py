@@ -117,3 +117,48 @@ def test_a_stuck_holder_is_waited_for_at_most_the_wait(tmp_path):
     finally:
         holder.kill()
         holder.wait()
+
+
+#: A DataLoader with 2 workers over ``argv[1]``'s photos, for a Bayer sensor.
+LOADER = """
+import sys
+
+import torch
+
+import rawsim
+
+sensor = rawsim.RGBSensor.from_profile("sony_a7s2")
+data = rawsim.UnprocessDataset(sys.argv[1], sensor, crop=64, iso=1600, seed=3)
+loader = torch.utils.data.DataLoader(data, batch_size=1, num_workers=2)
+print(sum(batch["noisy"].shape[0] for batch in loader))
+"""
+
+
+@pytest.mark.slow
+def test_a_dataloader_compiles_nothing_after_rawsim_compile(tmp_path, monkeypatch):
+    """After what ``rawsim compile`` runs for UnprocessDataset (its Python API task, in
+    an empty cache), a DataLoader's 2 workers over other photos (8-bit, 16-bit, EXR)
+    compile no kernel: the task's arrays have the Dataset's types and layouts."""
+    import shutil
+
+    from rawsim_cli import compile as rc
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    folders = {"in": tmp_path / "in", "out": tmp_path / "out"}
+    rc._inputs(folders["in"])
+    (args,) = [args for _, _, args in rc.TASKS if args.startswith("api dataset ")]
+    _, kernels = rc._run(args, folders)
+    assert "engine.unprocess.unprocess_kernel" in kernels  # compiled into the empty cache
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("srgb/rocket.jpg", "srgb16/painted_figure_16bit.tif", "exr/cannon_half_b44.exr"):
+        shutil.copy(ROOT / "tests" / "data" / name, photos)
+    script = tmp_path / "loader.py"
+    script.write_text(LOADER)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    run = subprocess.run(
+        [sys.executable, script, photos], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == ["3"]
+    assert "compiling" not in run.stderr, run.stderr
