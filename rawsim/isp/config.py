@@ -1184,11 +1184,8 @@ def raw_kind(raw: RawImage) -> str:
     if monochrome(raw):
         return "this monochrome raw"
     if raw.cfa is None:
-        return (
-            "this LinearRaw DNG"
-            if str(raw.path).lower().endswith(".dng")
-            else ("this full-colour raw")
-        )
+        dng = str(raw.path).lower().endswith(".dng")
+        return "this LinearRaw DNG" if dng else "this full-colour raw"
     return "this raw"
 
 
