@@ -33,8 +33,9 @@ XTRANS = "unprocess: X-Trans"
 FLOAT = "process: float output"
 LINEAR = "unprocess: linear EXR, Gaussian noise"
 
-#: (what it builds, the tasks whose outputs or kernels it needs, rawsim arguments),
-#: in the order they start: ``{in}`` is the folder of inputs, ``{out}`` of outputs.
+#: (what it builds, the tasks whose outputs or kernels it needs, rawsim arguments, or
+#: ``api TASK {in}``: a task of :mod:`rawsim_cli.compile_api`), in the order they
+#: start: ``{in}`` is the folder of inputs, ``{out}`` of outputs.
 #: Each command compiles what a user's run of its kind uses (input types, CFA, noise
 #: model, output type, lens). A task whose kernels (or their callees) another also
 #: compiles waits for it, and loads them from the cache instead of compiling them a
@@ -97,6 +98,10 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
         "unprocess {in}/photo.png -o {out}/mono -p sony_a7s2 --iso 800 --sensor mono",
     ),
     ("events", (), "events {in}/frames -o {out}/events --fps 100"),
+    # the Python API's arrays (tensor views, int32 codes, float32 outputs): rawsim_cli.compile_api
+    ("Python API: UnprocessDataset", (), "api dataset {in}"),
+    ("Python API: unprocess", (), "api unprocess {in}"),
+    ("Python API: process", (), "api process {in}"),
 )
 
 #: The line :mod:`rawsim.engine.compile_log` logs as a kernel's compile ends (its
@@ -120,7 +125,8 @@ def command(ctx, jobs):
 
     Each command the compiled engine serves (unprocess, process, events, in each
     of their kinds: 8/16-bit and float inputs, noise models, Bayer and X-Trans,
-    lenses, float outputs) is run once on tiny images in a temporary folder; numba
+    lenses, float outputs), and the Python API (rawsim.unprocess, rawsim.process,
+    UnprocessDataset), is run once on tiny images in a temporary folder; numba
     caches what they compile on disk, where every later run loads it. Run it once
     after installing or upgrading rawsim (a few minutes); a second run finds the
     kernels cached and takes seconds. Progress goes to stderr.
@@ -209,20 +215,27 @@ def _schedule(folders: dict[str, Path], jobs: int):
 
 
 def _run(args: str, folders: dict[str, Path]) -> tuple[float, list[str]]:
-    """Run one rawsim command in a fresh process; its seconds and the kernels it compiled."""
+    """Run one rawsim command (or Python API task) in a fresh process; its seconds and
+    the kernels it compiled."""
     argv = [a.format_map(folders) for a in shlex.split(args)]
+    module = "rawsim_cli.main"
+    if argv[0] == "api":
+        module, argv = "rawsim_cli.compile_api", argv[1:]
     started = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "rawsim_cli.main", *argv],
+        [sys.executable, "-m", module, *argv],
         stdin=subprocess.DEVNULL,
         capture_output=True,
         text=True,
     )
     if proc.returncode:
         lines = proc.stderr.strip().splitlines()
+        api = module != "rawsim_cli.main"
+        command = f"python -m {module}" if api else "rawsim"
+        rerun = "rerun it to see the traceback" if api else "rerun it with --debug to see why"
         raise click.ClickException(
-            f"'rawsim {' '.join(argv)}' failed while compiling (exit {proc.returncode}): "
-            f"{lines[-1] if lines else 'no message'}; rerun it with --debug to see why"
+            f"'{command} {' '.join(argv)}' failed while compiling (exit {proc.returncode}): "
+            f"{lines[-1] if lines else 'no message'}; {rerun}"
         )
     return time.perf_counter() - started, _COMPILED.findall(proc.stderr)
 

@@ -9,6 +9,7 @@ Shapes: images (B, 3, H, W) with H, W even; mosaics (B, 1, H, W) in DN.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 
 from rawsim import memory
-from rawsim.errors import ParameterError
+from rawsim.errors import ParameterError, RawsimWarning
 from rawsim.io.lensfun import LensParams
 from rawsim.io.raw import RawImage
 from rawsim.isp.config import IspConfig
@@ -121,6 +122,8 @@ def unprocess(
         sensor="mono" if isinstance(sensor, MonoSensor) else "rgb",
         lens=lens,
     )
+    for warning in [] if display_referred else options.scene_linear_warning():
+        warnings.warn(warning, RawsimWarning, stacklevel=2)
     if grad and element_type(images) in INTEGER_TYPES:
         raise ParameterError("gradients need float images")
     noisy, clean, metadata = [], [], []
@@ -203,6 +206,10 @@ def process(
         Differentiable when gradients are enabled (the ISP then runs full frame).
         Without gradients, CPU mosaics of whole DN render on the compiled engine
         (within 1e-5 of the reference).
+
+    What ``rawsim process`` would warn (e.g. ``denoise="profiled"`` for a mono sensor,
+    which has no mosaic to denoise) is warned once per call as a
+    :class:`~rawsim.errors.RawsimWarning`.
     """
     if mosaics.ndim != 4 or mosaics.shape[1] != 1 or len(metadata) != mosaics.shape[0]:
         raise ParameterError(
@@ -214,7 +221,7 @@ def process(
         config = config.override(**changes)
     mono = isinstance(sensor, MonoSensor)
     p = sensor.profile
-    outs = []
+    outs, said = [], {}
     for i, meta in enumerate(metadata):
         params = meta["params"]
         raw = RawImage(
@@ -236,11 +243,15 @@ def process(
         grad = torch.is_grad_enabled() and mosaics.requires_grad
         codes = None if grad else _codes(mosaics[i, 0])
         if codes is not None:
-            out, _ = render_float(replace(raw, data=codes[..., None] if mono else codes), config)
+            out, info = render_float(replace(raw, data=codes[..., None] if mono else codes), config)
             outs.append(out.to(mosaics.device))
-            continue
-        isp = build_isp(config, raw).to(mosaics.device)
-        outs.append(isp(mosaics[i : i + 1]))
+        else:
+            isp = build_isp(config, raw).to(mosaics.device)
+            outs.append(isp(mosaics[i : i + 1]))
+            info = isp.info
+        said.update(dict.fromkeys(info["warnings"]))
+    for warning in said:  # each once, not once per sample
+        warnings.warn(warning, RawsimWarning, stacklevel=2)
     return outs[0] if len(outs) == 1 else torch.cat(outs)  # one sample: its render, uncopied
 
 

@@ -31,6 +31,11 @@ class ParameterError(RawsimError, ValueError):
     """A function or option got a value outside its documented domain."""
 
 
+class RawsimWarning(UserWarning):
+    """What the Python API warns (:func:`warnings.warn`) where the command line prints a
+    ``warning:`` line: an option asked for that cannot act on the data, a fallback."""
+
+
 def check_choice(name: str, value: str, valid: Iterable[str]) -> str:
     """Return ``value`` if it is one of ``valid``, else raise listing the valid names."""
     valid = tuple(valid)

@@ -70,8 +70,9 @@ def _import_numba_lean() -> None:
 
 def configure() -> None:
     """Choose a fork-safe threading layer before any kernel runs, as many threads as
-    the process may keep busy (:func:`rawsim.cores.usable_cores`), and log the
-    kernels numba compiles (:mod:`rawsim.engine.compile_log`).
+    the process may keep busy (:func:`rawsim.cores.usable_cores`), log the kernels
+    numba compiles (:mod:`rawsim.engine.compile_log`), and let one process at a time
+    compile each (:mod:`rawsim.engine.compile_lock`: the others load it from the cache).
 
     Batch jobs and DataLoaders fork workers; a child forked after GNU OpenMP has
     started its threads is killed ("fork() called from a process already using
@@ -81,7 +82,7 @@ def configure() -> None:
     import numba
 
     from rawsim.cores import usable_cores
-    from rawsim.engine import compile_log
+    from rawsim.engine import compile_lock, compile_log
 
     if "NUMBA_THREADING_LAYER" not in os.environ:
         numba.config.THREADING_LAYER = "forksafe"
@@ -89,6 +90,7 @@ def configure() -> None:
         numba.set_num_threads(min(numba.get_num_threads(), usable_cores()))
     _allow_runtime_overlap_checks()
     compile_log.install()
+    compile_lock.install()
 
 
 #: LLVM vectoriser limits, raised: a loop whose arrays LLVM cannot prove disjoint is

@@ -5,7 +5,9 @@ longer on a loaded machine); later runs load them from the cache. Without a word
 that looks like a hang, so every compile of a rawsim kernel is logged (warning
 level: shown unless ``-q``), its start with what is happening and how to do it ahead
 of time (``rawsim compile``), its end with the seconds it took. A kernel loaded
-from the cache logs nothing.
+from the cache logs nothing, so of processes that need one kernel at once only
+the one that compiles it logs (:mod:`rawsim.engine.compile_lock`: the others wait
+and load it). Each line is one record, written whole by the logging handler.
 
 Imported by :func:`rawsim.engine.configure`, so only where numba is.
 """

@@ -357,12 +357,21 @@ class Stage:
 
     def acts_on(self, raw: RawImage) -> bool:
         """Whether the stage runs on ``raw``: mosaic stages need a CFA, colour stages colour."""
-        if raw.cfa is None and self.mosaic_only:
-            return False
-        return not (monochrome(raw) and self.colour_only)
+        return self.idle_reason(raw) is None
 
-    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
-        """Record in ``info`` the values this stage takes from ``raw`` (most take none)."""
+    def idle_reason(self, raw: RawImage) -> str | None:
+        """Why the stage cannot act on ``raw``, a clause (``"acts on a CFA mosaic; this
+        LinearRaw DNG has none"``), or None where it acts."""
+        if raw.cfa is None and self.mosaic_only:
+            return f"acts on a CFA mosaic; {raw_kind(raw)} has none"
+        if monochrome(raw) and self.colour_only:
+            return f"acts on colour; {raw_kind(raw)} has one channel"
+        return None
+
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> str | None:
+        """Record in ``info`` the values this stage takes from ``raw`` (most take none).
+        Returns why the stage, though it runs, changes nothing on ``raw`` (a clause),
+        else None."""
 
 
 @dataclass(frozen=True)
@@ -611,12 +620,13 @@ class LensCorrectionStage(Stage):
         LENS_CORRECTIONS, _corrections, "which to correct: distortion, tca, vignetting"
     )
 
-    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
+    def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> str | None:
         """``info["lens"]``: the lens and its settings (:class:`~rawsim.io.lensfun.LensParams`
         as a dict) from lensfun's database for the raw's camera and metadata (values not
         ``auto`` replace the metadata's), or None where the raw cannot be corrected, with
-        a warning in ``info["warnings"]`` saying why and what to pass. A lens named here
-        that lensfun does not know is an error."""
+        a warning in ``info["warnings"]`` saying why and what to pass (also returned: the
+        stage then corrects nothing). A lens named here that lensfun does not know is an
+        error."""
         from pathlib import Path
 
         from rawsim.io.lensfun import raw_lens
@@ -635,6 +645,9 @@ class LensCorrectionStage(Stage):
         )
         info["warnings"].extend(warnings)
         info["lens"] = None if params is None else params.to_dict()
+        if params is None:  # the warning says why ("lens correction: …: not corrected; …")
+            return warnings[0].removeprefix("lens correction: ")
+        return None
 
 
 @dataclass(frozen=True)
@@ -831,10 +844,15 @@ class IspConfig:
     """Stages in processing order, each at most once, in an order that can work.
 
     ``origin`` names the config in errors (a file, ``options``); it is not kept.
+    ``asked``: (stage name, the flag that set it as typed, e.g. ``--denoise profiled``)
+    for each stage a flag of :meth:`override` set, first flag first: a stage asked for
+    that cannot act on a raw is warned in the flag's words (:func:`resolve`). Not part
+    of the config's value (equality, TOML).
     """
 
     stages: tuple[Stage, ...]
     origin: InitVar[str] = "config"
+    asked: tuple[tuple[str, str], ...] = field(default=(), compare=False)
 
     def __post_init__(self, origin: str) -> None:
         object.__setattr__(self, "stages", tuple(self.stages))
@@ -924,6 +942,7 @@ class IspConfig:
         ``denoise`` stage for a filter (``gaussian``, ``bilateral``), and disables the
         other (``none``: both). Errors name the flag."""
         tables = self.to_tables()
+        asked = dict(self.asked)
         denoise = flags.pop("denoise", None)
         if denoise is not None:
             _choice(DENOISE_CHOICES)(denoise)
@@ -940,6 +959,9 @@ class IspConfig:
             (raw_table if denoise in RAW_DENOISE_METHODS else rgb_table)["method"] = (
                 denoise if denoise != "none" else rgb_table.get("method", "bilateral")
             )
+            if denoise != "none":
+                stage = RawDenoiseStage if denoise in RAW_DENOISE_METHODS else DenoiseStage
+                asked.setdefault(stage.name, f"--denoise {denoise}")
         switch = flags.pop("lens_correction", None)
         if switch is not None:
             _choice(("auto", "off"))(switch)
@@ -949,6 +971,8 @@ class IspConfig:
                 raise ParameterError(f"--lens-correction off: {flag} corrects the lens; drop one")
             table = _table_of(tables, LensCorrectionStage)
             table["enabled"] = switch == "auto"
+            if switch == "auto":
+                asked.setdefault(LensCorrectionStage.name, "--lens-correction auto")
         for flag, value in flags.items():
             if value is None:
                 continue
@@ -961,19 +985,34 @@ class IspConfig:
             table = _table_of(tables, stage)
             table[key] = value
             table["enabled"] = True
+            typed = f"--{flag.replace('_', '-')} {value}"
+            asked.setdefault(stage.name, "--half-size" if value == HALF_SIZE else typed)
             if stage is HighlightsStage and value in ("blend", "unclip", "reconstruct"):
                 # Blending and unclip's neutral fill need RGB: move the stage to just
                 # after demosaic; reconstruction reads the mosaic: just before it.
                 tables.remove(table)
                 at = next(i for i, t in enumerate(tables) if t["name"] == DemosaicStage.name)
                 tables.insert(at + (value in RGB_HIGHLIGHT_MODES), table)
-        return IspConfig.from_tables(tables, "options")
+        config = IspConfig.from_tables(tables, "options")
+        return replace(config, asked=tuple(asked.items()))
 
     def with_disabled(self, *kinds: type[Stage]) -> IspConfig:
         """The config with the stages of these types disabled (kept, for the record)."""
         return IspConfig(
-            tuple(replace(s, enabled=False) if isinstance(s, kinds) else s for s in self.stages)
+            tuple(replace(s, enabled=False) if isinstance(s, kinds) else s for s in self.stages),
+            asked=self.asked,
         )
+
+    def asked_as(self, stage: Stage) -> str | None:
+        """How the user asked for ``stage`` (enabled), in messages: the flag that set it
+        (:attr:`asked`), else ``the config's 'name' stage`` where the config turns it on
+        against the default or changes its values; None where it is as by default."""
+        flag = dict(self.asked).get(stage.name)
+        if flag is not None:
+            return flag
+        if not stage.on_by_default or stage != type(stage)():
+            return f"the config's {stage.name!r} stage"
+        return None
 
     @property
     def enabled(self) -> tuple[Stage, ...]:
@@ -1086,7 +1125,9 @@ class ResolvedIsp:
     order. ``info``: ``warnings`` and ``monochrome``, then what the stages took from
     the raw, in stage order, as the sidecar records it: ``white_level`` (DN),
     ``white_balance`` (R, G, B gains) and ``white_balance_source``, ``color_matrix``
-    (3 × 3, camera → output), ``exposure_stops``.
+    (3 × 3, camera → output), ``exposure_stops``; last ``stages``: one record per
+    enabled stage, in order, ``{"name", "ran"}`` and, where it did not run (or changed
+    nothing), ``"why"``.
     """
 
     config: IspConfig
@@ -1169,14 +1210,65 @@ def monochrome(raw: RawImage) -> bool:
     return raw.cfa is None and raw.data.shape[-1] == 1
 
 
+def raw_kind(raw: RawImage) -> str:
+    """``raw`` as messages name it where it lacks a CFA or colour: ``this monochrome
+    raw``, ``this LinearRaw DNG`` (3-channel data from a DNG), ``this full-colour raw``
+    (other 3-channel data), else ``this raw``."""
+    if monochrome(raw):
+        return "this monochrome raw"
+    if raw.cfa is None:
+        dng = str(raw.path).lower().endswith(".dng")
+        return "this LinearRaw DNG" if dng else "this full-colour raw"
+    return "this raw"
+
+
+#: What a stage that cannot act on a raw leaves undone, and what to use instead where
+#: there is something (:func:`idle_warning`); other stages: "not applied".
+_IDLE_OUTCOMES: dict[type[Stage], str] = {
+    RawDenoiseStage: "not denoised (--denoise bilateral smooths its pixels instead)",
+    DeadPixelStage: "no pixel corrected",
+    AntiAliasingStage: "not blurred",
+    WhiteBalanceStage: "no gains applied",
+    DemosaicStage: "its pixels hold every colour already",
+    ColorMatrixStage: "not converted",
+    YCbCrStage: "not converted",
+}
+
+
+def idle_warning(stage: Stage, asked: str, why: str) -> str:
+    """The one-line warning for ``stage``, asked for as ``asked`` (a flag, or the
+    config's stage), which cannot act on a raw because ``why`` (:meth:`Stage.idle_reason`)::
+
+        --denoise profiled acts on a CFA mosaic; this LinearRaw DNG has none: not
+        denoised (--denoise bilateral smooths its pixels instead)
+    """
+    if isinstance(stage, DemosaicStage) and stage.method == HALF_SIZE:
+        outcome = "rendered at full size (--resize scales it down)"
+    else:
+        outcome = _IDLE_OUTCOMES.get(type(stage), "not applied")
+    return f"{asked} {why}: {outcome}"
+
+
 def resolve(config: IspConfig | list[dict], raw: RawImage) -> ResolvedIsp:
     """``config`` (typed, or its tables) for ``raw``: each stage that acts on it
-    records, in order, what it takes from it."""
+    records, in order, what it takes from it. An enabled stage that cannot act on
+    ``raw`` is left out, recorded in ``info["stages"]`` with why, and warned where the
+    user asked for it (:meth:`IspConfig.asked_as`): a stage on by default that cannot
+    act (the demosaic of a LinearRaw DNG) is no news."""
     config = IspConfig.of(config)
     info: dict = {"warnings": list(raw.warnings), "monochrome": monochrome(raw)}
-    stages = tuple(s for s in config.enabled if s.acts_on(raw))
+    idle = {s.name: s.idle_reason(raw) for s in config.enabled}
+    stages = tuple(s for s in config.enabled if idle[s.name] is None)
+    for stage in config.enabled:
+        asked = config.asked_as(stage)
+        if idle[stage.name] is not None and asked is not None:
+            info["warnings"].append(idle_warning(stage, asked, idle[stage.name]))
     for stage in stages:
-        stage.resolve(raw, config, info)
+        idle[stage.name] = stage.resolve(raw, config, info)
+    info["stages"] = [
+        {"name": name, "ran": why is None} | ({} if why is None else {"why": why})
+        for name, why in idle.items()
+    ]
     return ResolvedIsp(config, raw, stages, info)
 
 

@@ -95,6 +95,12 @@ class ProcessOptions:
             raise ParameterError(f"resize must be at least 1 pixel, got {self.resize}")
         if self.thumbnail and self.fmt != "jpg":
             raise ParameterError(f"a thumbnail is the raw's embedded JPEG: use jpg, not {self.fmt}")
+        asked = [a for a in map(self.config.asked_as, self.config.enabled) if a is not None]
+        if self.thumbnail and asked:
+            raise ParameterError(
+                f"--thumbnail writes the raw's embedded JPEG, not a render: {asked[0]} "
+                "does not apply; drop one of them"
+            )
 
     def output_suffixes(self) -> dict[str, str]:
         return {"image": OUTPUT_FORMATS[self.fmt], "json": ".process.json"}
@@ -103,7 +109,27 @@ class ProcessOptions:
         """EXR is scene-linear: its renders skip the tone curve, transfer and YCbCr."""
         if self.fmt != "exr":
             return self.config
-        return self.config.with_disabled(ToneStage, TransferStage, YCbCrStage)
+        return self.config.with_disabled(*EXR_LEAVES_OUT)
+
+    def left_out(self) -> list[tuple[str, str]]:
+        """(stage name, one-line warning) for each stage the user asked for
+        (:meth:`~rawsim.isp.config.IspConfig.asked_as`) that the output format leaves
+        out (:meth:`effective_config`), in order."""
+        if self.fmt != "exr":
+            return []
+        return [
+            (
+                s.name,
+                f"{self.config.asked_as(s)} shapes display-referred output; --format exr "
+                "writes scene-linear light: left out (--format tiff --bits 16 keeps it)",
+            )
+            for s in self.config.enabled
+            if isinstance(s, EXR_LEAVES_OUT) and self.config.asked_as(s) is not None
+        ]
+
+
+#: The stages an EXR render leaves out: its samples are scene-linear light.
+EXR_LEAVES_OUT = (ToneStage, TransferStage, YCbCrStage)
 
 
 def raw_tensor(raw: RawImage, device):
@@ -875,6 +901,9 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
     config = _preview_config(config, raw, options.resize)
     samples, info = render_samples(raw, config, options.fmt, options.bits, device, reuse=True)
+    for name, warning in options.left_out():
+        info["warnings"].append(warning)
+        info["stages"].append({"name": name, "ran": False, "why": "--format exr is scene-linear"})
     rendered = samples
     if options.resize:
         samples = resize_samples(samples, options.resize)

@@ -422,6 +422,24 @@ class UnprocessOptions:
     def __post_init__(self) -> None:
         if self.lens is not None:  # a record (LensParams.to_dict()), e.g. from a sidecar
             object.__setattr__(self, "lens", LensParams.of(self.lens))
+        if self.safe_white_balance and self.sensor == "mono":
+            raise ParameterError(
+                "--wb-inverse safe inverts a white balance; the mono sensor has none (it "
+                "records grey): drop one of them"
+            )
+
+    def scene_linear_warning(self) -> list[str]:
+        """The warning for a scene-linear input (EXR, float TIFF) where options that
+        decode display-referred 8/16-bit inputs only were given (``--tone``,
+        ``--transfer``, where not none and srgb): they cannot act on it."""
+        given = [("--tone", self.tone, "none"), ("--transfer", self.transfer, "srgb")]
+        given = [f"{flag} {value}" for flag, value, default in given if value != default]
+        if not given:
+            return []
+        return [
+            f"{' and '.join(given)} decode{'s' * (len(given) == 1)} 8/16-bit display-referred "
+            "images; this one is scene-linear (floats): not applied"
+        ]
 
     def with_cfa(self, cfa: str | None) -> UnprocessOptions:
         """These options with the profile's CFA replaced by ``cfa`` (``--cfa``: a Bayer
@@ -831,6 +849,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "crop": decoded.crop,
         "dropped_channels": list(decoded.dropped_channels),
         "warnings": list(decoded.warnings)
+        + (options.scene_linear_warning() if decoded.is_float else [])
         + _iso_warning(options)
         + _libraw_size_warning(options, h, w),
         "orientation": decoded.orientation,
