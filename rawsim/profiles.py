@@ -53,6 +53,11 @@ DARK_KEYS = ("noise.dark_shading", "noise.black_level_error")
 OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread", *DARK_KEYS)
 #: How a profile's noise was obtained (its optional ``noise_kind`` key).
 NOISE_KINDS = ("measured", "estimated")
+#: How a source begins that marks a value as assumed, not taken from a table or a file.
+ASSUMED = "assumed"
+#: How ``source.xyz_to_camera`` begins where the matrix only stands in for a missing one
+#: (``rawsim calibrate`` on files without one; a seed config without ``color_matrix_d50``).
+NO_MATRIX = "none:"
 SEED_KEYS = (
     "sensor_size",
     "sensor_res",
@@ -116,6 +121,27 @@ class SensorProfile:
             return self
         note = f"set to {cfa.name} by the user; the profile's own layout is {self.cfa.name}"
         return replace(self, cfa=cfa, source={**self.source, "cfa_pattern": note})
+
+    @property
+    def assumed(self) -> tuple[str, ...]:
+        """The keys whose value is assumed (their source begins "assumed"), not taken
+        from a table, a file or a measurement."""
+        return tuple(k for k, v in self.source.items() if str(v).casefold().startswith(ASSUMED))
+
+    @property
+    def colour_warning(self) -> str | None:
+        """One line saying that the profile has no colour matrix and how to give it one;
+        None where it has one. It has none where its source says so (:data:`NO_MATRIX`)
+        or its XYZ → camera matrix is the identity."""
+        said = str(self.source.get("xyz_to_camera", "")).startswith(NO_MATRIX)
+        if not said and not np.allclose(self.xyz_to_camera, np.eye(3)):
+            return None
+        return (
+            f"profile {self.name!r} has no colour matrix (its XYZ→camera only stands in), "
+            "so the camera RGB it simulates has no real camera's colours; give it one with "
+            "'rawsim profiles from-raw' on a raw of the camera, or copy xyz_to_camera from "
+            "a similar camera ('rawsim profiles show NAME --json')"
+        )
 
     def check_iso(self, iso: float) -> float:
         """Return ``iso`` if the profile allows it, else raise a clear error."""
@@ -566,6 +592,17 @@ def _from_seed(r: _Reader) -> SensorProfile:
         size_mm=size,
         resolution=tuple(int(v) for v in res),
         spectral=spectral,
-        source={"*": "seed config"},
+        source=_seed_source(data),
         path=None if r.origin.startswith("<") else r.origin,
     )
+
+
+def _seed_source(data: dict) -> dict:
+    """A seed config's sources: the config, and :data:`NO_MATRIX` without a matrix."""
+    if "color_matrix_d50" in data:
+        return {"*": "seed config"}
+    return {
+        "*": "seed config",
+        "xyz_to_camera": f"{NO_MATRIX} the seed config gives no color_matrix_d50; the seed's "
+        "identity CCM stands in (camera RGB taken as sRGB)",
+    }

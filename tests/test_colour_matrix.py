@@ -1,0 +1,70 @@
+"""A profile's colour matrix where it comes from a file, and the warning where it has none.
+
+``rawsim calibrate`` takes the matrix ``process`` renders the files with: the chart DNG
+(a Kiss X4, a name LibRaw's table lacks) carries ColorMatrix1, read here independently
+with tifffile. A profile without a colour matrix (calibrate on a DNG with none) is
+warned about in one line wherever it is used: by calibrate, by ``profiles show``, and
+by ``unprocess`` once per run, each sidecar recording it.
+"""
+
+import json
+
+import numpy as np
+import tifffile
+from click.testing import CliRunner
+
+from rawsim.profiles import NO_MATRIX, load_profile
+from rawsim_cli.main import cli
+from tests.conftest import DATA
+from tests.test_profiles_from_raw import UNLISTED, edited_dng
+
+CHART = DATA / "chart" / "canon_550d_colorchecker.dng"
+PHOTOS = [DATA / "srgb" / "chelsea.png", DATA / "srgb" / "coffee.png"]
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def colour_matrix_1(path) -> np.ndarray:
+    """ColorMatrix1 (tag 50721, SRATIONAL numerator/denominator pairs) as tifffile reads it."""
+    with tifffile.TiffFile(path) as tif:
+        pairs = np.array(tif.pages.first.tags[50721].value, dtype=np.float64)
+    return (pairs[0::2] / pairs[1::2]).reshape(3, 3)
+
+
+def test_calibrate_takes_the_dngs_own_colour_matrix(tmp_path):
+    out = tmp_path / "x4.json"
+    r = run("calibrate", CHART, "--method", "patches", "--iso", 100, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "no colour matrix" not in r.output
+    p = load_profile(out)
+    np.testing.assert_allclose(p.xyz_to_camera, colour_matrix_1(CHART), rtol=0, atol=1e-12)
+    assert "the file's ColorMatrix1 (unknown illuminant)" in p.source["xyz_to_camera"]
+    assert p.colour_warning is None
+
+
+def test_a_profile_without_a_colour_matrix_is_warned_about_where_it_is_used(tmp_path):
+    drop = ("-ColorMatrix1=", "-ColorMatrix2=", "-ForwardMatrix1=", "-ForwardMatrix2=")
+    dng = edited_dng(tmp_path, *UNLISTED, *drop)
+    profile = tmp_path / "bare.json"
+    r = run("calibrate", dng, "--method", "patches", "-o", profile)
+    assert r.exit_code == 0, r.output
+    assert r.stderr.count("warning: profile 'bare' has no colour matrix") == 1, r.stderr
+    data = json.loads(profile.read_text())
+    assert data["xyz_to_camera"] == np.eye(3).tolist()
+    assert data["source"]["xyz_to_camera"].startswith(NO_MATRIX)
+
+    r = run("profiles", "show", profile)
+    assert r.exit_code == 0 and "warning: profile 'bare' has no colour matrix" in r.output
+
+    r = run("unprocess", *PHOTOS, "-o", tmp_path / "raw", "-p", profile, "--iso", 100)
+    assert r.exit_code == 0, r.output
+    said = [line for line in r.stderr.splitlines() if "no colour matrix" in line]
+    assert len(said) == 1 and said[0].startswith("warning: profile 'bare'"), r.stderr
+    for photo in PHOTOS:
+        sidecar = json.loads((tmp_path / "raw" / f"{photo.stem}.json").read_text())
+        assert load_profile(profile).colour_warning in sidecar["warnings"]
+
+    r = run("unprocess", PHOTOS[0], "-o", tmp_path / "ok", "-p", "canon_eos_70d", "--iso", 100)
+    assert r.exit_code == 0 and "no colour matrix" not in r.output
