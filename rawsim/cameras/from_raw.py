@@ -293,8 +293,8 @@ def _raw_noise(raw, file: str) -> dict:
         },
         "source": {
             "iso_range": (
-                "not in the raw: the range rawsim's camera estimates span "
-                "(rawsim.cameras.estimate.ISO_RANGE)"
+                "assumed: a raw does not record its camera's ISO range; the range assumed "
+                "for a camera nothing is known of (rawsim.cameras.estimate.ISO_RANGE)"
                 + (f", widened to the raw's ISO {iso:g}" if (lo, hi) != ISO_RANGE else "")
             ),
             "noise.gain": (
