@@ -23,7 +23,13 @@ import numpy as np
 
 from rawsim import cameras
 from rawsim.cfa import CFA
-from rawsim.color import as_matrix, daylight_gains, split_seed_matrix, xyz_to_camera_from_ccm
+from rawsim.color import (
+    as_matrix,
+    camera_from_srgb,
+    daylight_gains,
+    split_seed_matrix,
+    xyz_to_camera_from_ccm,
+)
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.noise.dark_shading import read_black_level_error, read_spec
 from rawsim.noise.spec import (
@@ -131,16 +137,24 @@ class SensorProfile:
     @property
     def colour_warning(self) -> str | None:
         """One line saying that the profile has no colour matrix and how to give it one;
-        None where it has one. It has none where its source says so (:data:`NO_MATRIX`)
-        or its XYZ → camera matrix is the identity."""
+        None where it has one. It has none where its source says so (:data:`NO_MATRIX`),
+        where its XYZ → camera matrix is diagonal (camera RGB taken as XYZ: the identity
+        ``rawsim calibrate`` writes for files without a matrix) and where it takes camera
+        RGB as linear sRGB (a seed config without ``color_matrix_d50``, a profile of a
+        camera no matrix is published for)."""
+        m = np.asarray(self.xyz_to_camera, dtype=np.float64)
         said = str(self.source.get("xyz_to_camera", "")).startswith(NO_MATRIX)
-        if not said and not np.allclose(self.xyz_to_camera, np.eye(3)):
+        if said or np.allclose(m - np.diag(np.diag(m)), 0, atol=1e-6):
+            what = "its XYZ→camera matrix is the identity, a stand-in"
+        elif np.allclose(camera_from_srgb(m), np.eye(3), atol=1e-3):
+            what = "it takes camera RGB as linear sRGB"
+        else:
             return None
         return (
-            f"profile {self.name!r} has no colour matrix (its XYZ→camera only stands in), "
-            "so the camera RGB it simulates has no real camera's colours; give it one with "
-            "'rawsim profiles from-raw' on a raw of the camera, or copy xyz_to_camera from "
-            "a similar camera ('rawsim profiles show NAME --json')"
+            f"profile {self.name!r} has no colour matrix ({what}), so the raws it makes do "
+            "not have a real camera's colours; give it one with 'rawsim profiles from-raw' "
+            "on a raw of the camera, or copy xyz_to_camera from a similar camera "
+            "('rawsim profiles show NAME --json')"
         )
 
     def check_iso(self, iso: float) -> float:
@@ -592,17 +606,6 @@ def _from_seed(r: _Reader) -> SensorProfile:
         size_mm=size,
         resolution=tuple(int(v) for v in res),
         spectral=spectral,
-        source=_seed_source(data),
+        source={"*": "seed config"},
         path=None if r.origin.startswith("<") else r.origin,
     )
-
-
-def _seed_source(data: dict) -> dict:
-    """A seed config's sources: the config, and :data:`NO_MATRIX` without a matrix."""
-    if "color_matrix_d50" in data:
-        return {"*": "seed config"}
-    return {
-        "*": "seed config",
-        "xyz_to_camera": f"{NO_MATRIX} the seed config gives no color_matrix_d50; the seed's "
-        "identity CCM stands in (camera RGB taken as sRGB)",
-    }

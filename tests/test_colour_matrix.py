@@ -13,7 +13,7 @@ import numpy as np
 import tifffile
 from click.testing import CliRunner
 
-from rawsim.profiles import NO_MATRIX, load_profile
+from rawsim.profiles import NO_MATRIX, load_profile, profile_from_dict
 from rawsim_cli.main import cli
 from tests.conftest import DATA
 from tests.test_profiles_from_raw import UNLISTED, edited_dng
@@ -68,3 +68,14 @@ def test_a_profile_without_a_colour_matrix_is_warned_about_where_it_is_used(tmp_
 
     r = run("unprocess", PHOTOS[0], "-o", tmp_path / "ok", "-p", "canon_eos_70d", "--iso", 100)
     assert r.exit_code == 0 and "no colour matrix" not in r.output
+
+
+def test_a_profile_that_takes_camera_rgb_as_srgb_has_no_colour_matrix():
+    """The bundled OPPO phone (no matrix published: camera RGB taken as sRGB) and a seed
+    config without color_matrix_d50 are warned about; a camera's own matrix is not."""
+    assert "camera RGB as linear sRGB" in load_profile("oppo_reno10x").colour_warning
+    seed = profile_from_dict({"bit": 12}, "seed.json")
+    assert "camera RGB as linear sRGB" in seed.colour_warning
+    ccm = [[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5]]
+    assert profile_from_dict({"bit": 12, "color_matrix_d50": ccm}).colour_warning is None
+    assert all(load_profile(n).colour_warning is None for n in ("sony_a7s2", "Canon EOS R6"))
