@@ -8,11 +8,13 @@ by ``unprocess`` once per run, each sidecar recording it.
 """
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import tifffile
 from click.testing import CliRunner
 
+from rawsim.io.dng_colour import read_dng_colour
 from rawsim.profiles import NO_MATRIX, load_profile, profile_from_dict
 from rawsim_cli.main import cli
 from tests.conftest import DATA
@@ -79,3 +81,43 @@ def test_a_profile_that_takes_camera_rgb_as_srgb_has_no_colour_matrix():
     ccm = [[1.6, -0.4, -0.2], [-0.2, 1.5, -0.3], [0.0, -0.5, 1.5]]
     assert profile_from_dict({"bit": 12, "color_matrix_d50": ccm}).colour_warning is None
     assert all(load_profile(n).colour_warning is None for n in ("sony_a7s2", "Canon EOS R6"))
+
+
+def _tags(**values):
+    """IFD0 tags as tifffile gives them (``.value``), rationals as (num, den) pairs."""
+    codes = {"cm1": 50721, "cm2": 50722, "ill1": 50778, "ill2": 50779, "cc2": 50724}
+    codes["ab"] = 50727
+    out = {}
+    for name, value in values.items():
+        flat = np.ravel(value)
+        pairs = value if name.startswith("ill") else [v for x in flat for v in (x * 10000, 10000)]
+        out[codes[name]] = SimpleNamespace(value=tuple(int(round(v)) for v in np.ravel(pairs)))
+    return out
+
+
+def test_the_dng_matrix_libraw_would_take():
+    """Of two matrices, the D65 one, else a daylight-like one (D50 here), else the second
+    tag; one matrix whatever its illuminant; AB · CC · CM, as the DNG specification
+    composes them. (Checked against LibRaw's own choice on real DNGs in
+    tests/test_profiles_from_raw.py.)"""
+    a = np.array([[0.7, -0.1, -0.1], [-0.4, 1.2, 0.2], [-0.1, 0.2, 0.6]])
+    b = a + 0.05
+    for ill, want, name in (
+        ((17, 21), b, "ColorMatrix2 (D65)"),
+        ((21, 17), a, "ColorMatrix1 (D65)"),
+        ((17, 23), b, "ColorMatrix2 (D50)"),
+        ((17, 17), b, "ColorMatrix2 (standard light A)"),
+    ):
+        colour = read_dng_colour(_tags(cm1=a, cm2=b, ill1=[ill[0]], ill2=[ill[1]]))
+        matrix, what = colour.chosen()
+        np.testing.assert_allclose(matrix, want, atol=1e-12)
+        assert what == name
+    colour = read_dng_colour(
+        _tags(cm1=a, cm2=b, ill1=[17], ill2=[21], cc2=np.diag([1.1, 1, 0.9]), ab=[0.5, 1, 2])
+    )
+    matrix, what = colour.chosen()
+    np.testing.assert_allclose(
+        matrix, np.diag([0.5, 1, 2]) @ np.diag([1.1, 1, 0.9]) @ b, atol=1e-12
+    )
+    assert what == "AnalogBalance · CameraCalibration2 · ColorMatrix2 (D65)"
+    assert read_dng_colour(_tags(ill1=[21])) is None  # no matrix

@@ -4,7 +4,8 @@ Everything is copied out of LibRaw before the file closes. The quirks seen on
 real files are handled here, the way LibRaw handles them:
 
 * colour matrices: ``rgb_xyz_matrix`` when set (LibRaw's table for the camera), else
-  a DNG's own ColorMatrix (the one LibRaw renders it with: :meth:`DngColour.chosen`),
+  a DNG's own ColorMatrix (the one LibRaw renders it with:
+  :meth:`rawsim.io.dng_colour.DngColour.chosen`),
   else LibRaw's ``color_matrix`` (camera → sRGB), else the matrix LibRaw has built in
   for the camera, measured through LibRaw (:func:`_measured_rgb_cam`), else the
   identity (warned); ``RawImage.matrix_source`` says which;
@@ -38,9 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from rawsim.cfa import CFA
-from rawsim.color import srgb_from_camera, xyz_to_camera_from_ccm
+from rawsim.color import xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.clibs import collected_stderr, openable_name
+from rawsim.io.dng_colour import DngColour, libraw_matrix, read_dng_colour
 from rawsim.io.spare import Spare
 
 # LibRaw's flip code → EXIF/TIFF orientation.
@@ -229,114 +231,6 @@ class _TiffFacts:
     colour: DngColour | None = None
 
 
-#: DNG CalibrationIlluminant codes (EXIF LightSource), for messages.
-_ILLUMINANTS = {
-    0: "unknown illuminant",
-    1: "daylight",
-    4: "flash",
-    17: "standard light A",
-    18: "standard light B",
-    19: "standard light C",
-    20: "D55",
-    21: "D65",
-    22: "D75",
-    23: "D50",
-}
-#: Illuminants LibRaw takes for a DNG's colour when neither matrix is for D65 (its
-#: identify.cpp, "Other daylight-type ill"): daylight, flash, D55, D75, D50.
-_DAYLIGHT_LIKE = (1, 4, 20, 22, 23)
-
-
-@dataclass(frozen=True)
-class DngColour:
-    """A DNG's colour tags (IFD0): ``matrices`` maps 1 and 2 (ColorMatrix1/2, XYZ →
-    camera under CalibrationIlluminant1/2) to (illuminant code, (3, 3) matrix);
-    ``calibration`` likewise CameraCalibration1/2; ``analog_balance`` the AnalogBalance
-    gains, or None."""
-
-    matrices: dict[int, tuple[int, np.ndarray]]
-    calibration: dict[int, np.ndarray]
-    analog_balance: np.ndarray | None
-
-    def chosen(self) -> tuple[np.ndarray, str] | None:
-        """The XYZ → camera matrix LibRaw renders the file with, and what it is; None
-        without a 3×3 ColorMatrix.
-
-        LibRaw's rule (src/metadata/identify.cpp and tiff.cpp): of two matrices with
-        their illuminants, the D65 one, else a daylight-like one (:data:`_DAYLIGHT_LIKE`),
-        else the last tag read (ColorMatrix2); one matrix is taken whatever its
-        illuminant. As the DNG specification composes it, the matrix is
-        AnalogBalance · CameraCalibration · ColorMatrix.
-        """
-        if not self.matrices:
-            return None
-        order = sorted(self.matrices)
-        pick = order[-1]
-        if len(order) == 2 and all(self.matrices[i][0] > 0 for i in order):
-            for wanted in ((21,), _DAYLIGHT_LIKE):
-                hit = [i for i in order if self.matrices[i][0] in wanted]
-                if hit:
-                    pick = hit[0]
-                    break
-        code, matrix = self.matrices[pick]
-        name = _ILLUMINANTS.get(code, f"illuminant {code}")
-        what = [f"ColorMatrix{pick} ({name})"]
-        if pick in self.calibration and not np.allclose(self.calibration[pick], np.eye(3)):
-            matrix = self.calibration[pick] @ matrix
-            what.insert(0, f"CameraCalibration{pick}")
-        if self.analog_balance is not None and not np.allclose(self.analog_balance, 1):
-            matrix = np.diag(self.analog_balance) @ matrix
-            what.insert(0, "AnalogBalance")
-        return matrix, " · ".join(what)
-
-
-def _dng_colour(tags) -> DngColour | None:
-    """The colour tags of a DNG's IFD0 (tifffile tags), None where it has no 3×3
-    ColorMatrix (a 4-colour one is LibRaw's to render)."""
-
-    def matrix(code: int) -> np.ndarray | None:
-        if code not in tags:
-            return None
-        v = np.asarray(tags[code].value, dtype=np.float64).ravel()
-        if v.size == 18:  # (S)RATIONAL pairs
-            v = v[0::2] / np.where(v[1::2] == 0, 1, v[1::2])
-        return v.reshape(3, 3) if v.size == 9 and np.isfinite(v).all() else None
-
-    matrices, calibration = {}, {}
-    for i, (cm, ill, cc) in enumerate(((50721, 50778, 50723), (50722, 50779, 50724)), 1):
-        m = matrix(cm)
-        if m is not None and np.abs(m).sum() > 0:
-            code = int(np.ravel(tags[ill].value)[0]) if ill in tags else 0
-            matrices[i] = (code, m)
-        c = matrix(cc)
-        if c is not None:
-            calibration[i] = c
-    if not matrices:
-        return None
-    balance = None
-    if 50727 in tags:
-        v = np.asarray(tags[50727].value, dtype=np.float64).ravel()
-        v = v[0::2] / np.where(v[1::2] == 0, 1, v[1::2]) if v.size == 6 else v
-        balance = v if v.size == 3 and (v > 0).all() else None
-    return DngColour(matrices, calibration, balance)
-
-
-def _dng_matrix(colour: DngColour | None, libraw_to_srgb: np.ndarray):
-    """(XYZ → camera matrix, its source) of a DNG whose colour LibRaw gives only as its
-    camera → sRGB ``color_matrix``: the file's chosen matrix (:meth:`DngColour.chosen`)
-    where it reproduces LibRaw's (so that rendering with it changes nothing); None
-    otherwise."""
-    picked = None if colour is None else colour.chosen()
-    if picked is None:
-        return None
-    matrix, what = picked
-    try:
-        same = np.allclose(srgb_from_camera(matrix), libraw_to_srgb, rtol=0, atol=1e-4)
-    except (ParameterError, np.linalg.LinAlgError):
-        return None
-    return (matrix, f"the file's {what} (DNG tags; LibRaw renders it with it)") if same else None
-
-
 def _tiff_facts(path: Path) -> _TiffFacts:
     """Make, Model (or UniqueCameraModel) and a DNG's CFA, from TIFF-based raws (DNG,
     CR2, NEF, ARW, …); for other formats the camera as exiv2 reads it; "unknown"
@@ -358,7 +252,7 @@ def _tiff_facts(path: Path) -> _TiffFacts:
                 cfa_rows = None
             dng = "DNGVersion" in tags
             try:
-                colour = _dng_colour(tags) if dng else None
+                colour = read_dng_colour(tags) if dng else None
             except Exception:  # likewise: LibRaw's matrix stands
                 colour = None
             return _TiffFacts(make or "unknown", model or "unknown", cfa_rows, dng, colour)
@@ -718,7 +612,7 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
     elif not np.allclose(xyz, 0):
         xyz_out, cam_srgb_out = xyz, None if np.allclose(cam_srgb, 0) else cam_srgb
         source = "LibRaw's table for the camera (rgb_xyz_matrix)"
-    elif (dng := _dng_matrix(tiff.colour, cam_srgb)) is not None:
+    elif (dng := libraw_matrix(tiff.colour, cam_srgb)) is not None:
         (xyz_out, source), cam_srgb_out = dng, cam_srgb
     elif not np.allclose(cam_srgb, 0):
         xyz_out, cam_srgb_out = None, cam_srgb
