@@ -246,12 +246,14 @@ def from_raw_cmd(raw, output, overwrite):
     """Write a profile for the camera that took the raw FILE.
 
     From the raw, as LibRaw reads it: the CFA layout, the black and white levels
-    (and so the bit depth), the XYZ→camera matrix (LibRaw's rgb_xyz_matrix) and
-    the daylight white balance. The noise is the camera database's where it
-    knows the camera (measured or estimated, as 'profiles list' says), else
-    estimated from the raw's own flat regions at its ISO. One line says which.
-    Every number's source names the file. Raws without a colour matrix or a
-    CFA mosaic (linear DNGs) are refused.
+    (and so the bit depth), the XYZ→camera matrix 'rawsim process' renders it
+    with (LibRaw's table for the camera, else a DNG's own ColorMatrix, else
+    LibRaw's built-in matrix; the source says which) and the daylight white
+    balance. The noise is the camera database's where it knows the camera
+    (measured or estimated, as 'profiles list' says), else estimated from the
+    raw's own flat regions at its ISO. One line says which. Every number's
+    source names the file. Raws without any colour matrix or a CFA mosaic
+    (linear DNGs) are refused.
 
     \b
     Example:
