@@ -207,9 +207,11 @@ def command(
             err=True,
         )
         raise SystemExit(1) from None
-    profile_from_dict(profile, str(out))  # the written profile must load
+    written = profile_from_dict(profile, str(out))  # the written profile must load
     for problem in profile.get("unreliable", [])[1:]:
         click.echo(f"warning: unreliable: {problem}", err=True)
+    if written.colour_warning:
+        click.echo(f"warning: {written.colour_warning}", err=True)
     with atomic_output(out) as tmp:
         tmp.write_text(json.dumps(profile, indent=2) + "\n")
     if plot:

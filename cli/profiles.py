@@ -44,8 +44,11 @@ def list_cmd(text, as_json):
     """List every profile: the bundled ones, then each camera LibRaw knows.
 
     Each row says whether the camera's noise is measured (a published
-    calibration) or estimated from its sensor's physics. --json prints each
-    profile whole (levels, matrix, noise, sources), as 'profiles show --json'.
+    calibration) or estimated from its sensor's physics, and which of its
+    values are assumed (no public table gives them; 'profiles show' says how
+    each was chosen), or "-" where none is. --json prints each profile whole
+    (levels, matrix, noise, sources, and "assumed", the keys assumed), as
+    'profiles show --json'.
 
     \b
     Example:
@@ -74,7 +77,10 @@ def list_cmd(text, as_json):
                 profile_from_dict(cam.profile_data(), f"<camera database: {cam.label}>")
             )
     if as_json:
-        rows = [{**p.to_dict(), "aliases": aliases.get(p.name, [])} for p in profiles]
+        rows = [
+            {**p.to_dict(), "aliases": aliases.get(p.name, []), "assumed": list(p.assumed)}
+            for p in profiles
+        ]
         click.echo(json.dumps(rows, indent=1, ensure_ascii=False))
         return
     if not profiles:
@@ -90,6 +96,7 @@ def list_cmd(text, as_json):
             "bits": p.bit_depth,
             "noise": p.noise_kind or "unstated",
             "iso": _iso_range(*p.iso_range),
+            "assumed": ",".join(_SHORT.get(k, k) for k in p.assumed) or "-",
         }
         for p in profiles
     ]
@@ -97,6 +104,18 @@ def list_cmd(text, as_json):
     click.echo("  ".join(f"{k:<{widths[k]}}" for k in rows[0]).rstrip())
     for r in rows:
         click.echo("  ".join(f"{str(v):<{widths[k]}}" for k, v in r.items()).rstrip())
+
+
+#: Short names of a profile's keys for the "assumed" column of 'profiles list'.
+_SHORT = {
+    "cfa_pattern": "cfa",
+    "bit_depth": "bits",
+    "black_level": "black",
+    "white_level": "white",
+    "iso_range": "iso",
+    "xyz_to_camera": "matrix",
+    "white_balance": "wb",
+}
 
 
 def _iso_range(lo: float, hi: float) -> str:
@@ -133,6 +152,9 @@ def _curve(spec: dict, unit: str) -> str:
 def show_cmd(profile, iso, as_json, plot):
     """Show a profile: levels, matrix, white balance, noise and sources.
 
+    Each value no public table or file gives is marked "(assumed)" on its
+    line; its source line says how it was chosen.
+
     With --iso N --json only the noise model's values at that ISO are printed:
     K (DN/e⁻), the read noise's standard deviation (read_std_dn, the default
     model's), the physics model's tukey_scale_dn, tukey_lambda and row_sigma_dn
@@ -168,21 +190,36 @@ def show_cmd(profile, iso, as_json, plot):
             "row_sigma_dn": physics.get("row_sigma_dn"),
             "models": at,
         }
+    data["assumed"] = list(p.assumed)
     if as_json:
         click.echo(json.dumps(data if iso is None else data["at_iso"], indent=2))
         return
+
+    def mark(key: str) -> str:
+        return " (assumed)" if key in p.assumed else ""
+
     click.echo(f"{p.name}: {p.make} {p.model}")
     kind = {"measured": "measured (a calibration)", "estimated": "estimated (sensor physics)"}
     click.echo(f"  noise: {kind.get(p.noise_kind, 'not stated by the profile')}")
     click.echo(
-        f"  CFA {p.cfa.pattern}, {p.bit_depth}-bit, black {p.black_level:g}, "
-        f"white {p.white_level:g} DN"
+        f"  CFA {p.cfa.pattern}{mark('cfa_pattern')}, {p.bit_depth}-bit{mark('bit_depth')}, "
+        f"black {p.black_level:g} DN{mark('black_level')}, "
+        f"white {p.white_level:g} DN{mark('white_level')}"
     )
-    click.echo(f"  ISO {_iso_range(*p.iso_range)}" if p.iso_range else "  ISO any")
+    iso_text = f"ISO {_iso_range(*p.iso_range)}" if p.iso_range else "ISO any"
+    click.echo(f"  {iso_text}{mark('iso_range')}")
     click.echo(
-        "  XYZ→camera: " + "; ".join(" ".join(f"{v:+.4f}" for v in row) for row in p.xyz_to_camera)
+        "  XYZ→camera: "
+        + "; ".join(" ".join(f"{v:+.4f}" for v in row) for row in p.xyz_to_camera)
+        + mark("xyz_to_camera")
     )
-    click.echo("  daylight WB gains: " + " ".join(f"{v:.4f}" for v in p.white_balance))
+    if p.colour_warning:
+        click.echo(f"  warning: {p.colour_warning}")
+    click.echo(
+        "  daylight WB gains: "
+        + " ".join(f"{v:.4f}" for v in p.white_balance)
+        + mark("white_balance")
+    )
     click.echo(f"  noise K(ISO): {_curve(data['noise']['gain'], 'DN/e⁻')}")
     click.echo(f"  read σ(ISO): {_curve(data['noise']['read_sigma'], 'DN')}")
     if iso is not None:
@@ -209,12 +246,14 @@ def from_raw_cmd(raw, output, overwrite):
     """Write a profile for the camera that took the raw FILE.
 
     From the raw, as LibRaw reads it: the CFA layout, the black and white levels
-    (and so the bit depth), the XYZ→camera matrix (LibRaw's rgb_xyz_matrix) and
-    the daylight white balance. The noise is the camera database's where it
-    knows the camera (measured or estimated, as 'profiles list' says), else
-    estimated from the raw's own flat regions at its ISO. One line says which.
-    Every number's source names the file. Raws without a colour matrix or a
-    CFA mosaic (linear DNGs) are refused.
+    (and so the bit depth), the XYZ→camera matrix 'rawsim process' renders it
+    with (LibRaw's table for the camera, else a DNG's own ColorMatrix, else
+    LibRaw's built-in matrix; the source says which) and the daylight white
+    balance. The noise is the camera database's where it knows the camera
+    (measured or estimated, as 'profiles list' says), else estimated from the
+    raw's own flat regions at its ISO. One line says which. Every number's
+    source names the file. Raws without any colour matrix or a CFA mosaic
+    (linear DNGs) are refused.
 
     \b
     Example:

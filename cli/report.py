@@ -84,9 +84,11 @@ def run_files(
     json_records: bool,
     executor: str = "local",
     address: str | None = None,
+    said: tuple[str, ...] = (),
 ) -> None:
     """Plan the outputs of the inputs :func:`check_inputs` found, run ``job`` on each
-    and report; exits."""
+    and report; exits. ``said``: warnings the command printed once for the whole run,
+    not repeated for each file (the sidecars still record them)."""
     from rawsim.run import batch
 
     if checked.ignored:
@@ -116,7 +118,7 @@ def run_files(
         address=address,
         options=options,
     )
-    run_batch(ctx, tasks, results, checked.missing + pre_failed, json_records)
+    run_batch(ctx, tasks, results, checked.missing + pre_failed, json_records, said)
 
 
 def _extensions(extensions, shown: int = 6) -> str:
@@ -202,8 +204,16 @@ def elapsed(ctx: click.Context) -> float:
     return time.monotonic() - started if started is not None else 0.0
 
 
-def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records: bool) -> None:
+def run_batch(
+    ctx: click.Context,
+    tasks,
+    results_iter,
+    pre_failed,
+    json_records: bool,
+    said: tuple[str, ...] = (),
+) -> None:
     """Consume batch results with a progress bar; print failures, summary; exit.
+    Warnings in ``said`` were printed once for the run and are not repeated per file.
 
     SIGINT or SIGTERM stops the job (no new file starts, workers are terminated,
     temporary files removed): the summary counts what was done, exit 130 or 143.
@@ -230,7 +240,9 @@ def run_batch(ctx: click.Context, tasks, results_iter, pre_failed, json_records:
             )
         if not quiet:
             for warning in result.record.get("warnings", []):
-                click.echo(f"warning: {_printable(f'{result.task.source}: {warning}')}", err=True)
+                if warning not in said:
+                    line = _printable(f"{result.task.source}: {warning}")
+                    click.echo(f"warning: {line}", err=True)
         if json_records:
             record = {
                 "input": str(result.task.source),

@@ -252,6 +252,10 @@ def command(
             prof = prof.with_cfa(cfa)
         except RawsimError as err:
             raise bad_option("--cfa", err) from None
+    said = ()  # said once here for the run; each sidecar records it too
+    if sensor_kind != "mono" and prof.colour_warning:
+        said = (prof.colour_warning,)
+        click.echo(f"warning: {prof.colour_warning}", err=True)
     if (focal_length or aperture) and not lens:
         raise click.UsageError(
             "--focal-length and --aperture go with --lens NAME: add --lens, or drop them", ctx
@@ -310,6 +314,7 @@ def command(
         json_records,
         executor,
         address,
+        said,
     )
 
 

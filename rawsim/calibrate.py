@@ -49,8 +49,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rawsim.errors import ParameterError, RawsimError
-from rawsim.io.raw import RawImage
+from rawsim.io.raw import RawImage, xyz_to_camera_of
 from rawsim.noise.spec import QUANTIZATION_VARIANCE, tukey_lambda_variance
+from rawsim.profiles import NO_MATRIX
 
 METHODS = ("flat", "patches")
 #: The channels of a profile's ``noise.channel_bias`` (a Bayer CFA's; see :func:`_bias`).
@@ -154,6 +155,8 @@ class FrameStats:
     var_check: np.ndarray
     flatness: float | None = None
     tile: int = TILE
+    #: Where ``xyz_to_camera`` comes from (:func:`rawsim.io.raw.xyz_to_camera_of`).
+    matrix_source: str = ""
 
     @property
     def span(self) -> float:
@@ -339,13 +342,15 @@ def frame_stats(raw: RawImage, method: str, iso: float | None = None) -> FrameSt
     if ratio is not None:
         ok = flat(valid)
         flatness = float(np.median(flat(ratio)[ok])) if ok.any() else math.inf
+    xyz, xyz_from = xyz_to_camera_of(raw)
     return FrameStats(
         path=str(raw.path),
         iso=float(iso or raw.iso),
         camera=camera_of(raw),
         black=black,
         white=float(raw.white_level),
-        xyz_to_camera=None if raw.xyz_to_camera is None else np.asarray(raw.xyz_to_camera),
+        xyz_to_camera=xyz,
+        matrix_source=xyz_from,
         channels=channels,
         mean=flat(mean).astype(np.float32),  # statistics: float32 halves what is kept
         var=flat(var).astype(np.float32),
@@ -957,9 +962,14 @@ def build_profile(
 
     white = frame.white
     bits = max(1, math.ceil(math.log2(white + 1)))
-    xyz, matrix_note = frame.xyz_to_camera, "the files' XYZ→camera matrix (LibRaw)"
+    xyz = frame.xyz_to_camera
+    matrix_note = f"{frame.path}, as 'rawsim process' renders it: {frame.matrix_source}"
     if xyz is None:
-        xyz, matrix_note = np.eye(3), "identity: the files carry no colour matrix"
+        xyz = np.eye(3)
+        matrix_note = (
+            f"{NO_MATRIX} the files carry no colour matrix ({frame.path}: "
+            f"{frame.matrix_source}); the identity stands in"
+        )
     noise = {"gain": gain, "read_sigma": sigma_curve([f.read_sigma for f in fits])}
     source = {
         "xyz_to_camera": matrix_note,

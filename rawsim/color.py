@@ -88,10 +88,18 @@ def srgb_from_camera(xyz_to_camera) -> np.ndarray:
     return np.linalg.inv(camera_from_srgb(xyz_to_camera))
 
 
-def xyz_to_camera_from_ccm(camera_to_srgb) -> np.ndarray:
-    """XYZ → camera matrix equivalent to a camera → linear sRGB CCM (rows normalised)."""
+def xyz_to_camera_from_ccm(camera_to_srgb, daylight=None) -> np.ndarray:
+    """XYZ → camera matrix equivalent to a camera → linear sRGB CCM (rows normalised).
+
+    With ``daylight`` gains (R, G, B) the rows are scaled as LibRaw's are (its
+    ``pre_mul`` is the reciprocal of each row's response to white), so that
+    :func:`daylight_gains` of the result gives them back; without, as the CCM gives
+    them (a CCM that keeps white answers D65 white alike in every row)."""
     rgb2cam = np.linalg.inv(as_matrix(camera_to_srgb, "color matrix"))
     m = rgb2cam @ np.linalg.inv(SRGB_TO_XYZ)
+    if daylight is not None:
+        gains = np.asarray(daylight, dtype=np.float64)[:3, None]
+        m = m / (m @ XYZ_D65)[:, None] / gains
     return m / m.sum(axis=1, keepdims=True).mean()
 
 

@@ -23,7 +23,13 @@ import numpy as np
 
 from rawsim import cameras
 from rawsim.cfa import CFA
-from rawsim.color import as_matrix, daylight_gains, split_seed_matrix, xyz_to_camera_from_ccm
+from rawsim.color import (
+    as_matrix,
+    camera_from_srgb,
+    daylight_gains,
+    split_seed_matrix,
+    xyz_to_camera_from_ccm,
+)
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.noise.dark_shading import read_black_level_error, read_spec
 from rawsim.noise.spec import (
@@ -53,6 +59,11 @@ DARK_KEYS = ("noise.dark_shading", "noise.black_level_error")
 OPTIONAL_SOURCED_KEYS = (*PHYSICS_KEYS, "noise.channel_bias", "noise.spread", *DARK_KEYS)
 #: How a profile's noise was obtained (its optional ``noise_kind`` key).
 NOISE_KINDS = ("measured", "estimated")
+#: How a source begins that marks a value as assumed, not taken from a table or a file.
+ASSUMED = "assumed"
+#: How ``source.xyz_to_camera`` begins where the matrix only stands in for a missing one
+#: (``rawsim calibrate`` on files without one; a seed config without ``color_matrix_d50``).
+NO_MATRIX = "none:"
 SEED_KEYS = (
     "sensor_size",
     "sensor_res",
@@ -116,6 +127,35 @@ class SensorProfile:
             return self
         note = f"set to {cfa.name} by the user; the profile's own layout is {self.cfa.name}"
         return replace(self, cfa=cfa, source={**self.source, "cfa_pattern": note})
+
+    @property
+    def assumed(self) -> tuple[str, ...]:
+        """The keys whose value is assumed (their source begins "assumed"), not taken
+        from a table, a file or a measurement."""
+        return tuple(k for k, v in self.source.items() if str(v).casefold().startswith(ASSUMED))
+
+    @property
+    def colour_warning(self) -> str | None:
+        """One line saying that the profile has no colour matrix and how to give it one;
+        None where it has one. It has none where its source says so (:data:`NO_MATRIX`),
+        where its XYZ → camera matrix is diagonal (camera RGB taken as XYZ: the identity
+        ``rawsim calibrate`` writes for files without a matrix) and where it takes camera
+        RGB as linear sRGB (a seed config without ``color_matrix_d50``, a profile of a
+        camera no matrix is published for)."""
+        m = np.asarray(self.xyz_to_camera, dtype=np.float64)
+        said = str(self.source.get("xyz_to_camera", "")).startswith(NO_MATRIX)
+        if said or np.allclose(m - np.diag(np.diag(m)), 0, atol=1e-6):
+            what = "its XYZ→camera matrix is the identity, a stand-in"
+        elif np.allclose(camera_from_srgb(m), np.eye(3), atol=1e-3):
+            what = "it takes camera RGB as linear sRGB"
+        else:
+            return None
+        return (
+            f"profile {self.name!r} has no colour matrix ({what}), so the raws it makes do "
+            "not have a real camera's colours; give it one with 'rawsim profiles from-raw' "
+            "on a raw of the camera, or copy xyz_to_camera from a similar camera "
+            "('rawsim profiles show NAME --json')"
+        )
 
     def check_iso(self, iso: float) -> float:
         """Return ``iso`` if the profile allows it, else raise a clear error."""

@@ -3,12 +3,16 @@
 Each vendored raw that LibRaw reads as a CFA mosaic with a colour matrix gives a
 profile whose matrix is LibRaw's rgb_xyz_matrix, whose CFA and levels are LibRaw's,
 and with which unprocess → process returns the photo within the round trip's
-tolerance (tests/test_process.py: chelsea through wcd, 35 dB). The noise comes
-from the camera database, else from the raw's own flat regions; raws without a
-CFA or a matrix are refused; an existing profile is not replaced.
+tolerance (tests/test_process.py: chelsea through wcd, 35 dB). A DNG whose camera
+LibRaw's table lacks gives its own ColorMatrix (the one LibRaw renders it with, read
+here independently with exiftool), a raw LibRaw renders with a built-in matrix that
+one. The noise comes from the camera database, else from the raw's own flat regions;
+raws without a CFA or any matrix are refused; an existing profile is not replaced.
 """
 
 import json
+import shutil
+import subprocess
 
 import numpy as np
 import OpenImageIO as oiio
@@ -18,9 +22,11 @@ from click.testing import CliRunner
 
 from rawsim import cameras
 from rawsim.cameras import from_raw
+from rawsim.color import daylight_gains, srgb_from_camera
+from rawsim.io.raw import read_raw
 from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
-from tests.conftest import DATA, psnr
+from tests.conftest import DATA, psnr, require_tool
 from tests.test_startup import HEAVY, error_line, rawsim
 
 RAW = DATA / "raw"
@@ -62,8 +68,34 @@ def usable(name):
     if rows is None:
         pytest.skip(f"{name}: LibRaw reads no CFA (a linear DNG): refused, see below")
     if not matrix.any():
-        pytest.skip(f"{name}: LibRaw's rgb_xyz_matrix is all zero: refused, see below")
+        pytest.skip(f"{name}: LibRaw's rgb_xyz_matrix is all zero: see the tests below")
     return RAW / name
+
+
+#: A DNG whose camera LibRaw's table lacks, so that LibRaw renders it with its own tags.
+UNLISTED = ("-Model=Rawsim Test Camera", "-UniqueCameraModel=Rawsim Test Camera")
+
+
+def edited_dng(tmp_path, *tags, source="canon_eos60d_mlv.dng"):
+    """A copy of a vendored DNG with ``tags`` set by exiftool (``-Tag=value``)."""
+    out = tmp_path / source
+    shutil.copy(RAW / source, out)
+    cmd = [require_tool("exiftool"), "-q", "-overwrite_original", *tags, str(out)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return out
+
+
+def dng_tags(path) -> dict:
+    """The DNG's colour tags as exiftool reads them (numbers: -n)."""
+    tags = ("ColorMatrix1", "ColorMatrix2", "CalibrationIlluminant1", "CalibrationIlluminant2")
+    tags += ("CameraCalibration1", "CameraCalibration2", "AnalogBalance")
+    cmd = [require_tool("exiftool"), "-j", "-n", *(f"-{t}" for t in tags), str(path)]
+    found = json.loads(subprocess.run(cmd, check=True, capture_output=True).stdout)[0]
+    return {
+        k: np.array(str(v).split(), dtype=np.float64) if isinstance(v, str) else v
+        for k, v in found.items()
+        if k != "SourceFile"
+    }
 
 
 def make_profile(raw, out):
@@ -89,7 +121,7 @@ def test_profile_holds_what_libraw_reads(name, tmp_path):
     data = json.loads(out.read_text())
     for key in ("xyz_to_camera", "cfa_pattern", "black_level", "white_level"):
         assert "LibRaw 0.22" in data["source"][key] and raw.name in data["source"][key], key
-    assert "rgb_xyz_matrix" in data["source"]["xyz_to_camera"]
+    assert "LibRaw's table for the camera (rgb_xyz_matrix)" in data["source"]["xyz_to_camera"]
     assert not [f for f in tmp_path.iterdir() if f.name != "cam.json"]  # no temporary left
 
 
@@ -198,15 +230,74 @@ def test_an_unknown_camera_gets_noise_estimated_from_the_raw(tmp_path, monkeypat
     assert not (tmp_path / "s.json").exists()
 
 
+def test_a_dngs_own_colour_matrix_when_libraws_table_lacks_the_camera(tmp_path):
+    """The chart DNG (a Kiss X4, a name LibRaw's table lacks) carries ColorMatrix1 alone,
+    of no stated illuminant: the profile's matrix is that tag, as process renders it."""
+    chart = DATA / "chart" / "canon_550d_colorchecker.dng"
+    out = tmp_path / "x4.json"
+    make_profile(chart, out)
+    p, tags = load_profile(out), dng_tags(chart)
+    assert "ColorMatrix2" not in tags and "CalibrationIlluminant1" not in tags
+    np.testing.assert_allclose(p.xyz_to_camera, tags["ColorMatrix1"].reshape(3, 3), atol=1e-7)
+    assert "ColorMatrix1 (unknown illuminant)" in p.source["xyz_to_camera"]
+    raw = read_raw(chart)
+    np.testing.assert_allclose(srgb_from_camera(p.xyz_to_camera), raw.camera_to_srgb, atol=1e-5)
+    np.testing.assert_allclose(p.white_balance, daylight_gains(p.xyz_to_camera), rtol=1e-5)
+
+
+def test_of_two_matrices_the_d65_one_through_its_calibration_and_analog_balance(tmp_path):
+    """The 60D's DNG (ColorMatrix1 for standard light A, 2 for D65) under a name LibRaw's
+    table lacks, with AnalogBalance and CameraCalibration2 set: AB · CC2 · CM2."""
+    dng = edited_dng(
+        tmp_path,
+        *UNLISTED,
+        "-AnalogBalance=0.9 1 1.1",
+        "-CameraCalibration2=1.05 0 0 0 1 0 0 0 0.97",
+        "-CameraCalibration1=0.8 0 0 0 1 0 0 0 1.2",
+    )
+    out = tmp_path / "cam.json"
+    make_profile(dng, out)
+    p, tags = load_profile(out), dng_tags(dng)
+    assert (tags["CalibrationIlluminant1"], tags["CalibrationIlluminant2"]) == (17, 21)
+    want = (
+        np.diag(tags["AnalogBalance"])
+        @ tags["CameraCalibration2"].reshape(3, 3)
+        @ tags["ColorMatrix2"].reshape(3, 3)
+    )
+    np.testing.assert_allclose(p.xyz_to_camera, want, rtol=1e-6)
+    assert "AnalogBalance · CameraCalibration2 · ColorMatrix2 (D65)" in p.source["xyz_to_camera"]
+    raw = read_raw(dng)  # what process renders with: LibRaw's own choice, the same
+    np.testing.assert_allclose(srgb_from_camera(raw.xyz_to_camera), raw.camera_to_srgb, atol=1e-5)
+    np.testing.assert_allclose(raw.xyz_to_camera, want, rtol=1e-6)
+
+
+def test_a_matrix_libraw_has_built_in_is_taken_as_process_takes_it(tmp_path):
+    """The Kodak DC50: rawpy shows no matrix, LibRaw renders with one of its own, which
+    process measures; the profile's matrix gives that camera → sRGB matrix back."""
+    out = tmp_path / "dc50.json"
+    make_profile(RAW / "kodak_dc50_grbg.kdc", out)
+    p, raw = load_profile(out), read_raw(RAW / "kodak_dc50_grbg.kdc")
+    # measured, it maps white to white within 5e-4; a profile's matrix does so exactly
+    assert np.abs(raw.camera_to_srgb.sum(axis=1) - 1).max() < 5e-4
+    np.testing.assert_allclose(srgb_from_camera(p.xyz_to_camera), raw.camera_to_srgb, atol=2e-3)
+    np.testing.assert_allclose(daylight_gains(p.xyz_to_camera), raw.daylight_wb, rtol=1e-5)
+    assert "LibRaw's built-in camera matrix" in p.source["xyz_to_camera"]
+
+
 @pytest.mark.parametrize(
     ("name", "reason", "fix"),
     [
         ("canon_eos6d_linear_raw_no_cfa.dng", "no CFA mosaic", "a raw straight from the camera"),
-        ("kodak_dc50_grbg.kdc", "rgb_xyz_matrix is all zero", "Adobe DNG Converter"),
+        ("no_matrix.dng", "no colour matrix for Canon Rawsim Test Camera", "Adobe DNG Converter"),
     ],
 )
 def test_raws_without_a_cfa_or_a_matrix_are_refused(name, reason, fix, tmp_path):
-    code, lines, modules = rawsim("profiles", "from-raw", RAW / name, "-o", tmp_path / "x.json")
+    raw = RAW / name
+    if name == "no_matrix.dng":  # the 60D's DNG without its matrices, under a new name
+        drop = ("-ColorMatrix1=", "-ColorMatrix2=", "-ForwardMatrix1=", "-ForwardMatrix2=")
+        raw = edited_dng(tmp_path, *UNLISTED, *drop)
+        raw = raw.rename(raw.with_name(name))
+    code, lines, modules = rawsim("profiles", "from-raw", raw, "-o", tmp_path / "x.json")
     line = error_line(lines)
     assert code == 2 and name in line and reason in line and fix in line, line
     assert not (tmp_path / "x.json").exists()

@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import math
 
-#: ISOs at which an estimated profile tabulates its read noise.
+#: ISOs at which an estimated profile tabulates its read noise, within its ISO range.
 ISO_GRID = (50, 100, 200, 400, 800, 1600, 3200, 6400, 12800, 25600, 51200, 102400, 204800)
-#: The ISO range of an estimated profile: the grid's (no public table gives each body's).
+#: The ISO range assumed for a camera nothing is known of (``profiles from-raw`` of a
+#: camera the database lacks): the grid's.
 ISO_RANGE = (ISO_GRID[0], ISO_GRID[-1])
 
 
@@ -42,14 +43,19 @@ def read_sigma(k: float, span: float, r: float, d: float) -> float:
     return math.hypot(k * r, d * span / 16383.0)
 
 
-def noise_spec(span: float, area_um2: float, constants: dict) -> dict:
-    """The profile keys ``noise.gain`` (linear in ISO) and ``noise.read_sigma`` (a table)."""
+def noise_spec(
+    span: float, area_um2: float, constants: dict, iso_range: tuple[float, float] = ISO_RANGE
+) -> dict:
+    """The profile keys ``noise.gain`` (linear in ISO) and ``noise.read_sigma`` (a table
+    at the ends of ``iso_range`` and the :data:`ISO_GRID` ISOs between them)."""
     eta, r, d = constants["eta"], constants["read_e"], constants["floor_dn14"]
     slope = gain(1.0, span, area_um2, eta)
-    sigma = [read_sigma(slope * iso, span, r, d) for iso in ISO_GRID]
+    lo, hi = iso_range
+    isos = [lo, *(i for i in ISO_GRID if lo < i < hi), hi] if hi > lo else [lo]
+    sigma = [read_sigma(slope * iso, span, r, d) for iso in isos]
     return {
         "gain": {"model": "linear", "slope": slope, "intercept": 0.0},
-        "read_sigma": {"model": "table", "iso": list(ISO_GRID), "sigma": sigma},
+        "read_sigma": {"model": "table", "iso": isos, "sigma": sigma},
     }
 
 

@@ -2,9 +2,10 @@
 
 What the raw itself holds comes from LibRaw, through :func:`rawsim.io.raw.read_raw`:
 the CFA layout, the black and white levels (hence the bit depth), the XYZ → camera
-matrix (LibRaw's ``rgb_xyz_matrix``, its first three rows, as LibRaw reports it) and
-the daylight white balance. One raw cannot say how the noise changes with ISO, so the
-noise is, in this order:
+matrix ``process`` renders the raw with (:func:`rawsim.io.raw.xyz_to_camera_of`:
+LibRaw's table for the camera, else a DNG's own ColorMatrix, else LibRaw's camera →
+sRGB matrix inverted) and the daylight white balance. One raw cannot say how the noise
+changes with ISO, so the noise is, in this order:
 
 1. the camera database's (:mod:`rawsim.cameras`), when it knows the camera: the
    bundled profile's calibration for a measured camera, else the physics estimate,
@@ -14,9 +15,10 @@ noise is, in this order:
    written as K(ISO) = K·ISO/ISO₀ through the origin and a read-σ table of its one
    point, ``noise_kind`` "estimated".
 
-Every key's ``source`` names the file and what LibRaw reported. A raw without a colour
-matrix, without a CFA mosaic (a linear DNG) or of one colour is refused with an
-:class:`~rawsim.errors.UnsupportedInputError` naming the file, the reason and the fix.
+Every key's ``source`` names the file and what LibRaw reported. A raw that ``process``
+renders without a colour matrix, without a CFA mosaic (a linear DNG) or of one colour is
+refused with an :class:`~rawsim.errors.UnsupportedInputError` naming the file, the
+reason and the fix.
 """
 
 from __future__ import annotations
@@ -46,14 +48,15 @@ def profile_from_raw(path: str | Path) -> dict:
     """
     import rawpy
 
-    from rawsim.io.raw import read_raw
+    from rawsim.io.raw import read_raw, xyz_to_camera_of
 
     path = Path(path)
     raw = read_raw(path)
     file = path.name
     libraw = "LibRaw " + ".".join(str(v) for v in rawpy.libraw_version[:2])
     camera = _camera_text(raw.make, raw.model)
-    _refuse_unusable(raw, path, camera)
+    xyz, xyz_from = xyz_to_camera_of(raw)
+    _refuse_unusable(raw, path, camera, xyz is not None)
 
     cam = cameras.find_camera(raw.make, raw.model)
     blacks = sorted({float(v) for v in raw.black_level.ravel()})
@@ -81,10 +84,7 @@ def profile_from_raw(path: str | Path) -> dict:
         "black_level": f"{libraw} black_level_per_channel of {file}{black_note}",
         "white_level": f"{libraw} white_level of {file}",
         "bit_depth": f"the fewest bits that hold {libraw}'s white level {white:g} of {file}",
-        "xyz_to_camera": (
-            f"{libraw} rgb_xyz_matrix of {file}, first three rows, as LibRaw reports it "
-            "(a DNG's own ColorMatrix, else LibRaw's table for the camera)"
-        ),
+        "xyz_to_camera": f"{file} through {libraw}, as 'rawsim process' renders it: {xyz_from}",
     }
     profile: dict = {
         "name": cam.name if cam is not None else _slug(camera, path.stem),
@@ -94,7 +94,7 @@ def profile_from_raw(path: str | Path) -> dict:
         "bit_depth": bits,
         "black_level": _number(black),
         "white_level": _number(white),
-        "xyz_to_camera": [[_float32(v) for v in row] for row in raw.xyz_to_camera],
+        "xyz_to_camera": [[_float32(v) for v in row] for row in xyz],
     }
     if raw.daylight_wb is not None:
         profile["white_balance"] = [_float32(v) for v in raw.daylight_wb]
@@ -127,7 +127,7 @@ def noise_summary(profile: dict) -> str:
     return "noise: " + profile["source"]["noise"]
 
 
-def _refuse_unusable(raw, path: Path, camera: str) -> None:
+def _refuse_unusable(raw, path: Path, camera: str, has_matrix: bool) -> None:
     """Refuse, in one line, a raw that cannot give a CFA profile."""
     name = shown(path)
     if raw.cfa is None and raw.data.ndim == 3 and raw.data.shape[2] == 1:
@@ -142,12 +142,13 @@ def _refuse_unusable(raw, path: Path, camera: str) -> None:
             "a linear DNG), so there is no sensor layout, levels or noise to read; give a "
             "raw straight from the camera, or a DNG converted without demosaicking"
         )
-    if raw.xyz_to_camera is None:
+    if not has_matrix:
         raise UnsupportedInputError(
-            f"{name}: LibRaw's rgb_xyz_matrix is all zero for {camera} (no colour matrix in "
-            "the file or LibRaw's table), so the profile would have no colour; convert it "
-            "with Adobe DNG Converter (which writes a ColorMatrix), or copy the matrix of "
-            "a similar camera ('rawsim profiles show NAME --json') into a profile by hand"
+            f"{name}: no colour matrix for {camera} (none in the file, LibRaw's table or "
+            "LibRaw's built-in ones; 'rawsim process' renders it as sRGB), so the profile "
+            "would have no colour; convert it with Adobe DNG Converter (which writes a "
+            "ColorMatrix), or copy the matrix of a similar camera ('rawsim profiles show "
+            "NAME --json') into a profile by hand"
         )
 
 
@@ -292,8 +293,8 @@ def _raw_noise(raw, file: str) -> dict:
         },
         "source": {
             "iso_range": (
-                "not in the raw: the range rawsim's camera estimates span "
-                "(rawsim.cameras.estimate.ISO_RANGE)"
+                "assumed: a raw does not record its camera's ISO range; the range assumed "
+                "for a camera nothing is known of (rawsim.cameras.estimate.ISO_RANGE)"
                 + (f", widened to the raw's ISO {iso:g}" if (lo, hi) != ISO_RANGE else "")
             ),
             "noise.gain": (

@@ -3,10 +3,12 @@
 Everything is copied out of LibRaw before the file closes. The quirks seen on
 real files are handled here, the way LibRaw handles them:
 
-* colour matrices: ``rgb_xyz_matrix`` when set, else LibRaw's ``color_matrix``
-  (camera → sRGB), else the matrix LibRaw has built in for the camera, measured
-  through LibRaw (:func:`_measured_rgb_cam`), else the identity (warned);
-  ``RawImage.matrix_source`` says which;
+* colour matrices: ``rgb_xyz_matrix`` when set (LibRaw's table for the camera), else
+  a DNG's own ColorMatrix (the one LibRaw renders it with:
+  :meth:`rawsim.io.dng_colour.DngColour.chosen`),
+  else LibRaw's ``color_matrix`` (camera → sRGB), else the matrix LibRaw has built in
+  for the camera, measured through LibRaw (:func:`_measured_rgb_cam`), else the
+  identity (warned); ``RawImage.matrix_source`` says which;
 * white balance: the camera's multipliers where LibRaw would use them, else
   what LibRaw falls back to (``RawImage.camera_wb_fallback``, applied by the
   ISP's :meth:`~rawsim.isp.config.WhiteBalanceStage.resolve`);
@@ -37,8 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from rawsim.cfa import CFA
+from rawsim.color import xyz_to_camera_from_ccm
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.clibs import collected_stderr, openable_name
+from rawsim.io.dng_colour import DngColour, libraw_matrix, read_dng_colour
 from rawsim.io.spare import Spare
 
 # LibRaw's flip code → EXIF/TIFF orientation.
@@ -217,12 +221,14 @@ def _camera_text(make: str, model: str) -> str:
 @dataclass(frozen=True)
 class _TiffFacts:
     """What a TIFF-based raw's own tags say: the camera, and for a DNG its CFA (the
-    raw IFD's CFARepeatPatternDim and CFAPattern as TIFF/EP colour letters)."""
+    raw IFD's CFARepeatPatternDim and CFAPattern as TIFF/EP colour letters) and its
+    colour tags (:class:`DngColour`)."""
 
     make: str = "unknown"
     model: str = "unknown"
     cfa_rows: tuple[str, ...] | None = None
     dng: bool = False
+    colour: DngColour | None = None
 
 
 def _tiff_facts(path: Path) -> _TiffFacts:
@@ -245,7 +251,11 @@ def _tiff_facts(path: Path) -> _TiffFacts:
             except Exception:  # a tag we cannot parse: LibRaw's reading stands
                 cfa_rows = None
             dng = "DNGVersion" in tags
-            return _TiffFacts(make or "unknown", model or "unknown", cfa_rows, dng)
+            try:
+                colour = read_dng_colour(tags) if dng else None
+            except Exception:  # likewise: LibRaw's matrix stands
+                colour = None
+            return _TiffFacts(make or "unknown", model or "unknown", cfa_rows, dng, colour)
     except Exception:  # not TIFF-based: rawpy does not expose the names; exiv2 may
         return _TiffFacts(*_exiv2_camera(path))
 
@@ -601,11 +611,14 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
         source = "none (monochrome)"
     elif not np.allclose(xyz, 0):
         xyz_out, cam_srgb_out = xyz, None if np.allclose(cam_srgb, 0) else cam_srgb
-        source = "the file's or LibRaw's table (rgb_xyz_matrix)"
+        source = "LibRaw's table for the camera (rgb_xyz_matrix)"
+    elif (dng := libraw_matrix(tiff.colour, cam_srgb)) is not None:
+        (xyz_out, source), cam_srgb_out = dng, cam_srgb
     elif not np.allclose(cam_srgb, 0):
         xyz_out, cam_srgb_out = None, cam_srgb
         source = "the file (LibRaw's color_matrix)"
-    elif measured is not None:
+    elif measured is not None and not np.allclose(measured, np.eye(3), rtol=0, atol=1e-3):
+        # (≈ the identity: LibRaw has no matrix either and renders camera RGB as sRGB)
         xyz_out, cam_srgb_out = None, measured
         source = "LibRaw's built-in camera matrix (measured through LibRaw)"
     else:
@@ -634,3 +647,22 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
         matrix_source=source,
         baseline_exposure=_baseline_exposure(path),
     )
+
+
+def xyz_to_camera_of(raw: RawImage) -> tuple[np.ndarray | None, str]:
+    """The XYZ → camera matrix a profile of ``raw``'s camera takes, and where it comes
+    from: the one ``process`` renders ``raw`` with (:attr:`RawImage.xyz_to_camera`),
+    else the XYZ → camera equivalent of its camera → sRGB matrix
+    (:func:`~rawsim.color.xyz_to_camera_from_ccm`, rows scaled to its daylight gains as
+    LibRaw scales them). (None, why) where ``process`` has no matrix for it."""
+    if raw.xyz_to_camera is not None:
+        return np.asarray(raw.xyz_to_camera, dtype=np.float64), raw.matrix_source
+    if raw.camera_to_srgb is not None:
+        m = xyz_to_camera_from_ccm(raw.camera_to_srgb, raw.daylight_wb)
+        rows = (
+            "its daylight white balance"
+            if raw.daylight_wb is not None
+            else "equal gains (it gives no daylight white balance)"
+        )
+        return m, f"{raw.matrix_source}, inverted to XYZ → camera, rows scaled to {rows}"
+    return None, raw.matrix_source

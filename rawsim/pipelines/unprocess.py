@@ -742,6 +742,12 @@ def _iso_warning(options: UnprocessOptions) -> list[str]:
     ]
 
 
+def _colour_warning(options: UnprocessOptions) -> list[str]:
+    """A colour sensor simulated with a profile that has no colour matrix."""
+    warning = options.profile.colour_warning
+    return [warning] if warning and options.sensor != "mono" else []
+
+
 #: The smallest X-Trans image LibRaw demosaics with its default interpolation, rows
 #: and columns alike. Measured with rawpy 0.28 / LibRaw 0.22.2 (tests/test_startup.py
 #: checks it): 510 × 900 and 900 × 510 DNGs fail with an I/O error in
@@ -851,6 +857,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "warnings": list(decoded.warnings)
         + (options.scene_linear_warning() if decoded.is_float else [])
         + _iso_warning(options)
+        + _colour_warning(options)
         + _libraw_size_warning(options, h, w),
         "orientation": decoded.orientation,
         "width": w,

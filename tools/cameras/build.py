@@ -1,20 +1,30 @@
 """Build ``rawsim/cameras/cameras.json``: a profile for every camera LibRaw knows.
 
 Run from the repository root, with snapshots of the upstream repositories as git
-directories (``fetch`` gives them; any clone works)::
+directories (``fetch`` gives them; any clone works) and darktable's noise profiles::
 
     python tools/cameras/build.py \\
         --libraw /work/.mirror/LibRaw+LibRaw/repo \\
         --rawspeed /work/.mirror/darktable-org+rawspeed/repo \\
-        --sensors /work/.mirror/openMVG+CameraSensorSizeDatabase/repo
+        --sensors /work/.mirror/openMVG+CameraSensorSizeDatabase/repo \\
+        --rawtherapee /work/.mirror/Beep6581+RawTherapee/repo \\
+        --noiseprofiles /usr/share/darktable/noiseprofiles.json --darktable release-4.2.1
 
 Only figures are carried, each with the upstream file, commit and line it came from
 (``upstream.py`` reads the tables). For each camera in LibRaw's list:
 
-- make, model, aliases: LibRaw's list, plus rawspeed's aliases;
-- D65 XYZ→camera matrix: LibRaw's ``adobe_coeff`` (its own prefix rule), else rawspeed's;
-- CFA, black and white levels: rawspeed, else LibRaw's table; what neither gives is
-  assumed (the maker's median over its tabulated cameras, RGGB) and marked "assumed";
+- make, model, aliases: LibRaw's list and alias tables, plus rawspeed's aliases; the
+  Make and Model its files write (``exif``): rawspeed's, else the maker's usual form
+  (assumed, and said);
+- D65 XYZ→camera matrix: LibRaw's ``adobe_coeff`` (its own prefix rule, under the name
+  LibRaw's alias tables file the camera under), else rawspeed's;
+- CFA: rawspeed, else assumed RGGB;
+- white level and bit depth: rawspeed (the camera's deepest mode), else LibRaw's table,
+  else RawTherapee's camconst.json; black level: rawspeed or LibRaw's table. What none
+  gives is inferred from the cameras nearest it that one does (``infer.py``: its line,
+  its series, its family, its maker) and marked "assumed";
+- ISO range: the ISOs darktable's noise profiles were measured at, else inferred as
+  the levels are (with the sensor size among the groups) and marked "assumed";
 - noise: a bundled profile's when one names the camera (ELD, PMN, PMRID calibrations);
   otherwise estimated (``rawsim.cameras.estimate``), the constants fitted on the five
   cameras ELD calibrated, with the leave-one-out error stored beside them;
@@ -40,11 +50,16 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from infer import line_bases  # noqa: E402
+from levels import fill, known_entry, sourced  # noqa: E402
+from names import alias_names, colour_entry, exif_names, maker_forms, share_exif  # noqa: E402
 from upstream import (  # noqa: E402
     adobe_coeff,
+    camconst_whites,
     camera_list,
-    coefficients_for,
+    darktable_isos,
     keys_of,
+    libraw_aliases,
     maker_key,
     norm,
     rawspeed_cameras,
@@ -177,16 +192,7 @@ class Sizes:
         """(size, how) of the camera this one succeeds or varies in its line ("Z 6 II" →
         "Z 6", "ILCE-9M3" → "ILCE-9", "EOS R5 C" → "EOS R5", "D810A" → "D810"): a line
         keeps its sensor format. None if no such camera has a size."""
-        base = model
-        for _ in range(2):
-            shorter = re.sub(r"\s*(Mark\s*|Mk\s*)?(II|III|IV|V|VI)$", "", base)
-            shorter = re.sub(r"(?<=\d)M\d$", "", shorter) if shorter == base else shorter
-            shorter = (
-                re.sub(r"(?<=[0-9A-Za-z])\s?[A-Za-z]$", "", shorter) if shorter == base else shorter
-            )
-            if shorter == base or not shorter:
-                return None
-            base = shorter
+        for base in line_bases(model):
             for key in keys_of(make, [base]):
                 if key in self.table:
                     s = self.table[key]
@@ -292,40 +298,25 @@ def main() -> None:
     ap.add_argument(
         "--sensors", required=True, help="git directory of openMVG/CameraSensorSizeDatabase"
     )
+    ap.add_argument("--rawtherapee", required=True, help="git directory of Beep6581/RawTherapee")
+    ap.add_argument("--noiseprofiles", required=True, type=Path, help="darktable's file")
+    ap.add_argument(
+        "--darktable", required=True, help="the darktable release the file is from (its tag)"
+    )
     ap.add_argument("-o", "--output", type=Path, default=OUT)
     args = ap.parse_args()
 
+    upstream = _upstream(args)
+    libraw_text = git_text(args.libraw, "src/tables/cameralist.cpp")
+    listed = camera_list(libraw_text)
+    coeffs = adobe_coeff(git_text(args.libraw, "src/tables/colordata.cpp"))
+    groups = libraw_aliases(git_text(args.libraw, "src/metadata/normalize_model.cpp"))
+    rawspeed = rawspeed_cameras(git_text(args.rawspeed, "data/cameras.xml"))
+    whites = camconst_whites(git_text(args.rawtherapee, "rtengine/camconst.json"))
+    isos = darktable_isos(args.noiseprofiles.read_text(encoding="utf-8"))
+    forms = maker_forms(rawspeed)
     import lensfunpy
 
-    upstream = {
-        "libraw": {
-            "repo": "github.com/LibRaw/LibRaw",
-            "commit": git_head(args.libraw),
-            "licence": "LGPL-2.1 or CDDL-1.0 (figures only carried)",
-            "files": {"list": "src/tables/cameralist.cpp", "colour": "src/tables/colordata.cpp"},
-        },
-        "rawspeed": {
-            "repo": "github.com/darktable-org/rawspeed",
-            "commit": git_head(args.rawspeed),
-            "licence": "CC-BY-SA 3.0 (figures only carried)",
-            "files": {"cameras": "data/cameras.xml"},
-        },
-        "openmvg": {
-            "repo": "github.com/openMVG/CameraSensorSizeDatabase",
-            "commit": git_head(args.sensors),
-            "licence": "MPL-2.0; figures from digicamdb.com",
-            "files": {"sizes": "sensor_database_detailed.csv"},
-        },
-        "lensfun": {
-            "repo": "the lensfun database bundled with lensfunpy",
-            "commit": f"lensfunpy {lensfunpy.__version__}",
-            "licence": "CC-BY-SA 3.0 (figures only carried)",
-            "files": {"cameras": "db/*.xml (crop factors)"},
-        },
-    }
-    listed = camera_list(git_text(args.libraw, "src/tables/cameralist.cpp"))
-    coeffs = adobe_coeff(git_text(args.libraw, "src/tables/colordata.cpp"))
-    rawspeed = rawspeed_cameras(git_text(args.rawspeed, "data/cameras.xml"))
     sizes = Sizes(
         sensor_sizes(git_text(args.sensors, "sensor_database_detailed.csv")),
         lensfunpy.Database().cameras,
@@ -334,120 +325,48 @@ def main() -> None:
     bundled = {}
     for name in list_profiles():
         p = load_profile(name)
-        bundled[(maker_key(p.make), norm(p.model))] = name
-
-    # The maker's usual levels, for cameras no table gives them for.
-    levels = defaultdict(list)
-    for cam in listed:
-        keys = keys_of(cam.make, [cam.model, *cam.aliases])
-        r = next((rawspeed[k] for k in keys if k in rawspeed), None)
-        if r and r.white:
-            levels[cam.make].append((r.white.bit_length(), r.black / r.white))
+        bundled[(maker_key(p.make), norm(p.model))] = p
 
     cameras, skipped, seen = [], Counter(), set()
+    known = defaultdict(list)  # sourced levels and ISO ranges, for the inference
     for cam in listed:
-        make = MAKER_NAMES.get(cam.make, cam.make)
-        keys = keys_of(cam.make, [cam.model, *cam.aliases])
-        r = next((rawspeed[k] for k in keys if k in rawspeed), None)
-        co = coefficients_for(coeffs, cam.make, cam.model)
-        src = {}
-        if co and co.matrix and co.matrix[0] and len(co.matrix) in (9, 12):
-            if len(co.matrix) == 12 and any(co.matrix[9:]):
-                skipped["four-colour (CMYG) sensor"] += 1
+        entry = _camera(cam, coeffs, groups, rawspeed, whites, isos, forms, sizes, bundled)
+        if isinstance(entry, str):
+            skipped[entry] += 1
+            continue
+        if entry["name"] in seen:  # "P 20" and "P 20+", "M (Typ 240)" and "M (Typ 262)"
+            name = slug(entry["make"], cam.text.replace("+", " plus"))
+            if name in seen:
+                skipped["listed twice"] += 1
                 continue
-            m = co.matrix[:9]
-            how = (
-                co.note if co.note and not co.note.startswith("same CMs") else "Adobe DNG Converter"
-            )
-            src["xyz_to_camera"] = f"libraw:colour:{co.line} (prefix {co.prefix!r}; {how})"
-        elif r and r.matrix and len(r.matrix) == 9:
-            m = r.matrix
-            src["xyz_to_camera"] = f"rawspeed:cameras:{r.line}"
-        else:
-            skipped["no colour matrix in LibRaw's or rawspeed's tables"] += 1
-            continue
-        if (make == "Sigma" and FOVEON.match(cam.model)) or "monochrom" in cam.model.casefold():
-            skipped["Foveon or monochrome sensor"] += 1
-            continue
-        if r and r.cfa and set(r.cfa) - set("RGB/"):
-            skipped["four-colour (CMYG) sensor"] += 1
-            continue
-        name = slug(make, cam.model)
-        if name in seen:
-            skipped["listed twice"] += 1
-            continue
-        seen.add(name)
-        cfa = r.cfa if r and r.cfa else None
-        src["cfa_pattern"] = f"rawspeed:cameras:{r.line}" if cfa else ""
-        if cfa is None and (make, cam.model) in CFA_FROM_SPEC:
-            cfa, src["cfa_pattern"] = CFA_FROM_SPEC[(make, cam.model)]
-        if cfa is None:  # "X-T1 Graphite Silver" is an X-T1
-            words = cam.model.split(" ")
-            stems = keys_of(cam.make, [" ".join(words[:n]) for n in range(len(words) - 1, 0, -1)])
-            base = next((rawspeed[k] for k in stems if k in rawspeed), None)
-            if base and base.cfa and " " in cam.model:
-                cfa = base.cfa
-                src["cfa_pattern"] = (
-                    f"rawspeed:cameras:{base.line} (its {base.model}, an edition of it)"
-                )
-        if cfa is None:
-            cfa = "RGGB"
-            src["cfa_pattern"] = "assumed: RGGB (no table gives it; the raw file records it)"
-        white = (r.white if r and r.white else None) or (
-            co.maximum if co and co.maximum > 0 else None
-        )
-        black = r.black if r and r.white else (abs(co.black) if co and co.black else None)
-        if white:
-            src["white_level"] = (
-                f"rawspeed:cameras:{r.line}" if r and r.white else f"libraw:colour:{co.line}"
-            )
-            if black is None:
-                black = 0
-                src["black_level"] = "assumed: 0 (no table gives it; the raw file records it)"
-            else:
-                src["black_level"] = (
-                    f"rawspeed:cameras:{r.line}" if r and r.white else f"libraw:colour:{co.line}"
-                )
-        else:
-            known = levels.get(cam.make) or [v for vs in levels.values() for v in vs]
-            bits = int(statistics.median(b for b, _ in known))
-            white = (1 << bits) - 1
-            black = round(statistics.median(f for _, f in known) * white)
-            why = (
-                f"assumed: the median over {len(known)} {cam.make} cameras rawspeed tabulates "
-                "(the raw file records it)"
-            )
-            src["white_level"] = src["black_level"] = why
-        bits = max(white.bit_length(), 8)
-        size, res, area, basis, size_how = sizes.find(cam.make, cam.model, keys)
-        entry = {
-            "name": name,
-            "make": make,
-            "model": cam.model,
-            "aliases": sorted(set(cam.aliases + (r.aliases if r else [])) - {cam.model}),
-            "cfa_pattern": cfa,
-            "bit_depth": bits,
-            "black_level": black,
-            "white_level": white,
-            "xyz_to_camera": [[v / 10000 for v in m[i : i + 3]] for i in (0, 3, 6)],
-            "sensor_size_mm": list(size) if size else None,
-            "resolution": list(res) if res else None,
-            "pixel_area_um2": round(area, 3),
-            "pixel_area_from": basis,
-        }
-        src["sensor"] = size_how
-        profile = bundled.get((maker_key(make), norm(cam.model)))
-        if profile:
-            entry["bundled"] = profile
-            entry["noise_kind"] = "measured" if profile in CALIBRATED else "estimated"
-            src["noise"] = f"bundled profile {profile}: " + CALIBRATED.get(
-                profile, "see its sources"
-            )
-        else:
-            entry["noise_kind"] = "estimated"
-            entry["noise"] = estimate.noise_spec(white - black, area, constants)
-        entry["source"] = src
+            entry["name"], entry["model"] = name, cam.text
+        seen.add(entry["name"])
+        mine = known_entry(entry["make"], cam.model, entry["levels"], _size_class(entry))
+        for pool, value in mine.items():
+            known[pool].append(value)
         cameras.append(entry)
+
+    for entry in cameras:
+        lv = entry.pop("levels")
+        fill(lv, entry["make"], entry["model"], known, _size_class(entry))
+        entry.update(
+            bit_depth=lv.bits, black_level=lv.black, white_level=lv.white, iso_range=list(lv.iso)
+        )
+        entry["source"].update(lv.source)
+        if "bundled" not in entry:
+            entry["noise"] = estimate.noise_spec(
+                lv.white - lv.black, entry["pixel_area_um2"], constants, lv.iso
+            )
+        entry["source"] = {k: entry["source"][k] for k in SOURCE_ORDER if k in entry["source"]}
+    twins = defaultdict(list)
+    for entry in cameras:
+        if entry["rawspeed"]:
+            twins[entry["rawspeed"]].append(entry)
+    for (_, model), entries in twins.items():
+        share_exif(entries, model, forms)
+    for entry in cameras:
+        del entry["rawspeed"], entry["list_names"]
+    _drop_shared_aliases(cameras)
 
     out = {
         "about": (
@@ -470,6 +389,7 @@ def main() -> None:
             }
             for name in list_profiles()
         },
+        "makers": _makers(cameras, forms),
         "skipped": dict(skipped),
         "cameras": cameras,
     }
@@ -479,6 +399,8 @@ def main() -> None:
     errors = [abs(r["k_error"]) for r in loo]
     print(f"{len(cameras)} cameras written to {args.output} ({len(text) // 1024} kB indented)")
     print(f"skipped: {dict(skipped)}")
+    assumed = Counter(k for c in cameras for k, v in c["source"].items() if v.startswith("assumed"))
+    print(f"assumed: {dict(assumed)}")
     print(f"constants: {constants}; leave-one-out |K error| max {max(errors):.1%}")
     for row in loo:
         if row["iso"] in (400, 6400):
@@ -488,6 +410,177 @@ def main() -> None:
                 f"{row['read_sigma_estimated']:.3g} vs {row['read_sigma_measured']:.3g} "
                 f"({row['read_sigma_error']:+.1%})"
             )
+
+
+#: The order of an entry's sources.
+SOURCE_ORDER = (
+    "xyz_to_camera",
+    "cfa_pattern",
+    "bit_depth",
+    "black_level",
+    "white_level",
+    "iso_range",
+    "sensor",
+    "noise",
+    "exif",
+)
+
+
+def _upstream(args) -> dict:
+    """Each upstream table: repository, commit (or release), licence and files."""
+    import lensfunpy
+
+    return {
+        "libraw": {
+            "repo": "github.com/LibRaw/LibRaw",
+            "commit": git_head(args.libraw),
+            "licence": "LGPL-2.1 or CDDL-1.0 (figures only carried)",
+            "files": {
+                "list": "src/tables/cameralist.cpp",
+                "colour": "src/tables/colordata.cpp",
+                "normalize": "src/metadata/normalize_model.cpp",
+            },
+        },
+        "rawspeed": {
+            "repo": "github.com/darktable-org/rawspeed",
+            "commit": git_head(args.rawspeed),
+            "licence": "CC-BY-SA 3.0 (figures only carried)",
+            "files": {"cameras": "data/cameras.xml"},
+        },
+        "rawtherapee": {
+            "repo": "github.com/Beep6581/RawTherapee",
+            "commit": git_head(args.rawtherapee),
+            "licence": "GPL-3.0 (figures only carried)",
+            "files": {"camconst": "rtengine/camconst.json"},
+        },
+        "darktable": {
+            "repo": "github.com/darktable-org/darktable",
+            "commit": args.darktable,
+            "licence": "GPL-3.0 (figures only carried)",
+            "files": {"noise": "data/noiseprofiles.json"},
+            "read_from": f"{args.noiseprofiles}, as darktable {args.darktable} installs it",
+        },
+        "openmvg": {
+            "repo": "github.com/openMVG/CameraSensorSizeDatabase",
+            "commit": git_head(args.sensors),
+            "licence": "MPL-2.0; figures from digicamdb.com",
+            "files": {"sizes": "sensor_database_detailed.csv"},
+        },
+        "lensfun": {
+            "repo": "the lensfun database bundled with lensfunpy",
+            "commit": f"lensfunpy {lensfunpy.__version__}",
+            "licence": "CC-BY-SA 3.0 (figures only carried)",
+            "files": {"cameras": "db/*.xml (crop factors)"},
+        },
+    }
+
+
+def _camera(cam, coeffs, groups, rawspeed, whites, isos, forms, sizes, bundled):
+    """One listed camera's entry (its levels still to fill: ``levels``), or why it is
+    left out."""
+    make = MAKER_NAMES.get(cam.make, cam.make)
+    keys = keys_of(cam.make, [cam.model, *cam.aliases])
+    r = next((rawspeed[k] for k in keys if k in rawspeed), None)
+    co, via = colour_entry(cam, coeffs, groups)
+    src = {}
+    if co and co.matrix and co.matrix[0] and len(co.matrix) in (9, 12):
+        if len(co.matrix) == 12 and any(co.matrix[9:]):
+            return "four-colour (CMYG) sensor"
+        m = co.matrix[:9]
+        how = co.note if co.note and not co.note.startswith("same CMs") else "Adobe DNG Converter"
+        via = f"; {via}" if via else ""
+        src["xyz_to_camera"] = f"libraw:colour:{co.line} (prefix {co.prefix!r}; {how}{via})"
+    elif r and r.matrix and len(r.matrix) == 9:
+        m = r.matrix
+        src["xyz_to_camera"] = f"rawspeed:cameras:{r.line}"
+    else:
+        return "no colour matrix in LibRaw's or rawspeed's tables"
+    if (make == "Sigma" and FOVEON.match(cam.model)) or "monochrom" in cam.model.casefold():
+        return "Foveon or monochrome sensor"
+    if r and r.cfa and set(r.cfa) - set("RGB/"):
+        return "four-colour (CMYG) sensor"
+    cfa, src["cfa_pattern"] = _cfa(cam, make, r, rawspeed)
+    level_source = co if co and not via else None  # an alias's levels are another body's
+    profile = bundled.get((maker_key(make), norm(cam.model)))
+    levels = sourced(
+        r,
+        level_source,
+        next((whites[k] for k in keys if k in whites), None),
+        next((isos[k] for k in keys if k in isos), None),
+        profile,
+    )
+    size, res, area, basis, src["sensor"] = sizes.find(cam.make, cam.model, keys)
+    exif, src["exif"] = exif_names(make, cam.model, r, forms)
+    names = cam.aliases + (r.aliases if r else []) + alias_names(cam.make, cam.model, groups)
+    entry = {
+        "name": slug(make, cam.model),
+        "make": make,
+        "model": cam.model,
+        "libraw": f"{cam.make} {cam.text}",  # the line of LibRaw's list
+        "aliases": sorted(set(names) - {cam.model}),
+        "exif": exif,
+        "cfa_pattern": cfa,
+        "xyz_to_camera": [[v / 10000 for v in m[i : i + 3]] for i in (0, 3, 6)],
+        "sensor_size_mm": list(size) if size else None,
+        "resolution": list(res) if res else None,
+        "pixel_area_um2": round(area, 3),
+        "pixel_area_from": basis,
+        "levels": levels,
+        "rawspeed": (r.make, r.model) if r else None,
+        "list_names": cam.aliases,
+    }
+    if profile:
+        entry["bundled"] = profile.name
+        entry["noise_kind"] = "measured" if profile.name in CALIBRATED else "estimated"
+        src["noise"] = f"bundled profile {profile.name}: " + CALIBRATED.get(
+            profile.name, "see its sources"
+        )
+    else:
+        entry["noise_kind"] = "estimated"
+    entry["source"] = src
+    return entry
+
+
+def _cfa(cam, make: str, r, rawspeed) -> tuple[str, str]:
+    """(CFA, its source): rawspeed's, the maker's specification, an edition's base model's
+    ("X-T1 Graphite Silver" is an X-T1), else assumed RGGB."""
+    if r and r.cfa:
+        return r.cfa, f"rawspeed:cameras:{r.line}"
+    if (make, cam.model) in CFA_FROM_SPEC:
+        return CFA_FROM_SPEC[(make, cam.model)]
+    words = cam.model.split(" ")
+    stems = keys_of(cam.make, [" ".join(words[:n]) for n in range(len(words) - 1, 0, -1)])
+    base = next((rawspeed[k] for k in stems if k in rawspeed), None)
+    if base and base.cfa and " " in cam.model:
+        return base.cfa, f"rawspeed:cameras:{base.line} (its {base.model}, an edition of it)"
+    return "RGGB", "assumed: RGGB (no table gives it; the raw file records it)"
+
+
+def _size_class(entry: dict) -> int | None:
+    size = entry.get("sensor_size_mm")
+    return Sizes.size_class(size) if size else None
+
+
+def _drop_shared_aliases(cameras: list[dict]) -> None:
+    """Drop an alias that is another camera's model ("V-LUX (Typ 114)", LibRaw's name for
+    the Panasonic DMC-FZ1000's Leica twin, stays the Leica's): a name finds one camera."""
+    models = defaultdict(set)
+    for c in cameras:
+        models[(maker_key(c["make"]), norm(c["model"]))].add(c["name"])
+        models[norm(c["model"])].add(c["name"])
+    for c in cameras:
+        c["aliases"] = [a for a in c["aliases"] if not (models.get(norm(a), set()) - {c["name"]})]
+
+
+def _makers(cameras: list[dict], forms: dict) -> dict[str, list[str]]:
+    """Each maker of the database → the Makes its cameras' files write (rawspeed's
+    spellings: "NIKON CORPORATION", "RICOH IMAGING COMPANY, LTD." for Pentax)."""
+    out = defaultdict(set)
+    for c in cameras:
+        form = forms.get(maker_key(c["make"]))
+        out[c["make"]].update(form.every_make if form else ())
+        out[c["make"]].update(make for make, _ in c["exif"])
+    return {k: sorted(v - {k}) for k, v in sorted(out.items())}
 
 
 def _compact(data: dict) -> str:
