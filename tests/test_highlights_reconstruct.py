@@ -438,21 +438,25 @@ def test_block_side_per_cfa():
 
 
 def test_unclip_keeps_values_above_white():
-    """Values above white pass; only pixels whose every colour reached its level
-    (0.99 of it) change: to the largest of their values and the levels, neutral."""
+    """Values above white pass; a colour that reached its level (0.99 of it) takes the
+    pixel's largest value: neutral where all three did, never magenta where green
+    did."""
     levels = (2.0, 1.0, 1.5)
     x = torch.tensor(
         [
             [2.4, 1.0, 1.49],  # all three reached their levels: neutral at 2.4
-            [1.985, 0.995, 1.6],  # within 1 %: neutral at the highest level, 2.0
-            [2.4, 0.98, 1.6],  # green did not: kept, magenta as LibRaw's -H 1 keeps it
+            [1.985, 0.995, 1.6],  # within 1 %: neutral at the largest value, 1.985
+            [1.7, 0.995, 1.2],  # green alone: raised to red's 1.7
+            [2.4, 0.98, 1.6],  # red and blue: magenta light, as measured
             [0.5, 0.4, 0.3],
         ]
-    ).T.reshape(1, 3, 1, 4)
+    ).T.reshape(1, 3, 1, 5)
     out = handle_highlights(x, "unclip", levels)
     assert torch.equal(out[0, :, 0, 0], torch.full((3,), 2.4))
-    assert torch.equal(out[0, :, 0, 1], torch.full((3,), 2.0))
-    assert torch.equal(out[..., 2:], x[..., 2:])
+    assert torch.equal(out[0, :, 0, 1], torch.full((3,), 1.985))
+    assert torch.equal(out[0, :, 0, 2], torch.tensor([1.7, 1.7, 1.2]))
+    assert torch.equal(out[0, :, 0, 3], torch.tensor([2.4, 0.98, 2.4]))
+    assert torch.equal(out[..., 4], x[..., 4])
     with pytest.raises(ParameterError, match="needs RGB"):
         handle_highlights(torch.rand(1, 1, 8, 8) * 3, "unclip")
 
@@ -601,7 +605,8 @@ def test_sites_that_did_not_clip_keep_their_values(pattern):
     data = np.full((90, 150), 516 + 1500, np.uint16)
     data[edge:] = 16383
     raw = replace_raw(raw, data=data)
-    config = override(default_config(), highlights="reconstruct")
+    # noise-free flat colours pile up as saturation does: only the white level clips
+    config = override(default_config(), highlights="reconstruct", saturation="white")
     ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
     assert np.array_equal(rebuilt[:edge], data[:edge])
     assert (rebuilt[edge:] > data[edge:]).mean() > 0.5  # the sky was rebuilt
@@ -629,7 +634,8 @@ def test_engine_equals_the_reference_on_sparse_highlights(pattern):
     for cy, cx, r, colours in spots:
         data[((y - cy) ** 2 + (x - cx) ** 2 < r * r) & np.isin(cmap, colours)] = 16383
     raw = replace_raw(raw, data=data)
-    config = override(default_config(), highlights="reconstruct")
+    # noise-free flat colours pile up as saturation does: only the white level clips
+    config = override(default_config(), highlights="reconstruct", saturation="white")
     ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
     assert (rebuilt != data).sum() > 60  # sites were rebuilt
     dn = 2.1 * 0.5 / (16383 - 516)
@@ -809,7 +815,8 @@ def _sky_in_dn(pattern, radius, sky, ground):
     level = np.where((y - 210) ** 2 + (x - 303) ** 2 < radius**2, np.array(sky)[cmap], level)
     data = (516 + level * span).astype(np.uint16)
     raw = replace_raw(raw, data=data)
-    config = override(default_config(), highlights="reconstruct")
+    # noise-free flat colours pile up as saturation does: only the white level clips
+    config = override(default_config(), highlights="reconstruct", saturation="white")
     ours, ref, rebuilt = _engine_and_reference_mosaics(raw, config)
     assert (rebuilt != data).sum() > 10000  # sites were rebuilt
     dn = 2.1 * 0.5 / span

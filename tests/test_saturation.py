@@ -43,7 +43,7 @@ def test_a_colour_that_saturates_below_white(rng):
     blue = 128 + 0.6 * s * 3967  # tops out at 96 % of the span, thinning out
     data = mosaic([np.minimum(128 + s * 3967, WHITE), np.minimum(128 + s * 3967, green_top), blue])
     sat = find_saturation(data, RGGB, BLACK, WHITE)
-    assert sat.levels[0] == WHITE and "reaches" in sat.notes[0]
+    assert sat.levels[0] == WHITE and "the white level" in sat.notes[0]
     assert sat.levels[1] == np.round(green_top) and "pile" in sat.notes[1]
     assert sat.levels[2] == WHITE and "no pile-up" in sat.notes[2]
     assert sat.fractions(BLACK, WHITE)[1] == pytest.approx(0.96, abs=1e-3)
@@ -73,13 +73,26 @@ def test_highlights_that_did_not_saturate(rng):
 
 
 def test_hot_pixels_above_a_pile(rng):
-    """A few hot pixels above the pile do not hide it."""
+    """A few hot pixels above the pile, or at the white level, do not hide it."""
     s = scene(rng)
     values = np.minimum(128 + s * 3967, 3900.0)
     data = mosaic([values] * 3)
     data[5, 5] = data[7, 9] = 4020  # a red site and a green one
+    data[9, 1] = 4095  # a blue one at white
     sat = find_saturation(data, RGGB, BLACK, WHITE)
     assert sat.levels == (3900.0, 3900.0, 3900.0), sat.notes
+
+
+def test_a_bright_patch_with_noise_is_not_a_pile(rng):
+    """The brightest thing in the frame, at 92 % of the span and unsaturated, with
+    the photon noise of a real sensor there (0.3 % of the span): its sites spread on
+    both sides of their mode, no pile; without noise (a synthetic render) it is one."""
+    s = scene(rng)
+    patch = 128 + np.where(s > 1.2, 0.92, s * 0.5) * 3967
+    noisy = mosaic([patch + rng.normal(0, 0.003 * 3967, s.shape)] * 3)
+    assert find_saturation(noisy, RGGB, BLACK, WHITE).levels == (WHITE,) * 3
+    flat = find_saturation(mosaic([patch] * 3), RGGB, BLACK, WHITE)
+    assert flat.levels == (np.round(128 + 0.92 * 3967),) * 3
 
 
 def test_a_pile_too_small_or_too_low(rng):

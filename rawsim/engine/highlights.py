@@ -45,9 +45,9 @@ from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_PRIOR,
+    HIGHLIGHT_HUE_REACH,
     HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_HUE_SPREAD,
-    HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
@@ -59,8 +59,8 @@ configure()
 
 _JIT = {"cache": True, "error_model": "numpy"}
 #: Fields of the border tables: weight × share of R, G, B; weight; weight × each share
-#: squared; then (at ``NEAR``) the blocks next to a clipped one.
-FIELDS, NEAR = 8, 7
+#: squared.
+FIELDS = 7
 
 
 #: Blocks per side of the tiles the pre-pass works in: only tiles with a clipped site
@@ -154,13 +154,12 @@ def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, thre
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, threads):
-    """Summed-area tables (n, TILE + 1, TILE + 1, 8) float64 of each listed tile
+    """Summed-area tables (n, TILE + 1, TILE + 1, FIELDS) float64 of each listed tile
     (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks` gives
     them for these tiles, ``slot`` each tile's index in them): the border blocks' hue
     fields (weight × share of R, G, B; weight; weight × each share squared, for the
     border's spread of hue), read over each block's 3 × 3 blocks and weighted by their
-    brightness to ``power`` (float32 products, as the reference forms them), and the
-    count of blocks next to a clipped one (:data:`FIELDS` in all, that at :data:`NEAR`).
+    brightness to ``power`` (float32 products, as the reference forms them).
     Border blocks lie within ``border`` blocks of a clipped one but not next to one; the
     fields are zero elsewhere."""
     t = TILE
@@ -195,7 +194,6 @@ def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, threads)
                         inside |= v != 0
                         close |= v >= 2 and abs(ii - i) <= 1
                     field[:] = 0.0
-                    field[NEAR] = 1.0 if close else 0.0
                     if inside and not close:
                         # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
                         ya, yb, ja, jb = (
@@ -281,7 +279,7 @@ def _agreement(sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit):
     root of its shares' summed variances over ``spread_limit``. ``acc`` holds the
     block's hue fields and weight (:func:`_estimates`); the squared shares are summed
     here, over the same boxes, into ``acc[4:7]``."""
-    _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 4, NEAR)
+    _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 4, FIELDS)
     spread = 0.0
     for c in range(3):
         centre = acc[c] / acc[3]
@@ -314,6 +312,19 @@ def _hue_or_white(m, seen, hue, c, floor, sigma, prior):
 
 
 @njit(inline="always", **_JIT)
+def _hue_reach(m, hue, c, floor, reach):
+    """Colour ``c`` alone clipped: how far (0–1) ``hue`` is kept, by the value it gives
+    ``c`` over white light's (the reference's ``_hue_reach``); ``reach``: (whole up to,
+    none from)."""
+    a, b = (1, 2) if c == 0 else ((0, 2) if c == 1 else (0, 1))
+    rest = m[a] + m[b]
+    guess = hue[c] * rest / max(hue[a] + hue[b], floor)
+    white = max(max(m[c], rest / np.float32(2.0)), floor)
+    lo, hi = np.float32(reach[0]), np.float32(reach[1])
+    return min(max((hi - guess / white) / (hi - lo), np.float32(0.0)), np.float32(1.0))
+
+
+@njit(inline="always", **_JIT)
 def _refuted(rho, margin):
     """How surely (0–1) a guess is refuted, from what it predicts over what was
     measured (``rho``, clamped to 0–1): full at (1 − ``margin``) or below."""
@@ -333,11 +344,11 @@ def _estimates(
     wb,
     scales,
     lam,
-    neutral,
     margin,
     floor,
     sigma,
     prior,
+    reach,
     spread_limit,
     shares,
     lows,
@@ -347,8 +358,10 @@ def _estimates(
     its clipped colours allow into ``lows`` (n, TILE, TILE), for the n tiles listed in
     ``tiles`` (those that hold clipped sites; see :func:`_site_value`) of the Hb × Wb
     blocks; ``sats``/``slot``: the fields' tables (:func:`_tile_sats`, :func:`_box`);
-    ``level``: each colour's clip level, ``margin``: ``HIGHLIGHT_WHITE_MARGIN``,
-    ``prior``: ``HIGHLIGHT_HUE_PRIOR``, ``spread_limit``: ``HIGHLIGHT_HUE_SPREAD``."""
+    ``level``: each colour's clip threshold (``HIGHLIGHT_CLIPPED`` × its level),
+    ``margin``: ``HIGHLIGHT_WHITE_MARGIN``,
+    ``prior``: ``HIGHLIGHT_HUE_PRIOR``, ``reach``: ``HIGHLIGHT_HUE_REACH``,
+    ``spread_limit``: ``HIGHLIGHT_HUE_SPREAD``."""
     t = TILE
     third = np.float32(1.0 / 3.0)
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
@@ -361,7 +374,7 @@ def _estimates(
             hue = np.empty(3, np.float32)
             seen = np.empty(3, np.float32)
             m = np.empty(3, np.float32)
-            acc = np.zeros(NEAR, np.float64)  # hue fields, weight, shares squared
+            acc = np.zeros(FIELDS, np.float64)  # hue fields, weight, shares squared
             box = np.zeros(FIELDS, np.float64)
             y0, x0 = tiles[n, 0] * t, tiles[n, 1] * t
             for y in range(y0, min(y0 + t, hb)):
@@ -369,21 +382,19 @@ def _estimates(
                     f = _at(flags, slot, y, j)
                     if f == 0:
                         continue
+                    if f == 7:  # three clipped: nothing measured the light, white
+                        low = np.float32(0.0)
+                        for c in range(3):
+                            shares[n, c, y - y0, j - x0] = third
+                            low = max(low, _mean(means, slot, c, y, j) / third)
+                        lows[n, y - y0, j - x0] = low
+                        continue
                     _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 0, 4)
-                    blown = f == 3 or f >= 5  # two or three colours clipped
+                    blown = f == 3 or f >= 5  # two colours clipped
                     for c in range(3):
                         hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
                     kappa = np.float32(1.0)  # read only where blown
-                    if f == 7:  # three: the hue fades to white with depth
-                        s = neutral
-                        i0, i1 = max(y - s, 0), min(y + s + 1, hb)
-                        j0, j1 = max(j - s, 0), min(j + s + 1, wb)
-                        _box(sats, slot, i0, i1, j0, j1, box, NEAR, FIELDS)
-                        free = ((i1 - i0) * (j1 - j0) - box[NEAR]) / np.float64(
-                            (2 * s + 1) * (2 * s + 1)
-                        )
-                        kappa = np.float32(min(2.0 * free, 1.0))
-                    elif blown:  # two: are white light and the hue ruled out?
+                    if blown:  # two: are white light and the hue ruled out?
                         u = 2 if f == 3 else (1 if f == 5 else 0)
                         mu = _mean(means, slot, u, y, j)
                         need = max(level[(u + 1) % 3], level[(u + 2) % 3])
@@ -411,6 +422,7 @@ def _estimates(
                             m[k] = _mean(means, slot, k, y, j)
                             seen[k] = m[k] / (total if total > 0 else np.float32(1.0))
                         trust = _hue_or_white(m, seen, hue, c, floor, sigma, prior)
+                        trust = trust * _hue_reach(m, hue, c, floor, reach)
                     for c in range(3):
                         h = hue[c]
                         if blown:
@@ -759,11 +771,11 @@ def reconstruct_mosaic(
         wb,
         np.array(HIGHLIGHT_SCALES, dtype=np.int64),
         HIGHLIGHT_SCALE_WEIGHT,
-        HIGHLIGHT_NEUTRAL,
         np.float32(HIGHLIGHT_WHITE_MARGIN),
         np.float32(HIGHLIGHT_RATIO_FLOOR),
         np.float32(HIGHLIGHT_HUE_SIGMA),
         np.float32(HIGHLIGHT_HUE_PRIOR),
+        np.array(HIGHLIGHT_HUE_REACH, dtype=np.float32),
         float(HIGHLIGHT_HUE_SPREAD),
         shares,
         lows,

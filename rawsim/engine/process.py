@@ -61,8 +61,8 @@ DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3, "learned": 4
 #: Pointwise op codes (mosaic and RGB stages).
 #: OP_ROOT/OP_SQUARE: into and out of the demosaic's root domain (the reference's
 #: ``rawsim.isp.demosaic.to_root``/``from_root``), the last mosaic op and the first RGB op.
-#: OP_CLIP clips at its number; OP_UNCLIP (RGB) makes a pixel whose every colour reached
-#: its threshold (numbers 0–2) neutral at the largest of its values and number 3.
+#: OP_CLIP clips at its number; OP_UNCLIP (RGB) raises each colour that reached its
+#: threshold (numbers 0–2) to the pixel's largest value.
 (
     OP_LEVELS,
     OP_SHADING,
@@ -888,11 +888,12 @@ def _rgb_stage(op, p, r, g, b, y, x0, h, w):
         for q in range(r.size):
             r[q], g[q], b[q] = min(r[q], top), min(g[q], top), min(b[q], top)
     elif op == OP_UNCLIP:
-        tr, tg, tb, most = np.float32(p[0]), np.float32(p[1]), np.float32(p[2]), np.float32(p[3])
+        tr, tg, tb = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
         for q in range(r.size):
-            if r[q] >= tr and g[q] >= tg and b[q] >= tb:
-                v = max(max(r[q], g[q]), max(b[q], most))
-                r[q], g[q], b[q] = v, v, v
+            top = max(max(r[q], g[q]), b[q])
+            r[q] = top if r[q] >= tr else r[q]
+            g[q] = top if g[q] >= tg else g[q]
+            b[q] = top if b[q] >= tb else b[q]
     elif op == OP_MATRIX:
         m = (
             np.float32(p[0]),

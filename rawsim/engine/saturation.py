@@ -13,19 +13,25 @@ saturates: many sites within a narrow band, as dense as or denser than the band
 below it, where a highlight that did not saturate thins out towards its brightest
 site. :func:`find_saturation` looks for that pile in each colour's brightest codes:
 
-* a colour that reaches the white level saturates there (nothing is lower);
-* else, scanning down from its brightest code, the first band of
+* scanning down from its brightest code, the first band of
   ``PILE_BAND`` × (white − black) codes that holds at least ``PILE_SITES`` sites
   (and ``PILE_SHARE`` of the colour's) at ``PILE_DENSITY`` times the density of the
   two bands below it, with at most ``PILE_ABOVE`` of its count in the two bands
-  above it, is a pile (the mode of an unsaturated highlight has its upper tail
-  above it): the colour saturates at the top of that band (sites within
+  above it and its mean within ``PILE_TOP`` × (white − black) of its top, is a pile
+  (an unsaturated highlight spreads its noise on both sides of its mode): the
+  colour saturates at the top of that band, or the white level if that is lower
+  (sites within
   ``PILE_BAND`` below it count as saturated, as
   :data:`~rawsim.isp.config.HIGHLIGHT_CLIPPED` counts them);
   the scan goes ``PILE_REACH`` × (white − black) below the brightest code, so a
   few hot pixels above the pile do not hide it;
 * a colour without a pile, or whose pile lies below ``PILE_LEAST`` of the span,
-  saturates at the white level, as the file says.
+  saturates at the white level, as the file says (also where a few of its sites
+  reach it: hot pixels, or a lossy codec's overshoot).
+
+Raws whose codec spreads saturated values over hundreds of codes (GoPro's VC-5:
+±150 DN around a level 5 % below white) hold no pile this narrow, and keep the
+white level, as LibRaw does.
 
 A flat patch without noise (a synthetic render) at the top of a colour's range
 piles up as saturation does and is taken for it, as LibRaw's ``adjust_maximum`` takes
@@ -58,8 +64,12 @@ PILE_SHARE = 1e-4
 PILE_BAND = 0.01
 #: ... at this many times the density (sites per code) of the two bands below it.
 PILE_DENSITY = 1.0
-#: ... with at most this share of its count in the two bands above it.
+#: ... with at most this share of its count in the two bands above it, and its mean
+#: within this share of (white − black) below its top: a pile leans on its top, where
+#: the sensor stopped counting, as a patch that did not saturate, its mode a few
+#: standard deviations of its noise below its brightest site, does not.
 PILE_ABOVE = 0.05
+PILE_TOP = 0.004
 #: The scan for a pile reaches this share of (white − black) below a colour's brightest code.
 PILE_REACH = 0.08
 #: A pile below this share of (white − black) above black is not taken for saturation
@@ -182,15 +192,18 @@ def _level(
     ``least``: the fewest sites a pile holds)."""
     white = float(white)
     span = white - black
-    if top >= white:
-        return white, "reaches the white level"
     if top - black < PILE_LEAST * span:
         return white, f"none: its brightest site is at {100 * (top - black) / span:.0f} % of white"
     cum = np.concatenate([[0], np.cumsum(counts)])  # cum[k]: sites below code low + k
+    moment = np.concatenate([[0], np.cumsum(counts * np.arange(counts.size))])
 
     def sites(lo: int, hi: int) -> int:  # codes lo … hi − 1
         lo, hi = max(lo - low, 0), max(hi - low, 0)
         return int(cum[min(hi, cum.size - 1)] - cum[min(lo, cum.size - 1)])
+
+    def mean(lo: int, hi: int) -> float:  # their mean code
+        lo, hi = max(lo - low, 0), min(max(hi - low, 0), cum.size - 1)
+        return low + float(moment[hi] - moment[lo]) / max(float(cum[hi] - cum[lo]), 1.0)
 
     floor = max(low + 3 * band, int(np.ceil(black + PILE_LEAST * span)))
     for k in range(top, floor - 1, -1):
@@ -201,10 +214,18 @@ def _level(
             continue
         below = sites(k - 3 * band + 1, k - band + 1)
         above = sites(k + 1, k + 2 * band + 1)
-        if pile >= PILE_DENSITY * below / 2 and above <= PILE_ABOVE * pile:
-            return float(k), (
-                f"{pile} sites pile up within {band} DN below {k} "
-                f"({100 * (k - black) / span:.1f} % of white)"
+        if (
+            pile >= PILE_DENSITY * below / 2
+            and above <= PILE_ABOVE * pile
+            and k - mean(k - band + 1, k + 1) <= PILE_TOP * span
+        ):
+            level = min(float(k), white)
+            where = "the white level" if level >= white else f"{k}"
+            return level, (
+                f"{pile} sites pile up within {band} DN below {where} "
+                f"({100 * (level - black) / span:.1f} % of white)"
             )
+    if top >= white:
+        return white, "reaches the white level"
     share = 100 * (top - black) / span
     return white, f"no pile-up below its brightest site ({share:.1f} % of white)"

@@ -97,11 +97,6 @@ HIGHLIGHT_BORDER = 4
 #: clip (the same sky or lamp, a step darker) outweigh darker things beside the
 #: region (branches across a sky).
 HIGHLIGHT_BORDER_POWER = 3
-#: ``reconstruct``: where all three colours clip, the border's hue fades to neutral
-#: with depth: it keeps κ = min(1, 2 × the unclipped share of the box of this
-#: half-width around the block), so a blown area's core, ≳ 16 blocks deep, is white.
-#: (Where two clip, the third decides at any depth: ``HIGHLIGHT_WHITE_MARGIN``.)
-HIGHLIGHT_NEUTRAL = 16
 #: ``reconstruct``: where exactly two colours clip, white light would put the third at
 #: least at their clip levels. The lower it lies, the surer the light is coloured: at
 #: (1 − this) of their highest clip level or below, the border's hue is kept whole at
@@ -116,7 +111,12 @@ HIGHLIGHT_HUE_SIGMA = 0.2
 #: from white in the clipped colour alone), the hue the border measured is kept
 #: (e^4 ≈ 55 to 1), not blended half-way to white.
 HIGHLIGHT_HUE_PRIOR = 4.0
-#: ``reconstruct``: where two or three colours clip and the border's hue gives green
+#: ``reconstruct``: where one colour clips, the border's hue is kept whole while it gives
+#: that colour at most the first of these times what white light gives it (the other
+#: two's mean, at least its clipped mean), and not at all from the second: further, it
+#: comes from the border, not from the light the other two measured.
+HIGHLIGHT_HUE_REACH = (1.5, 2.5)
+#: ``reconstruct``: where two colours clip and the border's hue gives green
 #: the least share, that hue is kept by 1 − (its spread over the border / this), the
 #: spread being the root of the summed variances of the border blocks' shares: brown
 #: branches and a blue sky around a blown sky average to a purple no border block has,

@@ -9,13 +9,15 @@ colour, which turns clipped highlights magenta. ``clip`` limits every value to t
 least level (the one intended clipping here; value by value, so on a mosaic of any
 CFA as on RGB, as LibRaw does before demosaicking): with the gains LibRaw scales
 for its clip, that least level is 1 and every saturated site reaches it, so what
-clipped in every colour is white. ``unclip`` (RGB) leaves every value as it is
-(LibRaw's ``-H 1``) except where every colour reached its level: there nothing
-tells the colours apart, and the pixel takes the highest of its values and the
-levels in every colour (a clipped value is a lower bound), neutral rather than the
-magenta of the levels' spread. ``blend`` (RGB only) keeps the clipped image's
-lightness and the unclipped image's hue, with the chroma scaled to the clipped
-chroma's size, where any channel exceeds the least level — dcraw's ``-H 2``.
+clipped in every colour is white. ``unclip`` (RGB) keeps values above white
+(LibRaw's ``-H 1``), but a colour that reached its level (``HIGHLIGHT_CLIPPED`` of
+it) is known only to be at least that bright, and takes the pixel's largest value:
+clipped light is never darker in one colour than in the others, so where every
+colour clipped the pixel is neutral, not the magenta of the levels' spread, and
+where green clipped beside red and blue it is not magenta either. ``blend`` (RGB
+only) keeps the clipped image's lightness and the unclipped image's hue, with the
+chroma scaled to the clipped chroma's size, where any channel exceeds the least
+level — dcraw's ``-H 2``.
 
 ``reconstruct`` (:func:`reconstruct_highlights`) rebuilds the clipped colours of
 a mosaic (or RGB image) from the colours that did not clip and from the hue of
@@ -38,10 +40,10 @@ from rawsim.isp.config import (
     HIGHLIGHT_CLIPPED,
     HIGHLIGHT_HEADROOM,
     HIGHLIGHT_HUE_PRIOR,
+    HIGHLIGHT_HUE_REACH,
     HIGHLIGHT_HUE_SIGMA,
     HIGHLIGHT_HUE_SPREAD,
     HIGHLIGHT_MODES,
-    HIGHLIGHT_NEUTRAL,
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
@@ -60,7 +62,8 @@ def handle_highlights(
     """Apply ``mode`` to white-balanced linear data, colour c clipping at ``levels[c]``
     (R, G, B; default 1 each): a mosaic (B, 1, H, W) of any CFA or an image (B, C, H,
     W) for ``clip`` (values ≤ the least level out), RGB (B, 3, H, W) for ``unclip``
-    (unchanged but where every colour reached ``HIGHLIGHT_CLIPPED`` × its level) and
+    (each colour at ``HIGHLIGHT_CLIPPED`` × its level or above takes the pixel's
+    largest value; the others are unchanged) and
     ``blend`` (values above the least level may remain), a mosaic with its ``cfa`` or
     RGB for ``reconstruct`` (:func:`reconstruct_highlights`)."""
     check_choice("highlight mode", mode, HIGHLIGHT_MODES)
@@ -76,9 +79,8 @@ def handle_highlights(
     if x.shape[1] != 3:
         raise ParameterError(f"highlight mode {mode!r} needs RGB: put the stage after demosaic")
     if mode == "unclip":
-        full = (x >= HIGHLIGHT_CLIPPED * level.reshape(1, 3, 1, 1)).all(dim=1, keepdim=True)
-        top = x.amax(dim=1, keepdim=True).clamp_min(float(level.max()))
-        return torch.where(full, top.expand_as(x), x)
+        clipped = x >= HIGHLIGHT_CLIPPED * level.reshape(1, 3, 1, 1)
+        return torch.where(clipped, x.amax(dim=1, keepdim=True).expand_as(x), x)
     trans = _TRANS.to(x.dtype).to(x.device)
     inverse = torch.linalg.inv(_TRANS).to(x.dtype).to(x.device)
     clipped = x.clamp(max=least)
@@ -127,22 +129,25 @@ def reconstruct_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> t
     their ratio and raising the clipped colour to at least its clipped mean (misses
     squared in logs, a Gaussian of width ``HIGHLIGHT_HUE_SIGMA``; the hue ahead by
     ``HIGHLIGHT_HUE_PRIOR`` in log odds, so where both predict alike the border's hue
-    is kept), so a white highlight in coloured surroundings stays white and a
-    coloured one keeps its hue.
-    Where three clipped, nothing tests it: the hue is blended towards neutral by how
-    little of the box around the block is unclipped (κ = min(1, 2 × that share), the
-    box ``HIGHLIGHT_NEUTRAL`` blocks each way), so the core of a large blown area is
-    white (on the benchmark, white light at depth is the better guess). Where two
-    clipped, the third tests white light, at any depth: white light would have put it
-    at least at their clip levels, so κ is how far below it lies
+    is kept), and by how far the hue reaches beyond white light (:func:`_hue_reach`):
+    a hue that would raise the clipped colour to more than ``HIGHLIGHT_HUE_REACH``
+    times what white light gives it came from the border, not from the light the
+    other two measured (a lamp in a room lit deep blue by an LED stays white, as every
+    raw converter's clip shows it, where the border's hue made it purple).
+    Where two clipped, the third tests white light, at any depth: white light would
+    have put it at least at their clip levels, so κ is how far below it lies
     (:func:`_white_refuted`): a sky whose green and blue clipped stays blue, and a
     highlight whose third colour nears their levels stays white, beside a coloured
     border too; unless the border's hue is refuted as well, putting a clipped colour
     below its clipped mean (:func:`_hue_refuted`): then neither is kept, and the block
-    goes neutral (κ falls by how surely the hue is refuted). Where two or three
-    clipped and the hue gives green the least share, κ also falls by the border's spread
-    of hue (``HIGHLIGHT_HUE_SPREAD``): brown and blue borders average to a purple that
-    none of them has.
+    goes neutral (κ falls by how surely the hue is refuted). Where the hue gives green
+    the least share, κ also falls by the border's spread of hue
+    (``HIGHLIGHT_HUE_SPREAD``): brown and blue borders average to a purple that none
+    of them has.
+    Where three clipped nothing measured the light: it is white (on the real raws of
+    ``tests/data/highlights``, lamps, glints and windows that clipped in every colour
+    are white in every raw converter's render; on the synthetic benchmark white is
+    the better guess there too).
 
     Each site that clipped (in a block where its colour clipped; its unclipped
     neighbours measured their light and keep it) then becomes max(its value, share ×
@@ -256,28 +261,28 @@ def _estimates(means, clipped, anyclip, g):
     second = torch.where(has, hue_sum[:, 4:] / torch.where(has, hue_sum[:, 3:4], 1.0), 0.0)
     spread = (second - torch.where(has, hue, 0.0) ** 2).clamp_min(0.0).sum(1, keepdim=True)
     agree = (1 - spread.sqrt() / HIGHLIGHT_HUE_SPREAD).clamp(0.0, 1.0).to(dtype)
-    s = HIGHLIGHT_NEUTRAL
-    free = _box((~near).double(), s) / float((2 * s + 1) ** 2)
-    kappa = (2 * free).clamp(max=1.0).to(dtype)
     count = clipped.sum(1, keepdim=True)  # colours clipped in each block
     hue = hue.to(dtype)
     # Two clipped: the border's hue wins over white light by how surely the third colour
     # refutes white, at any depth (beside the border too: a white highlight in coloured
     # surroundings stays white), unless the hue is refuted too (then neither is kept:
-    # neutral); its κ falls by how surely.
-    hue_kept = 1 - _hue_refuted(means, clipped, hue)
-    refuted = _white_refuted(means, clipped, g) * hue_kept
-    kappa = torch.where(count == 2, refuted, kappa)
-    # A hue with the least green, averaged from a border that disagrees (brown and
-    # blue: purple), is no border block's: kept by how well the border agrees.
+    # neutral); a hue with the least green, averaged from a border that disagrees (brown
+    # and blue: purple), is no border block's: kept by how well the border agrees.
+    kappa = _white_refuted(means, clipped, g) * (1 - _hue_refuted(means, clipped, hue))
     least_green = hue[:, 1:2] <= hue.amin(1, keepdim=True)
-    blown = count >= 2  # one colour left at most
-    kappa = torch.where(blown & least_green, kappa * agree, kappa)
-    single = count == 1
-    seen = share
-    trust = _hue_or_white(means, seen, hue, clipped)
-    tested = trust * hue + (1 - trust) / 3
-    share = torch.where(blown, kappa * hue + (1 - kappa) / 3, torch.where(single, tested, hue))
+    kappa = torch.where(least_green, kappa * agree, kappa)
+    # One clipped: the other two's ratio tests the hue against white light, and the hue
+    # is kept only as far as it reaches (:func:`_hue_reach`).
+    trust = _hue_or_white(means, share, hue, clipped) * _hue_reach(means, clipped, hue)
+    share = torch.where(
+        count == 3,
+        1.0 / 3.0,  # nothing measured the light: white
+        torch.where(
+            count == 2,
+            kappa * hue + (1 - kappa) / 3,
+            torch.where(count == 1, trust * hue + (1 - trust) / 3, hue),
+        ),
+    )
     share = share.clamp_min(HIGHLIGHT_RATIO_FLOOR)
     floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
     return share, floor
@@ -291,6 +296,23 @@ def _white_refuted(means, clipped, g):
     seen = torch.where(clipped, 0.0, means).amax(1, keepdim=True)
     need = torch.where(clipped, level, 0.0).amax(1, keepdim=True)
     return _refuted(seen / need.clamp_min(HIGHLIGHT_RATIO_FLOOR))
+
+
+def _hue_reach(means, clipped, hue):
+    """Where one colour clipped: how far (0–1) the border's ``hue`` is kept, by the value
+    it gives the clipped colour over the least white light gives it (the other two's
+    mean, at least the colour's clipped mean): whole up to ``HIGHLIGHT_HUE_REACH[0]``
+    times, none from ``HIGHLIGHT_HUE_REACH[1]`` times. The light's hue was measured
+    by the colours that did not clip; a hue that puts the one that did far beyond them
+    comes from the border alone (a wall lit deep blue around a white lamp)."""
+    top = torch.where(clipped, means, 0.0).sum(1, keepdim=True)
+    rest = torch.where(clipped, 0.0, means).sum(1, keepdim=True)
+    hue_top = torch.where(clipped, hue, 0.0).sum(1, keepdim=True)
+    hue_rest = torch.where(clipped, 0.0, hue).sum(1, keepdim=True)
+    guess = hue_top * rest / hue_rest.clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    white = torch.maximum(top, rest / 2).clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    lo, hi = HIGHLIGHT_HUE_REACH
+    return ((hi - guess / white) / (hi - lo)).clamp(0.0, 1.0)
 
 
 def _hue_refuted(means, clipped, hue):

@@ -232,13 +232,14 @@ def _black_per_colour(raw: RawImage) -> np.ndarray | None:
 
 
 def _highlights_op(ep, stage: HighlightsStage, r: ResolvedIsp):
-    """``clip`` at the least clip level; ``unclip`` (RGB): neutral where every colour
-    reached ``HIGHLIGHT_CLIPPED`` × its level; ``blend`` (RGB): dcraw's, above the least."""
+    """``clip`` at the least clip level; ``unclip`` (RGB): each colour at
+    ``HIGHLIGHT_CLIPPED`` × its level or above to the pixel's largest; ``blend`` (RGB):
+    dcraw's, above the least."""
     levels = np.asarray(r.clip_levels, dtype=np.float64)
     if stage.mode == "clip":
         return ep.OP_CLIP, [levels.min()]
     if stage.mode == "unclip":
-        return ep.OP_UNCLIP, [*(np.float32(HIGHLIGHT_CLIPPED) * levels), levels.max()]
+        return ep.OP_UNCLIP, [*(np.float32(HIGHLIGHT_CLIPPED) * levels)]
     trans = np.array(HIGHLIGHT_TRANSFORM)
     return ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel(), levels.min()]
 
