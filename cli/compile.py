@@ -27,7 +27,7 @@ from rawsim_cli.options import output_options, usage_errors
 
 BAYER = "unprocess: 8-bit photo, Bayer, physics noise"
 RENDER = "process: Bayer, 8/16-bit output"
-OTHERS = "process: Bayer, the other demosaics"
+OTHERS = "process: Bayer, the learned demosaic"
 LENS = "unprocess: through a lens"
 XTRANS = "unprocess: X-Trans"
 FLOAT = "process: float output"
@@ -53,15 +53,15 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
     ),
     (RENDER, (BAYER,), "process {out}/bayer/photo.dng -o {out}/png"),
     (FLOAT, (RENDER,), "process {out}/bayer/photo.dng -o {out}/exr --format exr"),
-    (  # the default demosaic's kernel is its own (rawsim.engine.process.bayer_kernel)
+    (  # the learned demosaic's kernel is its own (rawsim.engine.process.bayer_kernel)
         OTHERS,
         (RENDER,),
-        "process {out}/bayer/photo.dng -o {out}/wcd --demosaic wcd",
+        "process {out}/bayer/photo.dng -o {out}/learned --demosaic learned",
     ),
     (
-        "process: float output, the other demosaics",
+        "process: float output, the learned demosaic",
         (OTHERS, FLOAT),
-        "process {out}/bayer/photo.dng -o {out}/wcd_exr --format exr --demosaic wcd",
+        "process {out}/bayer/photo.dng -o {out}/learned_exr --format exr --demosaic learned",
     ),
     ("process: half size", (RENDER,), "process {out}/bayer/photo.dng -o {out}/half --half-size"),
     (

@@ -15,7 +15,7 @@ from rawsim_cli.options import (
 from rawsim_cli.report import check_inputs, run_files
 
 # Literal copies of the core lists (checked by a test) keep `--help` free of torch.
-DEMOSAICS = ("learned", "wcd", "menon", "malvar", "bilinear")
+DEMOSAICS = ("wcd", "learned", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend", "reconstruct", "unclip")
 DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
@@ -55,8 +55,10 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 @click.option(
     "--demosaic",
     type=click.Choice(DEMOSAICS),
-    help="Demosaic method. On X-Trans (6×6) raws, bilinear stays bilinear and the "
-    "others become icd, rawsim's X-Trans interpolation.",
+    help="Demosaic method: wcd (default), learned (wcd and a learned correction: +0.5 dB "
+    "on average, slower, weaker on saturated colour edges), menon, malvar, bilinear. On "
+    "X-Trans (6×6) raws, bilinear stays bilinear and the others become icd, rawsim's "
+    "X-Trans interpolation.",
 )
 @click.option(
     "--demosaic-domain",

@@ -143,7 +143,7 @@ def test_learned_beats_wcd_on_held_out_kodak_crops():
 
 def test_demosaic_errors_and_module():
     cfa = CFA("BGGR")
-    with pytest.raises(ParameterError, match="valid: learned, wcd, menon, malvar, bilinear"):
+    with pytest.raises(ParameterError, match="valid: wcd, learned, menon, malvar, bilinear"):
         demosaic(torch.rand(1, 1, 4, 4), cfa, "ahd")
     with pytest.raises(ParameterError, match="1 channel"):
         demosaic(torch.rand(1, 3, 4, 4), cfa)

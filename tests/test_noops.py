@@ -82,7 +82,7 @@ def test_denoise_on_a_linear_raw_dng_warns_and_changes_nothing(tmp_path):
     [
         ({"denoise": "learned"}, "--denoise learned acts on a CFA mosaic"),
         ({"demosaic": "half"}, "--half-size acts on a CFA mosaic; this LinearRaw DNG has none: "),
-        ({"demosaic": "learned"}, "--demosaic learned acts on a CFA mosaic"),  # the default, asked
+        ({"demosaic": "wcd"}, "--demosaic wcd acts on a CFA mosaic"),  # the default, asked
         ({"demosaic_domain": "linear"}, "--demosaic-domain linear acts on a CFA mosaic"),
     ],
 )

@@ -127,7 +127,7 @@ def test_isp_show_round_trips_through_config(tmp_path):
         ('[[stage]]\nname = "sharpen"', "unknown stage 'sharpen'; valid: black_level"),
         (
             '[[stage]]\nname = "demosaic"\nmethod = "ahd"',
-            "valid: learned, wcd, menon, malvar, bilinear",
+            "valid: wcd, learned, menon, malvar, bilinear",
         ),
         ('[[stage]]\nname = "tone"\ncolour = 1', "unknown key 'colour'; valid: enabled, curve"),
         ('[[stage]]\nname = "exposure"\nev = "bright"', "expected stops in [-20, 20] or auto"),
@@ -428,7 +428,11 @@ def test_process_cli_formats_and_sidecars(tmp_path):
 
 def test_process_cli_config_flags_and_errors(tmp_path):
     cfg = tmp_path / "isp.toml"
-    cfg.write_text(CliRunner().invoke(cli, ["isp", "show"]).output.replace('"learned"', '"malvar"'))
+    cfg.write_text(
+        CliRunner()
+        .invoke(cli, ["isp", "show"])
+        .output.replace('method = "wcd"', 'method = "malvar"')
+    )
     r = CliRunner().invoke(
         cli,
         [

@@ -53,7 +53,7 @@ SAFE_WB_THRESHOLD = 0.9
 #: The radial lens-shading model's coefficients (:func:`rawsim.isp.lens_shading.radial_gain`),
 #: the vignetting that ``unprocess --vignetting`` adds.
 DEFAULT_K = (0.3, 0.15, 0.05)
-DEMOSAIC_METHODS = ("learned", "wcd", "menon", "malvar", "bilinear")
+DEMOSAIC_METHODS = ("wcd", "learned", "menon", "malvar", "bilinear")
 #: What each demosaic method becomes on an X-Trans (6×6) mosaic: ``bilinear`` stays
 #: LibRaw's same-colour average; the Bayer interpolations all become ``icd``
 #: (:mod:`rawsim.isp.xtrans`).
@@ -569,7 +569,7 @@ class DemosaicStage(Stage):
     name: ClassVar[str] = "demosaic"
     mosaic_only: ClassVar[bool] = True
     method: str = _param(
-        "learned",
+        "wcd",
         _choice((*DEMOSAIC_METHODS, HALF_SIZE)),
         "interpolation method, or half: a half-size image without interpolation",
     )
