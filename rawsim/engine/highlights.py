@@ -429,7 +429,16 @@ def _estimates(
                             h = kappa * h + (np.float32(1.0) - kappa) / np.float32(3.0)
                         elif trust < 1:
                             h = trust * h + (np.float32(1.0) - trust) / np.float32(3.0)
-                        share[c] = max(h, floor)
+                        share[c] = h
+                    if f == 1 or f == 2 or f == 4:  # one clipped: at least white's share
+                        c = 0 if f == 1 else (1 if f == 2 else 2)
+                        own = share[c]
+                        lifted = max(own, third)
+                        rest = (np.float32(1.0) - lifted) / max(np.float32(1.0) - own, floor)
+                        for k in range(3):
+                            share[k] = lifted if k == c else share[k] * rest
+                    for c in range(3):
+                        share[c] = max(share[c], floor)
                     low = np.float32(0.0)
                     for c in range(3):
                         shares[n, c, y - y0, j - x0] = share[c]

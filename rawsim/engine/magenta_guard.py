@@ -9,6 +9,8 @@ the result.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -27,6 +29,14 @@ _JIT = {"cache": True, "error_model": "numpy"}
 _REACH = float(HIGHLIGHT_GUARD_REACH)
 _CHROMA = float(HIGHLIGHT_GUARD_CHROMA)
 _STEPS = int(HIGHLIGHT_GUARD_STEPS)
+#: Greys let go without cube roots: in the band x > y < z (over the white), and where
+#: x − y ≤ this × y and z − y ≤ _NEAR_Z × y, the cube root's concavity bounds a* by
+#: 500/3 · (x − y) / y^(2/3) and |b*| by 200/3 · (z − y) / y^(2/3), so the chroma is at
+#: most 0.92 of the grey bound, HIGHLIGHT_GUARD_CHROMA × 116 f(Y): the answer is the
+#: reference's.
+_NEAR_X, _NEAR_Z = _CHROMA / 2.0, _CHROMA
+if math.hypot(500 / 3 * _NEAR_X, 200 / 3 * _NEAR_Z) >= 116 * _CHROMA:
+    raise AssertionError("the magenta guard's grey shortcut would let colours go")
 
 
 @njit(inline="always", **_JIT)
@@ -40,6 +50,8 @@ def _in_band(r, g, b, m):
     z = max(m[2, 0] * r + m[2, 1] * g + m[2, 2] * b, 0.0)
     if not (x > y and y < z):
         return False
+    if x - y <= _NEAR_X * y and z - y <= _NEAR_Z * y:
+        return False  # a grey: let go before the cube roots (see _NEAR_X)
     fx, fy, fz = np.cbrt(x), np.cbrt(y), np.cbrt(z)
     a, bb = 500.0 * (fx - fy), 200.0 * (fy - fz)
     grey = _CHROMA * 116.0 * fy

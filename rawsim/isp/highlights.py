@@ -280,12 +280,24 @@ def _estimates(means, clipped, anyclip, g):
         torch.where(
             count == 2,
             kappa * hue + (1 - kappa) / 3,
-            torch.where(count == 1, trust * hue + (1 - trust) / 3, hue),
+            torch.where(count == 1, _at_least_white(trust * hue + (1 - trust) / 3, clipped), hue),
         ),
     )
     share = share.clamp_min(HIGHLIGHT_RATIO_FLOOR)
     floor = torch.where(clipped, means / share, 0.0).amax(1, keepdim=True)
     return share, floor
+
+
+def _at_least_white(share, clipped):
+    """Where one colour clipped: ``share`` with the clipped colour's at least a third
+    (the others scaled to keep the sum): rebuilt, it is at least the other two's
+    mean, as bright as white light would make it. A clipped value is a lower bound,
+    and a hue with less of it than white (a border of skin or brick around white light
+    whose green alone clipped) would rebuild it short: magenta."""
+    own = torch.where(clipped, share, 0.0).sum(1, keepdim=True)
+    lifted = own.clamp_min(1.0 / 3.0)
+    rest = (1 - lifted) / (1 - own).clamp_min(HIGHLIGHT_RATIO_FLOOR)
+    return torch.where(clipped, lifted, share * rest)
 
 
 def _white_refuted(means, clipped, g):
