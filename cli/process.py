@@ -77,7 +77,9 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     type=click.Choice(HIGHLIGHTS),
     help="reconstruct (default): rebuild clipped colours on the mosaic from the unclipped "
     "ones and the surrounding hue (as darktable's inpaint opposed); clip at white (LibRaw "
-    "-H 0); unclip: keep values above white (-H 1); blend: dcraw's blend (-H 2).",
+    "-H 0); unclip: keep values above white (-H 1), on the mosaic, a clipped site raised "
+    "to what the unclipped colours of its 2×2 (X-Trans 3×3) block measured, neutral where "
+    "all clipped; blend: dcraw's blend (-H 2).",
 )
 @click.option(
     "--denoise",

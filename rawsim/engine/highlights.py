@@ -1,30 +1,33 @@
-"""Highlight reconstruction of a raw mosaic, compiled: the engine's form of
-:func:`rawsim.isp.highlights.reconstruct_highlights` (the torch reference, which
-defines the method).
+"""Highlight handling on a raw mosaic, compiled: the engine's form of ``unclip`` and
+``reconstruct`` (:func:`rawsim.isp.highlights.unclip_highlights`,
+:func:`rawsim.isp.highlights.reconstruct_highlights`: the torch reference, which
+defines the methods).
 
-:func:`reconstruct_mosaic` is a pre-pass, as raw denoising is: it turns the uint16
-mosaic (DN) into one whose clipped sites hold their rebuilt values (DN, rounded),
-which the render kernels of :mod:`rawsim.engine.process` then take as any raw,
-with no highlight op of their own. The mosaic stages before the highlight stage
-(levels, white balance: the kernels' own arithmetic, tabulated once for every code at
-each levels slot by :func:`~rawsim.engine.process.mosaic_table`) give the linear
-values the method reads; rebuilt values go back through their inverse.
-Values above the white level fit the uint16 codes above it; where they would not
-(a white level near 65535) the whole mosaic is scaled down, and the levels' span
-with it, so the kernels read the same linear values to rounding.
+:func:`reconstruct_mosaic` and :func:`unclip_mosaic` are pre-passes, as raw
+denoising is: each turns the uint16 mosaic (DN) into one whose clipped sites hold
+their rebuilt values (DN, rounded), which the render kernels of
+:mod:`rawsim.engine.process` then take as any raw, with no highlight op of their
+own. The mosaic stages before the highlight stage (levels, white balance: the
+kernels' own arithmetic, tabulated once for every code at each levels slot by
+:func:`~rawsim.engine.process.mosaic_table`) give the linear values the methods
+read; rebuilt values go back through their inverse. Values above the white level
+fit the uint16 codes above it; where they would not (a white level near 65535) the
+whole mosaic is scaled down, and the levels' span with it, so the kernels read the
+same linear values to rounding (:func:`_rewrite`).
 
 Work goes by tiles of ``TILE`` × ``TILE`` blocks, in proportion to what clipped:
 one integer comparison per site finds the tiles that hold a clipped site (nothing
-else when none does). Block means and clip flags are read in those tiles and
-their neighbours only, and kept per tile (no array the size of the mosaic but the
+else when none does). ``unclip`` reads only the blocks of those tiles: each block's
+clipped sites are raised to the largest value of its colours that did not clip.
+``reconstruct`` reads block means and clip flags in those tiles and their
+neighbours only, and keeps them per tile (no array the size of the mosaic but the
 copy that takes the rebuilt sites); the hue fields of their border blocks go into
 a summed-area table per tile (float64), and the box sums at clipped blocks add up
 the tables of the tiles a box covers. Each clipped block keeps its hue and least
 level, and its clipped sites are rebuilt from their 3 × 3 neighbourhoods into a
-copy of the mosaic (again, with every site scaled, in the rare case where rebuilt
-values need codes above 65535). The reference fits each site twice, the second
-time with its rebuilt neighbours at their first values; the engine writes once,
-recomputing a neighbour's first value where the fit reads it (:func:`_site_value`).
+copy of the mosaic. The reference fits each site twice, the second time with its
+rebuilt neighbours at their first values; the engine writes once, recomputing a
+neighbour's first value where the fit reads it (:func:`_site_value`).
 Threads take tiles as they finish one (:mod:`rawsim.engine.tiles`), and the
 kernels release the GIL.
 """
@@ -717,6 +720,62 @@ def _clipped_green(data, cmap, lines):
     return (near, rows) if rows.any() else None
 
 
+def _start(data, cfa: CFA, ops, opf, levels):
+    """What the pre-passes share: the checked mosaic (C-contiguous), ``ops``/``opf`` as
+    arrays, the clip levels ``g`` (float32), the block side b, the whole blocks Hb ×
+    Wb, and the clip codes (:func:`_clip_codes`; None where the mosaic holds no whole
+    block or no site reaches its code)."""
+    ops = np.asarray(ops, dtype=np.int64)
+    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
+        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
+    g = np.asarray(levels, dtype=np.float32)
+    h, w = data.shape
+    b = highlight_block(cfa.colors, cfa.period)
+    hb, wb = h // b, w // b
+    data = np.ascontiguousarray(data)
+    opf = np.asarray(opf, dtype=np.float64)
+    codes = _clip_codes(data, cfa, ops, opf, g) if hb and wb else None
+    return data, ops, opf, g, b, hb, wb, codes
+
+
+def _dn_numbers(ops, opf):
+    """(black, span, applied): each levels slot's black level and span (DN, float32) and
+    each colour's white-balance gain (1 without it), to turn linear values into DN."""
+    black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
+    applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
+    return black, span, applied
+
+
+def _rewrite(data, out, opf, slots, black, span, write):
+    """``data`` into ``out`` (a new array where None) with the rebuilt sites that
+    ``write(out, scale)`` writes (over every site, copied scaled by ``scale`` about its
+    black level; it returns the largest code a rebuilt value needs, unscaled). Where
+    that is above 65535 (a white level near it), every site is scaled down to fit it,
+    and the levels' span with it, so the kernels read the same linear values to
+    rounding. Returns the mosaic and ``opf`` (with the span scaled, if it was)."""
+    threads = numba.get_num_threads()
+    out = np.empty_like(data) if out is None else out
+    scale = np.float32(1.0)
+    _copy(data, out, slots, black, scale, threads)
+    top = write(out, scale)
+    if top > 65535.0:  # rebuilt values need more codes: scale every site to fit them
+        bmax = float(black.max())
+        scale = np.float32((65535.0 - bmax) / (top - bmax))
+        _copy(data, out, slots, black, scale, threads)
+        write(out, scale)
+    if scale < 1:
+        opf = opf.copy()
+        opf[0, 4:8] = (span * scale).astype(np.float64)
+    return out, opf
+
+
+def _tile_list(tiles: np.ndarray) -> np.ndarray:
+    """(n, 2) int64: the rows and columns of the tiles marked in ``tiles`` (Th, Tw).
+    np.argwhere gives an F-ordered array of two or more rows, a C one of one: made C
+    always, so that the kernels have one signature whatever clipped."""
+    return np.ascontiguousarray(np.argwhere(tiles))
+
+
 def reconstruct_mosaic(
     data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None, guard=False
 ) -> tuple[np.ndarray, np.ndarray, tuple | None]:
@@ -732,18 +791,7 @@ def reconstruct_mosaic(
     and ``opf`` with the levels' span scaled where the rebuilt values needed more
     codes than 65535.
     """
-    ops = np.asarray(ops, dtype=np.int64)
-    if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
-        raise ValueError("the highlight pre-pass takes levels, then white balance, only")
-    g = np.asarray(levels, dtype=np.float32)
-    h, w = data.shape
-    b = highlight_block(cfa.colors, cfa.period)
-    hb, wb = h // b, w // b
-    if hb == 0 or wb == 0:
-        return data, opf, None
-    data = np.ascontiguousarray(data)
-    opf = np.asarray(opf, dtype=np.float64)
-    codes = _clip_codes(data, cfa, ops, opf, g)
+    data, ops, opf, g, b, hb, wb, codes = _start(data, cfa, ops, opf, levels)
     if codes is None:
         return data, opf, None
     cmap, slots, table, level, lines = codes
@@ -755,9 +803,7 @@ def reconstruct_mosaic(
     clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
     if not clipped.any():
         return data, opf, near
-    # np.argwhere gives an F-ordered array of two or more rows, a C one of one: made C
-    # always, so that the kernels have one signature whatever clipped.
-    listed = np.ascontiguousarray(np.argwhere(_around(clipped)))  # the tiles read
+    listed = _tile_list(_around(clipped))  # the tiles read
     slot = np.full(clipped.shape, -1, np.int64)
     slot[listed[:, 0], listed[:, 1]] = np.arange(len(listed))
     means = np.empty((len(listed), 3, t, t), np.float32)
@@ -766,7 +812,7 @@ def reconstruct_mosaic(
     sats = _tile_sats(
         means, flags, slot, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
     )
-    tiles = np.ascontiguousarray(np.argwhere(clipped))
+    tiles = _tile_list(clipped)
     shares = np.zeros((len(tiles), 3, t, t), np.float32)
     lows = np.zeros((len(tiles), t, t), np.float32)
     _estimates(
@@ -790,8 +836,7 @@ def reconstruct_mosaic(
         lows,
         threads,
     )
-    black, span = opf[0, :4].astype(np.float32), opf[0, 4:8].astype(np.float32)
-    applied = opf[1, :3].astype(np.float32) if ops.size > 1 else np.ones(3, np.float32)
+    black, span, applied = _dn_numbers(ops, opf)
     headroom = np.float32(HIGHLIGHT_HEADROOM)
     index = np.full(clipped.shape, -1, np.int64)  # each clipped tile's row in ``tiles``
     index[tiles[:, 0], tiles[:, 1]] = np.arange(len(tiles))
@@ -812,16 +857,103 @@ def reconstruct_mosaic(
         level,
         index,
     )
-    out = np.empty_like(data) if out is None else out
-    scale = np.float32(1.0)
-    _copy(data, out, slots, black, scale, threads)
-    top = _write(data, out, site, scale, black, span, applied, threads)
-    if top > 65535.0:  # rebuilt values need more codes: scale every site to fit them
-        bmax = float(black.max())
-        scale = np.float32((65535.0 - bmax) / (top - bmax))
-        _copy(data, out, slots, black, scale, threads)
-        _write(data, out, site, scale, black, span, applied, threads)
-    if scale < 1:
-        opf = opf.copy()
-        opf[0, 4:8] = (span * scale).astype(np.float64)
+
+    def write(out, scale):
+        return _write(data, out, site, scale, black, span, applied, threads)
+
+    out, opf = _rewrite(data, out, opf, slots, black, span, write)
     return out, opf, near
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _unclip(raw, out, codes, b, hb, wb, tiles, scale, dn, threads):
+    """``unclip``'s raised sites into ``out`` (DN, rounded; it already holds every site,
+    scaled by ``scale`` about its black level), in the n tiles listed in ``tiles`` (n,
+    2) of the Hb × Wb whole b × b blocks. ``codes``: (cmap, slots, table, level) of
+    :func:`_clip_codes`, the sites' values read from ``table`` (a row per levels slot);
+    ``dn``: (black, span, applied) of :func:`_dn_numbers`. In each block the colours
+    with a site at or above ``level`` clipped; each of their sites at or above it
+    takes max(its value, T), T the largest value of the block's sites of the colours
+    that did not clip (of all, where all did); sites beyond the last whole block row
+    or column go with that block. Returns the largest code a raised value needs,
+    unscaled: above 65535, the caller writes again with a scale that fits it."""
+    cmap, slots, table, level = codes
+    black, span, applied = dn
+    h, w = raw.shape
+    ph, pw = cmap.shape
+    t = TILE
+    tops = np.zeros(tiles.shape[0], np.float64)
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        peak = np.empty(3, np.float32)
+        while True:
+            n = next_tile(counter)
+            if n >= tiles.shape[0]:
+                break
+            top = 0.0
+            i0, j0 = tiles[n, 0] * t, tiles[n, 1] * t
+            for by in range(i0, min(i0 + t, hb)):
+                for bx in range(j0, min(j0 + t, wb)):
+                    f = 0
+                    peak[:] = -np.inf
+                    for y in range(by * b, by * b + b):
+                        p, q = y % ph, (bx * b) % pw
+                        for x in range(bx * b, bx * b + b):
+                            c = cmap[p, q]
+                            v = table[slots[p, q], raw[y, x]]
+                            q = q + 1 if q + 1 < pw else 0
+                            peak[c] = max(peak[c], v)
+                            if v >= level[c]:
+                                f |= 1 << c
+                    if f == 0:
+                        continue
+                    lift = np.float32(-np.inf)  # T
+                    for c in range(3):
+                        if f == 7 or not f >> c & 1:
+                            lift = max(lift, peak[c])
+                    y1 = h if by == hb - 1 else by * b + b
+                    x1 = w if bx == wb - 1 else bx * b + b
+                    for y in range(by * b, y1):
+                        p, q = y % ph, (bx * b) % pw
+                        for x in range(bx * b, x1):
+                            k, c = slots[p, q], cmap[p, q]
+                            q = q + 1 if q + 1 < pw else 0
+                            v = table[k, raw[y, x]]
+                            if not f >> c & 1 or v < level[c] or lift <= v:
+                                continue  # only clipped sites of clipped colours, raised
+                            code = black[k] + lift / applied[c] * span[k]
+                            top = max(top, np.float64(code))
+                            code = black[k] + lift / applied[c] * span[k] * scale
+                            out[y, x] = np.uint16(min(max(np.rint(code), 0.0), 65535.0))
+            tops[n] = top
+    return tops.max()
+
+
+def unclip_mosaic(
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (H, W) uint16 mosaic ``data`` of ``cfa`` with ``unclip`` applied (into
+    ``out``, uint16 of its shape, where given), and the op numbers ``opf`` to read it
+    with: the engine's form of :func:`rawsim.isp.highlights.unclip_highlights` on a
+    mosaic, to the rounding of raised values to whole DN.
+
+    ``ops``/``opf``/``levels`` as :func:`reconstruct_mosaic` takes them. Returns
+    ``data`` itself and ``opf`` when nothing clipped (one integer comparison per
+    site finds that); else a new mosaic (DN) and ``opf`` with the levels' span scaled
+    where raised values needed more codes than 65535.
+    """
+    data, ops, opf, _, b, hb, wb, codes = _start(data, cfa, ops, opf, levels)
+    if codes is None:
+        return data, opf
+    slots, lines = codes[1], codes[4]
+    threads = numba.get_num_threads()
+    clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
+    if not clipped.any():
+        return data, opf
+    tiles = _tile_list(clipped)
+    dn = _dn_numbers(ops, opf)  # black, span, applied
+
+    def write(out, scale):
+        return _unclip(data, out, codes[:4], b, hb, wb, tiles, scale, dn, threads)
+
+    return _rewrite(data, out, opf, slots, *dn[:2], write)

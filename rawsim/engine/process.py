@@ -61,8 +61,8 @@ DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3, "learned": 4
 #: Pointwise op codes (mosaic and RGB stages).
 #: OP_ROOT/OP_SQUARE: into and out of the demosaic's root domain (the reference's
 #: ``rawsim.isp.demosaic.to_root``/``from_root``), the last mosaic op and the first RGB op.
-#: OP_CLIP clips at its number; OP_UNCLIP (RGB) raises each colour that reached its
-#: threshold (numbers 0–2) to the pixel's largest value.
+#: OP_CLIP clips at its number. (``unclip`` and ``reconstruct`` are pre-passes on the
+#: mosaic: :mod:`rawsim.engine.highlights`.)
 (
     OP_LEVELS,
     OP_SHADING,
@@ -73,8 +73,7 @@ DEMOSAIC_CODES = {"bilinear": 0, "malvar": 1, "menon": 2, "wcd": 3, "learned": 4
     OP_EXPOSURE,
     OP_ROOT,
     OP_SQUARE,
-    OP_UNCLIP,
-) = range(10)
+) = range(9)
 #: Numbers an op takes at most (the columns of the ops' number arrays).
 OP_NUMBERS = 20
 #: Transfer codes of the output: table (tone ∘ transfer on [0, 1]), power law, none.
@@ -887,13 +886,6 @@ def _rgb_stage(op, p, r, g, b, y, x0, h, w):
         top = np.float32(p[0])
         for q in range(r.size):
             r[q], g[q], b[q] = min(r[q], top), min(g[q], top), min(b[q], top)
-    elif op == OP_UNCLIP:
-        tr, tg, tb = np.float32(p[0]), np.float32(p[1]), np.float32(p[2])
-        for q in range(r.size):
-            top = max(max(r[q], g[q]), b[q])
-            r[q] = top if r[q] >= tr else r[q]
-            g[q] = top if g[q] >= tg else g[q]
-            b[q] = top if b[q] >= tb else b[q]
     elif op == OP_MATRIX:
         m = (
             np.float32(p[0]),

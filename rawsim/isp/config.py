@@ -71,13 +71,14 @@ DEMOSAIC_ROOT_EPS = 1e-4
 #: Where each colour saturates (the black level stage's ``saturation``): where its sites
 #: pile up in the data below the white level, if they do, or the white level.
 SATURATION_SOURCES = ("data", "white")
-#: ``clip`` at white (LibRaw -H 0); ``unclip``: none (-H 1) but where every colour
-#: clipped (neutral there, on RGB); ``blend``: dcraw's blend (-H 2, on RGB);
-#: ``reconstruct``: clipped sites rebuilt from the unclipped colours and the hue around
-#: them, on the mosaic (:mod:`rawsim.isp.highlights`).
+#: ``clip`` at white (LibRaw -H 0); ``unclip``: none (-H 1), but a clipped site is only
+#: a lower bound, raised to the largest value its block's unclipped colours measured
+#: (neutral where every colour clipped), on the mosaic; ``blend``: dcraw's blend (-H 2,
+#: on RGB); ``reconstruct``: clipped sites rebuilt from the unclipped colours and the
+#: hue around them, on the mosaic (:mod:`rawsim.isp.highlights`).
 HIGHLIGHT_MODES = ("clip", "blend", "reconstruct", "unclip")
-#: The highlight modes that work on RGB: after the demosaic.
-RGB_HIGHLIGHT_MODES = ("blend", "unclip")
+#: The highlight modes that work on RGB only: after the demosaic.
+RGB_HIGHLIGHT_MODES = ("blend",)
 #: ``reconstruct``: a site is clipped at this share of its colour's clip level (the
 #: white-balance gain: white = 1 before it).
 HIGHLIGHT_CLIPPED = 0.99
@@ -557,8 +558,9 @@ class HighlightsStage(Stage):
     mode: str = _param(
         "reconstruct",
         _choice(HIGHLIGHT_MODES),
-        "reconstruct (before demosaic; the default), clip, unclip (none, but neutral where "
-        "every colour clipped) or blend (unclip and blend after demosaic)",
+        "reconstruct (before demosaic; the default), clip, unclip (none, but a clipped site "
+        "is raised to what its block's unclipped colours measured: neutral where every "
+        "colour clipped; before demosaic) or blend (after demosaic)",
     )
 
 
@@ -935,8 +937,8 @@ class IspConfig:
         ``exposure``, ``baseline_exposure``, ``output_space``, ``transfer``, ``lens``,
         ``focal_length``, ``aperture``, ``lens_correction``); None leaves a value as it is.
         A flag enables its stage (adding it, if missing, where the default order has it);
-        ``highlights blend`` and ``unclip`` move the stage to just after demosaic,
-        ``reconstruct`` to just before; ``lens_correction`` ``auto`` enables the lens
+        ``highlights blend`` moves the stage to just after demosaic, ``reconstruct`` and
+        ``unclip`` to just before; ``lens_correction`` ``auto`` enables the lens
         stage, ``off`` disables it (then no other lens flag may be given); ``denoise``
         enables the ``raw_denoise`` stage for a raw method (``profiled``) or the
         ``denoise`` stage for a filter (``gaussian``, ``bilateral``), and disables the
@@ -988,8 +990,8 @@ class IspConfig:
             typed = f"--{flag.replace('_', '-')} {value}"
             asked.setdefault(stage.name, "--half-size" if value == HALF_SIZE else typed)
             if stage is HighlightsStage and value in ("blend", "unclip", "reconstruct"):
-                # Blending and unclip's neutral fill need RGB: move the stage to just
-                # after demosaic; reconstruction reads the mosaic: just before it.
+                # Blending needs RGB: move the stage to just after demosaic;
+                # reconstruction and unclip read the mosaic: just before it.
                 tables.remove(table)
                 at = next(i for i, t in enumerate(tables) if t["name"] == DemosaicStage.name)
                 tables.insert(at + (value in RGB_HIGHLIGHT_MODES), table)

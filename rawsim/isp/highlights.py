@@ -9,21 +9,30 @@ colour, which turns clipped highlights magenta. ``clip`` limits every value to t
 least level (the one intended clipping here; value by value, so on a mosaic of any
 CFA as on RGB, as LibRaw does before demosaicking): with the gains LibRaw scales
 for its clip, that least level is 1 and every saturated site reaches it, so what
-clipped in every colour is white. ``unclip`` (RGB) keeps values above white
-(LibRaw's ``-H 1``), but a colour that reached its level (``HIGHLIGHT_CLIPPED`` of
-it) is known only to be at least that bright, and takes the pixel's largest value:
-clipped light is never darker in one colour than in the others, so where every
-colour clipped the pixel is neutral, not the magenta of the levels' spread, and
-where green clipped beside red and blue it is not magenta either. ``blend`` (RGB
-only) keeps the clipped image's lightness and the unclipped image's hue, with the
-chroma scaled to the clipped chroma's size, where any channel exceeds the least
-level — dcraw's ``-H 2``.
+clipped in every colour is white. ``blend`` (RGB only) keeps the clipped image's
+lightness and the unclipped image's hue, with the chroma scaled to the clipped
+chroma's size, where any channel exceeds the least level — dcraw's ``-H 2``.
+
+``unclip`` (:func:`unclip_highlights`) keeps values above white (LibRaw's ``-H 1``),
+but a clipped value (``HIGHLIGHT_CLIPPED`` of its colour's level or above) is only a
+lower bound: clipped light is never darker in one colour than the colours beside it
+measured. On a mosaic, before the demosaic (the demosaic would otherwise pull a
+clipped green's interpolated value at red and blue sites below its level, so that
+green is not raised and the pixel turns magenta), it is read in b × b blocks that
+hold every colour (:func:`~rawsim.isp.config.highlight_block`: 2 for Bayer, 3 for
+X-Trans; rows and columns beyond the whole blocks take the last block's decision).
+In each block: which colours clipped (any of their sites); each clipped site of
+those becomes max(its value, T), T the largest value among the block's sites of the
+colours that did not clip, or, where every colour clipped, among all the block's
+sites (a block clipped in every colour is neutral). Sites of unclipped colours keep
+their values. On RGB (after the demosaic, or 3-channel data) a pixel is the block.
 
 ``reconstruct`` (:func:`reconstruct_highlights`) rebuilds the clipped colours of
 a mosaic (or RGB image) from the colours that did not clip and from the hue of
 the unclipped surround, in the spirit of darktable's "inpaint opposed": each
 colour clips at its own level, so where one or two colours clip the others still
-measure the light. The compiled engine's form is :mod:`rawsim.engine.highlights`.
+measure the light. The compiled engine's form of ``unclip`` and ``reconstruct`` on
+the mosaic is :mod:`rawsim.engine.highlights`.
 """
 
 from __future__ import annotations
@@ -60,27 +69,25 @@ def handle_highlights(
     x: torch.Tensor, mode: str = "clip", levels=None, cfa: CFA | None = None
 ) -> torch.Tensor:
     """Apply ``mode`` to white-balanced linear data, colour c clipping at ``levels[c]``
-    (R, G, B; default 1 each): a mosaic (B, 1, H, W) of any CFA or an image (B, C, H,
-    W) for ``clip`` (values ≤ the least level out), RGB (B, 3, H, W) for ``unclip``
-    (each colour at ``HIGHLIGHT_CLIPPED`` × its level or above takes the pixel's
-    largest value; the others are unchanged) and
-    ``blend`` (values above the least level may remain), a mosaic with its ``cfa`` or
-    RGB for ``reconstruct`` (:func:`reconstruct_highlights`)."""
+    (R, G, B; default 1 each; ``reconstruct`` needs them): a mosaic (B, 1, H, W) of any
+    CFA or an image (B, C, H, W) for ``clip`` (values ≤ the least level out), a mosaic
+    with its ``cfa`` or RGB (B, 3, H, W) for ``unclip`` (:func:`unclip_highlights`)
+    and ``reconstruct`` (:func:`reconstruct_highlights`), RGB for ``blend`` (values
+    above the least level may remain)."""
     check_choice("highlight mode", mode, HIGHLIGHT_MODES)
     check_image(x, "image")
     if mode == "reconstruct":
         if levels is None:
             raise ParameterError("highlight mode 'reconstruct' needs the colours' clip levels")
         return reconstruct_highlights(x, levels, cfa)
+    if mode == "unclip":
+        return unclip_highlights(x, (1.0, 1.0, 1.0) if levels is None else levels, cfa)
     level = _levels(x, (1.0, 1.0, 1.0) if levels is None else levels)
     least = float(level.min())
     if mode == "clip":
         return x.clamp(max=least)
     if x.shape[1] != 3:
         raise ParameterError(f"highlight mode {mode!r} needs RGB: put the stage after demosaic")
-    if mode == "unclip":
-        clipped = x >= HIGHLIGHT_CLIPPED * level.reshape(1, 3, 1, 1)
-        return torch.where(clipped, x.amax(dim=1, keepdim=True).expand_as(x), x)
     trans = _TRANS.to(x.dtype).to(x.device)
     inverse = torch.linalg.inv(_TRANS).to(x.dtype).to(x.device)
     clipped = x.clamp(max=least)
@@ -103,6 +110,64 @@ def _levels(x: torch.Tensor, levels) -> torch.Tensor:
     if not bool((g > 0).all()):
         raise ParameterError("the colours' clip levels must be positive")
     return g
+
+
+def unclip_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> torch.Tensor:
+    """Values above white kept, clipped values raised to what the colours beside them
+    measured: a white-balanced mosaic (B, 1, H, W) of ``cfa``, or RGB (B, 3, H, W),
+    linear, colour c clipping at ``levels[c]`` (R, G, B). Returns the same shape; no
+    value is lowered, none is clipped.
+
+    A clipped value (a site ≥ ``HIGHLIGHT_CLIPPED`` of its colour's level) is only a
+    lower bound. The mosaic is read in b × b blocks that hold every colour
+    (:func:`highlight_block`: 2 for Bayer, 3 for X-Trans; rows and columns beyond the
+    whole blocks take the last block's decision, as :func:`reconstruct_highlights`
+    does); on RGB a pixel is the block. In each block, the colours that clipped (any
+    of their sites clipped) are found; each clipped site of those becomes max(its
+    value, T), T the largest value among the block's sites of the colours that did
+    not clip, or, where every colour clipped, the largest among all the block's sites
+    (a block clipped in every colour is neutral, at its brightest site). Sites of
+    colours that did not clip in their block, and sites below their colour's clip
+    threshold, keep their values. Differentiable almost everywhere (the maxima pass
+    the gradient to the values they take).
+    """
+    check_image(x, "image")
+    g = _levels(x, levels)
+    cmap, b = _layout(x, cfa, "unclip")
+    h, w = x.shape[-2:]
+    hb, wb = h // b, w // b
+    if hb == 0 or wb == 0:
+        return x
+    _, clipped, peaks = _blocks(x, g, cmap, b, hb, wb)
+    # T: the largest value of the colours that did not clip; of all where all did
+    every = clipped.all(1, keepdim=True)
+    top = torch.where(clipped & ~every, -torch.inf, peaks).amax(1, keepdim=True)
+    if cmap is None:
+        return torch.where(clipped, torch.maximum(x, top), x)
+    index = cmap.expand(x.shape[0], 1, h, w)
+    level = (HIGHLIGHT_CLIPPED * g)[cmap]
+    clip_site = (_grow(clipped.to(x.dtype), b, h, w).gather(1, index) > 0) & (x >= level)
+    return torch.where(clip_site, torch.maximum(x, _grow(top, b, h, w)), x)
+
+
+def _layout(x: torch.Tensor, cfa: CFA | None, mode: str):
+    """(colour map, block side) of a mosaic of ``cfa`` (:func:`colour_map`,
+    :func:`highlight_block`), or (None, 1) for RGB: a pixel is the block."""
+    if x.shape[1] == 3:
+        return None, 1
+    if x.shape[1] != 1:
+        raise ParameterError(f"{mode} needs a mosaic or RGB, got shape {tuple(x.shape)}")
+    if cfa is None:
+        raise ParameterError("a mosaic (B, 1, H, W) needs its CFA pattern")
+    return colour_map(cfa, *x.shape[-2:], x.device), highlight_block(cfa.colors, cfa.period)
+
+
+def _grow(t: torch.Tensor, b: int, h: int, w: int) -> torch.Tensor:
+    """Block values (B, C, Hb, Wb) at each site (B, C, H, W) of their b × b blocks;
+    the rows and columns beyond whole blocks take the last block's."""
+    hb, wb = t.shape[-2:]
+    sites = t.repeat_interleave(b, -2).repeat_interleave(b, -1)
+    return F.pad(sites, (0, w - wb * b, 0, h - hb * b), mode="replicate")
 
 
 def reconstruct_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> torch.Tensor:
@@ -161,20 +226,12 @@ def reconstruct_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> t
     """
     check_image(x, "image")
     g = _levels(x, levels)
-    if x.shape[1] == 3:
-        cmap, b = None, 1
-    elif x.shape[1] == 1:
-        if cfa is None:
-            raise ParameterError("a mosaic (B, 1, H, W) needs its CFA pattern")
-        b = highlight_block(cfa.colors, cfa.period)
-        cmap = colour_map(cfa, *x.shape[-2:], x.device)
-    else:
-        raise ParameterError(f"reconstruct needs a mosaic or RGB, got shape {tuple(x.shape)}")
+    cmap, b = _layout(x, cfa, "reconstruct")
     h, w = x.shape[-2:]
     hb, wb = h // b, w // b
     if hb == 0 or wb == 0:
         return x
-    means, clipped = _blocks(x, g, cmap, b, hb, wb)
+    means, clipped, _ = _blocks(x, g, cmap, b, hb, wb)
     anyclip = clipped.any(1, keepdim=True)
     if not bool(anyclip.any()):
         return x
@@ -183,10 +240,7 @@ def reconstruct_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> t
         est = _level_estimates(means, share, floor, ~clipped, g)
         return torch.where(clipped, torch.maximum(x, est), x)
     # Each site takes its block's value (edge rows/columns beyond whole blocks the last).
-    pad = (0, w - wb * b, 0, h - hb * b)
-    grow = lambda t: F.pad(  # noqa: E731
-        t.repeat_interleave(b, -2).repeat_interleave(b, -1), pad, mode="replicate"
-    )
+    grow = lambda t: _grow(t, b, h, w)  # noqa: E731
     index = cmap.expand(x.shape[0], 1, h, w)
     free = grow((~clipped).to(x.dtype)) > 0
     share, floor = grow(share), grow(floor)
@@ -209,10 +263,12 @@ def colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
 
 
 def _blocks(x, g, cmap, b, hb, wb):
-    """Per block (B, 3, Hb, Wb): each colour's mean, and whether it clipped."""
+    """Per block (B, 3, Hb, Wb): each colour's mean, whether it clipped (a site ≥
+    ``HIGHLIGHT_CLIPPED`` × its level), and its largest value; on RGB (``cmap`` None)
+    the pixel's."""
     level = (HIGHLIGHT_CLIPPED * g).reshape(1, 3, 1, 1)
     if cmap is None:
-        return x, x >= level
+        return x, x >= level, x
     n = x.shape[0]
     site = x[..., : hb * b, : wb * b]
     colour = cmap[..., : hb * b, : wb * b]
@@ -220,8 +276,9 @@ def _blocks(x, g, cmap, b, hb, wb):
     split = (n, 3, hb, b, wb, b)
     sums = torch.where(onehot, site, 0.0).reshape(split).sum((3, 5))
     counts = onehot.to(x.dtype).reshape(1, *split[1:]).sum((3, 5))
+    peaks = torch.where(onehot, site, -torch.inf).reshape(split).amax((3, 5))
     over = onehot & (site >= level.reshape(3)[colour])
-    return sums / counts, over.reshape(split).any(5).any(3)
+    return sums / counts, over.reshape(split).any(5).any(3), peaks
 
 
 def _box(a: torch.Tensor, s: int) -> torch.Tensor:
@@ -413,8 +470,8 @@ class Highlights(nn.Module):
     """Highlight stage; ``reverse`` is the identity (clipped values are lost).
 
     ``levels``: where each colour clips (R, G, B; default 1 each; ``reconstruct``
-    needs them); ``reconstruct`` on a mosaic needs its ``cfa``, and :attr:`radius` is
-    then its reach in rows (strips carry that much context).
+    needs them); ``unclip`` and ``reconstruct`` on a mosaic need its ``cfa``, and
+    :attr:`radius` is then their reach in rows (strips carry that much context).
     """
 
     def __init__(self, mode: str = "clip", levels=None, cfa: CFA | None = None) -> None:
@@ -427,9 +484,11 @@ class Highlights(nn.Module):
 
     @property
     def radius(self) -> int:
-        if self.mode != "reconstruct":
+        if self.mode not in ("reconstruct", "unclip"):
             return 0
         b = highlight_block(self.cfa.colors, self.cfa.period) if self.cfa else 1
+        if self.mode == "unclip":
+            return b  # a site reads its own block
         return (max(HIGHLIGHT_SCALES) + HIGHLIGHT_BORDER + 2) * b
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

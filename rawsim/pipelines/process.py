@@ -37,7 +37,6 @@ from rawsim.io.task import Task
 from rawsim.io.thumbnail import read_thumbnail
 from rawsim.isp.config import (
     HALF_SIZE,
-    HIGHLIGHT_CLIPPED,
     HIGHLIGHT_TRANSFORM,
     ORIENTATION_OPS,
     TONE_WHITE_RANGE,
@@ -159,6 +158,9 @@ def _render(resolved: ResolvedIsp, device):
 # ------------------------------------------------------------------ engine
 #: The stages the output table evaluates, after every other pointwise stage.
 _TAIL_STAGES = (ToneStage, TransferStage)
+#: The highlight modes the engine runs as a pre-pass on the mosaic
+#: (:mod:`rawsim.engine.highlights`), not as a pointwise op.
+MOSAIC_HIGHLIGHTS = ("reconstruct", "unclip")
 #: The engine's smallest Bayer image: every tile's halo must mirror inside the image.
 ENGINE_MIN_SIZE = 16
 
@@ -192,8 +194,10 @@ class EnginePlan:
     #: :func:`rawsim.denoise.learned.refine_mosaic`), or None: the kernels render the
     #: mosaic it gives.
     denoise: tuple | None = None
-    #: ``highlights reconstruct``: (the colours' clip levels, the count of mosaic ops
-    #: before the stage) for :func:`rawsim.engine.highlights.reconstruct_mosaic`, or None.
+    #: ``highlights reconstruct`` or ``unclip`` on the mosaic: (the mode, the colours'
+    #: clip levels, the count of mosaic ops before the stage) for the pre-pass of
+    #: :mod:`rawsim.engine.highlights` (:func:`~rawsim.engine.highlights.reconstruct_mosaic`,
+    #: :func:`~rawsim.engine.highlights.unclip_mosaic`), or None.
     highlights: tuple | None = None
     #: The lens whose lateral CA :func:`rawsim.engine.lens.correct_mosaic_tca` takes out
     #: of the mosaic before the kernels (:attr:`~rawsim.isp.config.ResolvedIsp.tca_on_mosaic`;
@@ -232,14 +236,11 @@ def _black_per_colour(raw: RawImage) -> np.ndarray | None:
 
 
 def _highlights_op(ep, stage: HighlightsStage, r: ResolvedIsp):
-    """``clip`` at the least clip level; ``unclip`` (RGB): each colour at
-    ``HIGHLIGHT_CLIPPED`` × its level or above to the pixel's largest; ``blend`` (RGB):
-    dcraw's, above the least."""
+    """``clip`` at the least clip level; ``blend`` (RGB): dcraw's, above the least.
+    (``unclip`` and ``reconstruct`` are pre-passes on the mosaic: :data:`MOSAIC_HIGHLIGHTS`.)"""
     levels = np.asarray(r.clip_levels, dtype=np.float64)
     if stage.mode == "clip":
         return ep.OP_CLIP, [levels.min()]
-    if stage.mode == "unclip":
-        return ep.OP_UNCLIP, [*(np.float32(HIGHLIGHT_CLIPPED) * levels)]
     trans = np.array(HIGHLIGHT_TRANSFORM)
     return ep.OP_BLEND, [*trans.ravel(), *np.linalg.inv(trans).ravel(), levels.min()]
 
@@ -299,14 +300,16 @@ def _engine_plan(resolved: ResolvedIsp, fmt: str) -> EnginePlan | None:
             learned = resolved.info["raw_denoise"] == "learned"
             denoise = (*stage_model(resolved), stage.strength, learned)
             continue
-        if isinstance(stage, HighlightsStage) and stage.mode == "reconstruct":
+        if isinstance(stage, HighlightsStage) and stage.mode in MOSAIC_HIGHLIGHTS:
             codes = [op for op, _ in pre]
             if not resolved.config.before_demosaic(stage) or codes not in (
                 [ep.OP_LEVELS],
                 [ep.OP_LEVELS, ep.OP_WB],
             ):
-                return None  # the pre-pass reads levels and white balance only
-            highlights = (resolved.clip_levels, len(pre))
+                # the pre-pass reads levels and white balance only; unclip after the
+                # demosaic (per pixel, as a config may place it) is the reference's
+                return None
+            highlights = (stage.mode, resolved.clip_levels, len(pre))
             guard = resolved.magenta_guard
             continue
         if isinstance(stage, LensCorrectionStage):
@@ -419,7 +422,8 @@ def _tail_curve(
 #: The kernel's output of a batch's last file, once written (:func:`release`), for
 #: the next file of its size and type to render into (``engine_render(reuse=True)``).
 _spare = Spare()
-#: The mosaic ``reconstruct`` rebuilt for a batch's last file, for the next file's.
+#: The mosaic ``reconstruct`` or ``unclip`` rebuilt for a batch's last file, for the next
+#: file's.
 _rebuilt = Spare()
 
 
@@ -445,7 +449,7 @@ def engine_render(
     other patterns (default: the engine's). ``reuse``: render into the array that
     :func:`release` gave back, if it fits (a batch's files, one after another); the
     caller gives the samples back once it no longer needs them (and the mosaic that
-    ``reconstruct`` rebuilds is kept for the next file's).
+    ``reconstruct`` or ``unclip`` rebuilds is kept for the next file's).
     """
     spare = None
     if plan.denoise is not None:
@@ -461,15 +465,19 @@ def engine_render(
             data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
         raw, plan = replace(raw, data=data), replace(plan, denoise=None)
     if plan.highlights is not None:
-        from rawsim.engine.highlights import reconstruct_mosaic
+        from rawsim.engine.highlights import reconstruct_mosaic, unclip_mosaic
 
-        levels, at = plan.highlights
+        mode, levels, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
         spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
-        guard = plan.guard is not None
-        data, numbers, near = reconstruct_mosaic(
-            raw.data, raw.cfa, ops, numbers, levels, out=spare, guard=guard
-        )
+        if mode == "reconstruct":
+            guard = plan.guard is not None
+            data, numbers, near = reconstruct_mosaic(
+                raw.data, raw.cfa, ops, numbers, levels, out=spare, guard=guard
+            )
+        else:
+            data, numbers = unclip_mosaic(raw.data, raw.cfa, ops, numbers, levels, out=spare)
+            near = None
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
         plan = replace(plan, pre_f=pre_f, highlights=None, near=near)
