@@ -49,10 +49,27 @@ thing simulated. ``--pictures DIR`` writes the docs' crops of it
 reconstruct at 1 stop, each matched to the truth by its gain, shown in sRGB with
 the truth's brightest at white (what a sensor with more headroom would show).
 
+Then real raws with blown highlights (``--corpus``, one folder or more; default
+tests/data/highlights, crops of seven cameras' raws, and the real raws of
+tests/data/raw): no truth there, but where LibRaw renders white rawsim should
+too. Of the pixels that LibRaw's ``dcraw_emu -w -H 0`` (camera white balance,
+clip, its auto-brightening, 8 bits) renders at 0.9 or more in every channel,
+each mode's 8-bit sRGB render (``rawsim process`` with ``--highlights MODE``, its
+defaults otherwise) is scored by
+
+* magenta %: green below 0.85 × the lesser of red and blue (target ≤ 0.1 %);
+* ΔC*: its CIELAB chroma less that of LibRaw's render matched to it
+  (``dcraw_emu -w -H 0 -W -g 2.4 12.92``: no auto-brightening, the sRGB curve),
+  the mean and the 95th percentile (target: the mean within 5);
+
+with LibRaw's ``-H 2`` and ``-H 5`` (``-W -g 2.4 12.92``) and darktable's default
+(sRGB, its default tone mapping) scored for magenta in the same pixels. Each
+file's saturation levels (``rawsim info``'s) are printed with it.
+
 The machine is printed first. Usage::
 
     python benchmarks/bench_highlights.py [--images DIR] [--profile NAME] [--keep DIR]
-        [--real RAW] [--pictures DIR]
+        [--real RAW] [--pictures DIR] [--corpus DIR ...] [--corpus-only]
 """
 
 from __future__ import annotations
@@ -429,6 +446,104 @@ def crops(scored: dict, truths: dict, region: np.ndarray, path: Path) -> None:
     print(f"  wrote {path} (window rows {y0}–{y0 + ch}, columns {x0}–{x0 + cw})")
 
 
+# ------------------------------------------------------------------ real raws
+#: The corpus's magenta test and its bound (the issue's): green below this share of the
+#: lesser of red and blue.
+MAGENTA_GREEN = 0.85
+RAW_SUFFIXES = {".dng", ".crw", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef"}
+RAW_SUFFIXES |= {".kdc", ".qtk", ".srw", ".x3f", ".3fr", ".iiq", ".mrw", ".dcr"}
+
+
+def srgb_chroma(rgb: np.ndarray) -> np.ndarray:
+    """CIELAB chroma (D65) of sRGB-encoded values in [0, 1], (..., 3) → (...)."""
+    linear = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    out = lab(linear.reshape(-1, 3), 1.0)
+    return np.hypot(out[:, 1], out[:, 2]).reshape(rgb.shape[:-1])
+
+
+def dcraw_emu(raw: Path, work: Path, *flags: str) -> np.ndarray:
+    """LibRaw's 8-bit render (``dcraw_emu -w FLAGS -T``) as floats in [0, 1]."""
+    import tifffile
+
+    out = work / f"{raw.name}.{'_'.join(f.strip('-') for f in flags)}.tiff"
+    cmd = ["dcraw_emu", "-w", *flags, "-T", "-Z", str(out), str(raw)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return tifffile.imread(out).astype(np.float64) / 255
+
+
+def rawsim_png(raw: Path, work: Path, mode: str) -> np.ndarray:
+    """rawsim's default 8-bit sRGB render with ``--highlights mode`` in [0, 1]."""
+    import OpenImageIO as oiio
+
+    out = work / f"rawsim_{mode}"
+    cmd = ["rawsim", "-q", "process", str(raw), "-o", str(out), "--highlights", mode, "--overwrite"]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return oiio.ImageBuf(str(out / f"{raw.stem}.png")).get_pixels(oiio.FLOAT)[..., :3].astype(float)
+
+
+def darktable_png(raw: Path, work: Path) -> np.ndarray | None:
+    """darktable's default render (sRGB PNG), or None where it cannot export."""
+    import OpenImageIO as oiio
+
+    src, out = work / f"dt{raw.suffix}", work / "dt.png"
+    shutil.copy(raw, src)
+    out.unlink(missing_ok=True)
+    cmd = ["darktable-cli", str(src), str(out), "--core", "--configdir", str(work / "dtconf")]
+    subprocess.run([*cmd, "--library", ":memory:"], capture_output=True, check=False)
+    if not out.exists():
+        return None
+    return oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3].astype(float)
+
+
+def magenta(rgb: np.ndarray) -> np.ndarray:
+    return rgb[..., 1] < MAGENTA_GREEN * np.minimum(rgb[..., 0], rgb[..., 2])
+
+
+def corpus(folders: list[Path], work: Path) -> None:
+    """The real raws' table (module docstring)."""
+    from rawsim.io.raw import read_raw
+    from rawsim.isp.config import IspConfig, resolve
+
+    files = sorted(
+        p for f in folders for p in Path(f).iterdir() if p.suffix.lower() in RAW_SUFFIXES
+    )
+    print(f"\nreal raws: {len(files)} files; where dcraw_emu -w -H 0 renders ≥ 0.9 everywhere")
+    head = "  ".join(f"{m:>20s}" for m in MODES)
+    print(f"{'file':34s} {'pixels':>7s}  {head}  {'LibRaw -H 2/-H 5, darktable':>28s}")
+    worst = {m: (0.0, 0.0) for m in MODES}
+    for raw in files:
+        work.mkdir(parents=True, exist_ok=True)
+        white = (dcraw_emu(raw, work, "-H", "0") >= 0.9).all(-1)
+        matched = dcraw_emu(raw, work, "-H", "0", "-W", "-g", "2.4", "12.92")
+        cells = []
+        for mode in MODES:
+            ours = rawsim_png(raw, work, mode)
+            h, w = min(ours.shape[0], white.shape[0]), min(ours.shape[1], white.shape[1])
+            region = white[:h, :w]
+            n = max(int(region.sum()), 1)
+            share = 100 * (magenta(ours[:h, :w]) & region).sum() / n
+            dc = (srgb_chroma(ours[:h, :w]) - srgb_chroma(matched[:h, :w]))[region]
+            mean, p95 = (float(dc.mean()), float(np.percentile(dc, 95))) if dc.size else (0, 0)
+            cells.append(f"{share:5.2f}% {mean:+5.2f}/{p95:5.1f}")
+            worst[mode] = (max(worst[mode][0], share), max(worst[mode][1], mean))
+        anchors = []
+        for render in (
+            dcraw_emu(raw, work, "-H", "2", "-W", "-g", "2.4", "12.92"),
+            dcraw_emu(raw, work, "-H", "5", "-W", "-g", "2.4", "12.92"),
+            darktable_png(raw, work),
+        ):
+            if render is None or render.shape != white.shape:
+                anchors.append("   —")
+                continue
+            anchors.append(f"{100 * (magenta(render) & white).sum() / max(white.sum(), 1):5.2f}%")
+        print(f"{raw.name[:34]:34s} {int(white.sum()):7d}  {'  '.join(cells)}  {' '.join(anchors)}")
+        levels = resolve(IspConfig.default(), read_raw(raw)).info["saturation"]
+        if levels:
+            found = [f"{c} {v:g}" for c, v in zip("RGB", levels["levels"], strict=True)]
+            print(f"{'':34s} saturation: {', '.join(found)}")
+    print("worst file: " + ", ".join(f"{m} {s:.2f}% ΔC* {d:+.2f}" for m, (s, d) in worst.items()))
+
+
 def table(results: dict, unit: str = "EV") -> None:
     for ev, rows in results.items():
         where = f"+{ev} EV" if unit == "EV" else f"{ev:g} stops below the brightest green"
@@ -457,12 +572,25 @@ def main() -> None:
         "--real", type=Path, default=HERE / "tests" / "data" / "raw" / "canon_eos60d_mlv.dng"
     )
     parser.add_argument("--pictures", type=Path, help="write the docs' crops of the real raw here")
+    parser.add_argument(
+        "--corpus",
+        type=Path,
+        nargs="+",
+        default=[HERE / "tests" / "data" / "highlights", HERE / "tests" / "data" / "raw"],
+        help="folders of real raws with blown highlights",
+    )
+    parser.add_argument("--corpus-only", action="store_true", help="only the real raws' table")
     args = parser.parse_args()
+    work = args.keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
+    if args.corpus_only:
+        for line in describe():
+            print(line)
+        corpus(args.corpus, work / "corpus")
+        return
     sets = {folder: sorted(folder.glob("*.exr")) for folder in args.images}
     for folder, images in sets.items():
         if not images:
             sys.exit(f"no EXR images in {folder}")
-    work = args.keep or Path(tempfile.mkdtemp(prefix="bench_highlights_"))
     darktable = Darktable(work / "darktable") if shutil.which("darktable-cli") else None
     if darktable is None:
         print("darktable-cli is not installed: its row is left out")
@@ -480,6 +608,7 @@ def main() -> None:
         print("\n== every folder")
         table(merged)
     table(real(args.real, work, darktable, args.pictures), unit="stops")
+    corpus(args.corpus, work / "corpus")
 
 
 if __name__ == "__main__":

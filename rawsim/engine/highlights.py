@@ -176,26 +176,36 @@ def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, threads)
             i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
             i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
             # Clipped blocks within 1 and within ``border`` columns, for the tile's rows and
-            # ``border`` rows each side: then the same down the columns.
+            # ``border`` rows each side (running counts along each row of the blocks'
+            # clip flags): then the same down the columns.
             a0, a1 = max(i0 - border, 0), min(i1 + border, hb)
+            c0, c1 = max(j0 - border, 0), min(j1 + border, wb)
             wide = np.zeros((a1 - a0, j1 - j0), np.uint8)
+            run = np.zeros(c1 - c0 + 1, np.int32)
             for i in range(a0, a1):
+                for jj in range(c0, c1):
+                    run[jj - c0 + 1] = run[jj - c0] + (_at(flags, slot, i, jj) != 0)
                 for j in range(j0, j1):
-                    v = np.uint8(0)
-                    for jj in range(max(j - border, 0), min(j + border + 1, wb)):
-                        if _at(flags, slot, i, jj):
-                            v |= 2 if abs(jj - j) <= 1 else 1
-                    wide[i - a0, j - j0] = v
+                    lo, hi = max(j - border, 0) - c0, min(j + border + 1, wb) - c0
+                    near_lo, near_hi = max(j - 1, 0) - c0, min(j + 2, wb) - c0
+                    v = np.uint8(1 if run[hi] > run[lo] else 0)
+                    wide[i - a0, j - j0] = v | (2 if run[near_hi] > run[near_lo] else 0)
+            # running counts down each column: any within ``border`` rows, and within 1
+            down = np.zeros((a1 - a0 + 1, j1 - j0, 2), np.int32)
+            for ii in range(a1 - a0):
+                for j in range(j1 - j0):
+                    v = wide[ii, j]
+                    down[ii + 1, j, 0] = down[ii, j, 0] + (v != 0)
+                    down[ii + 1, j, 1] = down[ii, j, 1] + (v >= 2)
             sat = sats[k]
             around = np.empty(3, np.float32)  # the block's 3 × 3 blocks' colour means
             field = np.zeros(FIELDS, np.float64)
             for i in range(i0, i1):
+                lo, hi = max(i - border, 0) - a0, min(i + border + 1, hb) - a0
+                near_lo, near_hi = max(i - 1, 0) - a0, min(i + 2, hb) - a0
                 for j in range(j0, j1):
-                    close = inside = False
-                    for ii in range(max(i - border, 0), min(i + border + 1, hb)):
-                        v = wide[ii - a0, j - j0]
-                        inside |= v != 0
-                        close |= v >= 2 and abs(ii - i) <= 1
+                    inside = down[hi, j - j0, 0] > down[lo, j - j0, 0]
+                    close = down[near_hi, j - j0, 1] > down[near_lo, j - j0, 1]
                     field[:] = 0.0
                     if inside and not close:
                         # the block's 3 × 3 blocks (in the image), summed as avg_pool2d sums them
