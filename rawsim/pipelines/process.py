@@ -422,9 +422,6 @@ def _tail_curve(
 #: The kernel's output of a batch's last file, once written (:func:`release`), for
 #: the next file of its size and type to render into (``engine_render(reuse=True)``).
 _spare = Spare()
-#: The mosaic ``reconstruct`` or ``unclip`` rebuilt for a batch's last file, for the next
-#: file's.
-_rebuilt = Spare()
 
 
 def release(samples: np.ndarray) -> None:
@@ -448,10 +445,9 @@ def engine_render(
     ``tile``: (rows, columns) of the kernel's tiles, even for Bayer, whole periods of
     other patterns (default: the engine's). ``reuse``: render into the array that
     :func:`release` gave back, if it fits (a batch's files, one after another); the
-    caller gives the samples back once it no longer needs them (and the mosaic that
-    ``reconstruct`` or ``unclip`` rebuilds is kept for the next file's).
+    caller gives the samples back once it no longer needs them, and gives ``raw.data``
+    up: ``reconstruct`` and ``unclip`` rebuild the mosaic in place.
     """
-    spare = None
     if plan.denoise is not None:
         from rawsim.engine.denoise import denoise_mosaic
 
@@ -469,14 +465,14 @@ def engine_render(
 
         mode, levels, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
-        spare = _rebuilt.array(raw.data.shape, np.uint16) if reuse else None
+        out = raw.data if reuse else None  # the batch gives the raw up: in place
         if mode == "reconstruct":
             guard = plan.guard is not None
             data, numbers, near = reconstruct_mosaic(
-                raw.data, raw.cfa, ops, numbers, levels, out=spare, guard=guard
+                raw.data, raw.cfa, ops, numbers, levels, out=out, guard=guard
             )
         else:
-            data, numbers = unclip_mosaic(raw.data, raw.cfa, ops, numbers, levels, out=spare)
+            data, numbers = unclip_mosaic(raw.data, raw.cfa, ops, numbers, levels, out=out)
             near = None
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
@@ -489,11 +485,7 @@ def engine_render(
             raw.data, raw.cfa.colors, plan.pre_ops, plan.pre_f, plan.tca
         )
         raw, plan = replace(raw, data=data), replace(plan, pre_ops=ops, pre_f=numbers, tca=None)
-    try:
-        return _kernels(raw, plan, fmt, bits, tile, reuse)
-    finally:
-        if spare is not None:
-            _rebuilt.keep_array(spare)
+    return _kernels(raw, plan, fmt, bits, tile, reuse)
 
 
 def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: bool):
