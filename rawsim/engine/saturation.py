@@ -124,25 +124,33 @@ def _maxima(data, ph, threads):
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _histograms(data, rows, colour, low, size, threads):
-    """Each colour's sites at codes low[c] … low[c] + size − 1 (3, size) int64, over
+    """Each colour's sites at codes low[c] … low[c] + size − 1 (3, size) int64 (no
+    site of colour c lies above: low[c] + size − 1 is at least its brightest), over
     the rows whose maximum reaches the least of ``low``; ``colour`` (ph, W) gives
-    each position's colour."""
+    each position's colour. The comparison with each position's low code vectorises;
+    only the sites at or above it are counted."""
     h, w = data.shape
     ph = colour.shape[0]
     least = min(low[0], low[1], low[2])
+    floor = np.empty((ph, w), np.int32)  # each position's low code
+    for p in range(ph):
+        for x in range(w):
+            floor[p, x] = low[colour[p, x]]
     counts = np.zeros((threads, 3, size), np.int64)
     per = -(-h // threads)
     for t in prange(threads):
+        over = np.empty(w, np.int32)
         for y in range(t * per, min(h, (t + 1) * per)):
             if np.int64(rows[y]) < least:
                 continue
-            row = data[y]
-            cr = colour[y % ph]
+            row, fl, cr = data[y], floor[y % ph], colour[y % ph]
+            n = 0
             for x in range(w):
-                c = cr[x]
-                k = np.int64(row[x]) - low[c]
-                if 0 <= k < size:
-                    counts[t, c, k] += 1
+                over[n] = x
+                n += np.int32(row[x]) >= fl[x]
+            for i in range(n):
+                x = over[i]
+                counts[t, cr[x], np.int32(row[x]) - fl[x]] += 1
     return counts.sum(0)
 
 
@@ -194,37 +202,36 @@ def _level(
     span = white - black
     if top - black < PILE_LEAST * span:
         return white, f"none: its brightest site is at {100 * (top - black) / span:.0f} % of white"
-    cum = np.concatenate([[0], np.cumsum(counts)])  # cum[k]: sites below code low + k
+    cum = np.concatenate([[0], np.cumsum(counts)])  # cum[i]: sites below code low + i
     moment = np.concatenate([[0], np.cumsum(counts * np.arange(counts.size))])
 
-    def sites(lo: int, hi: int) -> int:  # codes lo … hi − 1
-        lo, hi = max(lo - low, 0), max(hi - low, 0)
-        return int(cum[min(hi, cum.size - 1)] - cum[min(lo, cum.size - 1)])
-
-    def mean(lo: int, hi: int) -> float:  # their mean code
-        lo, hi = max(lo - low, 0), min(max(hi - low, 0), cum.size - 1)
-        return low + float(moment[hi] - moment[lo]) / max(float(cum[hi] - cum[lo]), 1.0)
+    def window(lo, hi):  # sites and code sums at codes lo … hi − 1 (arrays of codes)
+        lo = np.clip(lo - low, 0, cum.size - 1)
+        hi = np.clip(hi - low, 0, cum.size - 1)
+        return cum[hi] - cum[lo], moment[hi] - moment[lo]
 
     floor = max(low + 3 * band, int(np.ceil(black + PILE_LEAST * span)))
-    for k in range(top, floor - 1, -1):
-        if counts[k - low] == 0:
-            continue
-        pile = sites(k - band + 1, k + 1)
-        if pile < least:
-            continue
-        below = sites(k - 3 * band + 1, k - band + 1)
-        above = sites(k + 1, k + 2 * band + 1)
-        if (
-            pile >= PILE_DENSITY * below / 2
-            and above <= PILE_ABOVE * pile
-            and k - mean(k - band + 1, k + 1) <= PILE_TOP * span
-        ):
-            level = min(float(k), white)
-            where = "the white level" if level >= white else f"{k}"
-            return level, (
-                f"{pile} sites pile up within {band} DN below {where} "
-                f"({100 * (level - black) / span:.1f} % of white)"
-            )
+    k = np.arange(top, floor - 1, -1)  # each candidate top, scanning down
+    k = k[counts[k - low] > 0]
+    pile, sums = window(k - band + 1, k + 1)
+    below, _ = window(k - 3 * band + 1, k - band + 1)
+    above, _ = window(k + 1, k + 2 * band + 1)
+    mean = low + sums / np.maximum(pile, 1)
+    ok = (
+        (pile >= least)
+        & (pile >= PILE_DENSITY * below / 2)
+        & (above <= PILE_ABOVE * pile)
+        & (k - mean <= PILE_TOP * span)
+    )
+    if ok.any():
+        first = int(np.argmax(ok))
+        k, pile = int(k[first]), int(pile[first])
+        level = min(float(k), white)
+        where = "the white level" if level >= white else f"{k}"
+        return level, (
+            f"{pile} sites pile up within {band} DN below {where} "
+            f"({100 * (level - black) / span:.1f} % of white)"
+        )
     if top >= white:
         return white, "reaches the white level"
     share = 100 * (top - black) / span
