@@ -568,7 +568,8 @@ def _copy(raw, out, slots, black, scale, threads):
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _apply(patch, data, threads):
-    """Every nonzero site of ``patch`` into ``data`` (the rebuilt codes: never 0)."""
+    """Every nonzero site of ``patch`` into ``data`` (the rebuilt codes: never 0), and
+    ``patch`` back to zeros."""
     h, w = data.shape
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
     for _ in prange(threads):  # each thread takes items while any are left
@@ -576,9 +577,11 @@ def _apply(patch, data, threads):
             y = next_tile(counter)
             if y >= h:
                 break
+            row = patch[y]
             for x in range(w):
-                if patch[y, x]:
-                    data[y, x] = patch[y, x]
+                if row[x]:
+                    data[y, x] = row[x]
+                    row[x] = 0
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -771,7 +774,7 @@ def _dn_numbers(ops, opf):
     return black, span, applied
 
 
-def _rewrite(data, out, opf, slots, black, span, write):
+def _rewrite(data, out, opf, slots, black, span, write, patch=None):
     """``data`` into ``out`` (a new array where None; ``data`` itself: rebuilt in place)
     with the rebuilt sites that ``write(out, scale)`` writes (over every site, copied
     scaled by ``scale`` about its black level; it returns the largest code a rebuilt
@@ -780,15 +783,16 @@ def _rewrite(data, out, opf, slots, black, span, write):
     the same linear values to rounding. Returns the mosaic and ``opf`` (with the span
     scaled, if it was).
 
-    In place, the rebuilt sites go to a patch first (zeros, whose pages the system
-    maps only where written), then onto ``data`` once every fit has read the sites as
-    they were: no copy of the mosaic, 48 MB for 24 MP."""
+    In place, the rebuilt sites go to ``patch`` first (zeros of ``data``'s shape, left
+    zeros again; a new one where None), then onto ``data`` once every fit has read the
+    sites as they were: no copy of the mosaic (48 MB for 24 MP)."""
     threads = numba.get_num_threads()
     if out is data:
-        patch = np.zeros_like(data)
+        patch = np.zeros(data.shape, data.dtype) if patch is None else patch
         if write(patch, np.float32(1.0)) <= 65535.0:
             _apply(patch, data, threads)
             return data, opf
+        patch.fill(0)
         out = np.empty_like(data)  # codes run out: scaled, into a copy
     out = np.empty_like(data) if out is None else out
     scale = np.float32(1.0)
@@ -813,12 +817,21 @@ def _tile_list(tiles: np.ndarray) -> np.ndarray:
 
 
 def reconstruct_mosaic(
-    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None, guard=False
+    data: np.ndarray,
+    cfa: CFA,
+    ops: np.ndarray,
+    opf: np.ndarray,
+    levels,
+    out=None,
+    guard=False,
+    patch=None,
 ) -> tuple[np.ndarray, np.ndarray, tuple | None]:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt
-    (into ``out``, uint16 of its shape, where given), the op numbers ``opf`` to read
-    it with; and where ``guard``, the magenta guard's pixels, read with the same clip
-    codes (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`), else None.
+    (into ``out``, uint16 of its shape, where given: ``data`` itself rebuilds it in
+    place, through ``patch``, zeros of its shape left zeros, where given; see
+    :func:`_rewrite`), the op numbers ``opf`` to read it with; and where ``guard``, the
+    magenta guard's pixels, read with the same clip codes
+    (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`), else None.
 
     ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
     balance (:func:`rawsim.engine.process._mosaic_value`); ``levels``: where each
@@ -897,7 +910,7 @@ def reconstruct_mosaic(
     def write(out, scale):
         return _write(data, out, site, scale, black, span, applied, threads)
 
-    out, opf = _rewrite(data, out, opf, slots, black, span, write)
+    out, opf = _rewrite(data, out, opf, slots, black, span, write, patch)
     return out, opf, near
 
 
@@ -966,10 +979,11 @@ def _unclip(raw, out, codes, b, hb, wb, tiles, scale, dn, threads):
 
 
 def unclip_mosaic(
-    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None
+    data: np.ndarray, cfa: CFA, ops: np.ndarray, opf: np.ndarray, levels, out=None, patch=None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` with ``unclip`` applied (into
-    ``out``, uint16 of its shape, where given), and the op numbers ``opf`` to read it
+    ``out``, uint16 of its shape, where given; ``data`` itself, in place through
+    ``patch``, as :func:`reconstruct_mosaic`), and the op numbers ``opf`` to read it
     with: the engine's form of :func:`rawsim.isp.highlights.unclip_highlights` on a
     mosaic, to the rounding of raised values to whole DN.
 
@@ -992,4 +1006,4 @@ def unclip_mosaic(
     def write(out, scale):
         return _unclip(data, out, codes[:4], b, hb, wb, tiles, scale, dn, threads)
 
-    return _rewrite(data, out, opf, slots, *dn[:2], write)
+    return _rewrite(data, out, opf, slots, *dn[:2], write, patch)

@@ -422,6 +422,14 @@ def _tail_curve(
 #: The kernel's output of a batch's last file, once written (:func:`release`), for
 #: the next file of its size and type to render into (``engine_render(reuse=True)``).
 _spare = Spare()
+#: Zeros the size of a batch's raw, through which ``reconstruct`` and ``unclip`` rebuild
+#: its mosaic in place (they leave it zeros), for the next file's.
+_patches = Spare()
+
+
+def _zeros(data: np.ndarray) -> np.ndarray:
+    """Zeros of ``data``'s shape and dtype: the ones :data:`_patches` kept, else new."""
+    return _patches.take((data.shape, data.dtype), lambda: np.zeros(data.shape, data.dtype))
 
 
 def release(samples: np.ndarray) -> None:
@@ -465,15 +473,20 @@ def engine_render(
 
         mode, levels, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
-        out = raw.data if reuse else None  # the batch gives the raw up: in place
+        # the batch gives the raw up: rebuilt in place, through a patch of zeros kept
+        out, patch = (raw.data, _zeros(raw.data)) if reuse else (None, None)
         if mode == "reconstruct":
             guard = plan.guard is not None
             data, numbers, near = reconstruct_mosaic(
-                raw.data, raw.cfa, ops, numbers, levels, out=out, guard=guard
+                raw.data, raw.cfa, ops, numbers, levels, out=out, guard=guard, patch=patch
             )
         else:
-            data, numbers = unclip_mosaic(raw.data, raw.cfa, ops, numbers, levels, out=out)
+            data, numbers = unclip_mosaic(
+                raw.data, raw.cfa, ops, numbers, levels, out=out, patch=patch
+            )
             near = None
+        if patch is not None:
+            _patches.keep_array(patch)  # left zeros
         pre_f = plan.pre_f.copy()
         pre_f[:at] = numbers
         plan = replace(plan, pre_f=pre_f, highlights=None, near=near)
