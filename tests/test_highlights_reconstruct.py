@@ -872,7 +872,6 @@ def test_engine_equals_the_reference_on_a_real_raw():
     """Apple QuickTake 150 (GRBG, 0.3 % of sites at white): the pre-pass to half a DN
     × the gain, the render's 16-bit codes within 8."""
     from rawsim.io.raw import read_raw
-    from tests.conftest import DATA
 
     raw = read_raw(DATA / "raw" / "apple_quicktake150.qtk")
     config = override(default_config(), highlights="reconstruct")
@@ -899,7 +898,6 @@ def test_real_sky_clipped_a_stop_lower_comes_back_closer_than_clip():
 
     from rawsim.io.raw import read_raw
     from rawsim.pipelines.process import render_float
-    from tests.conftest import DATA
 
     raw = read_raw(DATA / "raw" / "canon_eos60d_mlv.dng")
     black = float(np.max(raw.black_level))
@@ -1098,7 +1096,6 @@ def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inve
     from PIL import Image
 
     from rawsim_cli.main import cli
-    from tests.conftest import DATA
 
     src = DATA / "kodak" / "kodim20_crop.png"
     runner = CliRunner()
@@ -1121,69 +1118,3 @@ def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inve
         assert np.abs(error).max() < 1.5, error
     else:
         assert error[1] < -4.0, error
-
-
-# -------------------------------------------------------------- real blown highlights
-#: tests/data/highlights: real raws with blown highlights (SOURCES.md there).
-HIGHLIGHT_CROPS = sorted(p.stem for p in (DATA / "highlights").glob("*.dng"))
-#: Crops whose green and blue pile up below the white level where a few codec-overshoot
-#: sites reach it: the saturation finder puts their levels at white, so unclip never
-#: sees them clipped (the clip render's white comes from clipping at the least level).
-UNFOUND_SATURATION = ("gopro_fusion_sun", "gopro_hero6_sky")
-
-
-@pytest.fixture(scope="module")
-def clip_and_unclip_renders(tmp_path_factory):
-    """``rawsim process`` of every crop with ``--highlights clip`` and ``unclip``: 8-bit
-    sRGB PNGs, {mode: {crop: (H, W, 3) float64 in [0, 1]}}."""
-    from PIL import Image
-
-    from rawsim_cli.main import cli
-
-    root = tmp_path_factory.mktemp("crops")
-    files = [str(DATA / "highlights" / f"{name}.dng") for name in HIGHLIGHT_CROPS]
-    renders = {}
-    for mode in ("clip", "unclip"):
-        args = ["process", *files, "-o", str(root / mode), "--highlights", mode, "-q"]
-        result = CliRunner().invoke(cli, args)
-        assert result.exit_code == 0, result.output
-        renders[mode] = {
-            name: np.asarray(Image.open(root / mode / f"{name}.png").convert("RGB")) / 255.0
-            for name in HIGHLIGHT_CROPS
-        }
-    return renders
-
-
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(
-            name,
-            marks=pytest.mark.xfail(
-                strict=True, reason="the saturation finder misses the piles below white"
-            ),
-        )
-        if name in UNFOUND_SATURATION
-        else name
-        for name in HIGHLIGHT_CROPS
-    ],
-)
-def test_unclip_leaves_no_magenta_where_clip_is_white(clip_and_unclip_renders, name):
-    """Real blown highlights: where the clip render is white (every channel ≥ 0.9), the
-    unclip render is not magenta (G < 0.85 × min(R, B)). unclip used to act on RGB,
-    after the demosaic, which pulled a clipped green's interpolated value at red and
-    blue sites below its level: 767 of the 39 801 white pixels of the PowerShot S40's
-    flash, 39 of the D30's, 8 of the G2's were magenta. On the mosaic at most 0.1 % of
-    them are (the issue's bound): none of the D30's, G2's, D1's and DC50's; 12 of the
-    S40's (0.03 %), where its odd rows (green and blue) clipped and its even rows' green
-    stayed just below the threshold: green clipped in the block, so its unclipped sites
-    keep their values beside raised ones."""
-    clip = clip_and_unclip_renders["clip"][name]
-    out = clip_and_unclip_renders["unclip"][name]
-    white = (clip >= 0.9).all(-1)
-    assert white.sum() > 1000
-    magenta = out[..., 1] < 0.85 * np.minimum(out[..., 0], out[..., 2])
-    assert (magenta & white).sum() <= 1e-3 * white.sum(), (
-        int((magenta & white).sum()),
-        int(white.sum()),
-    )
