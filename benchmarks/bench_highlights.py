@@ -63,8 +63,9 @@ defaults otherwise) is scored by
   the mean and the 95th percentile (target: the mean within 5);
 
 with LibRaw's ``-H 2`` and ``-H 5`` (``-W -g 2.4 12.92``) and darktable's default
-(sRGB, its default tone mapping) scored for magenta in the same pixels. Each
-file's saturation levels (``rawsim info``'s) are printed with it.
+(sRGB, its default tone mapping) scored for magenta in the same pixels. Every
+render is as the sensor recorded it, unrotated (LibRaw does not mirror, and GoPro's
+DNGs are mirrored). Each file's saturation levels (``rawsim info``'s) are printed.
 
 The machine is printed first. Usage::
 
@@ -466,26 +467,28 @@ def dcraw_emu(raw: Path, work: Path, *flags: str) -> np.ndarray:
     import tifffile
 
     out = work / f"{raw.name}.{'_'.join(f.strip('-') for f in flags)}.tiff"
-    cmd = ["dcraw_emu", "-w", *flags, "-T", "-Z", str(out), str(raw)]
+    cmd = ["dcraw_emu", "-w", "-t", "0", *flags, "-T", "-Z", str(out), str(raw)]
     subprocess.run(cmd, check=True, capture_output=True)
     return tifffile.imread(out).astype(np.float64) / 255
 
 
 def rawsim_png(raw: Path, work: Path, mode: str) -> np.ndarray:
-    """rawsim's default 8-bit sRGB render with ``--highlights mode`` in [0, 1]."""
-    import OpenImageIO as oiio
+    """rawsim's default 8-bit sRGB render with ``--highlights mode`` in [0, 1], as the
+    sensor recorded it (no orientation: LibRaw does not mirror, GoPro's DNGs are)."""
+    from rawsim.io.raw import read_raw
+    from rawsim.isp.config import IspConfig, OrientationStage
+    from rawsim.pipelines.process import render_samples
 
-    out = work / f"rawsim_{mode}"
-    cmd = ["rawsim", "-q", "process", str(raw), "-o", str(out), "--highlights", mode, "--overwrite"]
-    subprocess.run(cmd, check=True, capture_output=True)
-    return oiio.ImageBuf(str(out / f"{raw.stem}.png")).get_pixels(oiio.FLOAT)[..., :3].astype(float)
+    config = IspConfig.default().override(highlights=mode).with_disabled(OrientationStage)
+    samples, _ = render_samples(read_raw(raw), config, "png", 8)
+    return samples.astype(np.float64) / 255
 
 
 def darktable_png(raw: Path, work: Path) -> np.ndarray | None:
     """darktable's default render (sRGB PNG), or None where it cannot export."""
     import OpenImageIO as oiio
 
-    src, out = work / f"dt{raw.suffix}", work / "dt.png"
+    src, out = work / f"dt{raw.suffix}", work / "dt.png"  # (oriented: compared where it fits)
     shutil.copy(raw, src)
     out.unlink(missing_ok=True)
     cmd = ["darktable-cli", str(src), str(out), "--core", "--configdir", str(work / "dtconf")]
@@ -532,7 +535,7 @@ def corpus(folders: list[Path], work: Path) -> None:
             dcraw_emu(raw, work, "-H", "5", "-W", "-g", "2.4", "12.92"),
             darktable_png(raw, work),
         ):
-            if render is None or render.shape != white.shape:
+            if render is None or render.shape[:2] != white.shape:
                 anchors.append("   —")
                 continue
             anchors.append(f"{100 * (magenta(render) & white).sum() / max(white.sum(), 1):5.2f}%")

@@ -15,21 +15,23 @@ import pytest
 import rawpy
 
 from rawsim.io.raw import read_raw
-from rawsim.isp.config import HIGHLIGHT_MODES, IspConfig, black_per_colour, resolve
+from rawsim.isp.config import (
+    HIGHLIGHT_MODES,
+    IspConfig,
+    OrientationStage,
+    black_per_colour,
+    resolve,
+)
 from rawsim.pipelines.process import render_samples
 from tests.conftest import DATA
 
 CROPS = sorted((DATA / "highlights").glob("*.dng"))
 RAWS = [*CROPS, *(DATA / "raw" / n for n in ("canon_eos6d_linear_raw_no_cfa.dng",))]
-#: Crops whose green and blue pile up about 5 % below the white level, spread ±150 DN
-#: by the GoPro codec, while a few overshoot sites reach it: no pile the saturation
-#: finder takes (it would take a bright unsaturated patch as well), so their colours
-#: never count as clipped and rawsim's renders there are not LibRaw's white (the
-#: modes that fail, as measured).
-UNFOUND = {
-    "gopro_fusion_sun": ("reconstruct", "unclip", "blend"),
-    "gopro_hero6_sky": ("clip", "reconstruct", "unclip", "blend"),
-}
+#: The modes that leave more magenta than the bound, as measured: GoPro's codec spreads
+#: the HERO6's saturated green and blue ±150 DN around their levels, and ``unclip``
+#: raises only the sites above 99 % of a colour's level, so a block's saturated sites
+#: below it stay (0.4 % of the crop's white pixels magenta).
+SHORT = {"gopro_hero6_sky": ("unclip",)}
 MAGENTA_SHARE = 1e-3
 CHROMA = 5.0
 
@@ -51,7 +53,9 @@ def _libraw(path, **matched) -> np.ndarray:
     """LibRaw's clip (``dcraw_emu -w -H 0``: camera white balance, its auto-brightening,
     8 bits), or with ``matched`` settings; (H, W, 3) in [0, 1]."""
     with rawpy.imread(str(path)) as raw:
-        rgb = raw.postprocess(use_camera_wb=True, highlight_mode=0, output_bps=8, **matched)
+        rgb = raw.postprocess(
+            use_camera_wb=True, highlight_mode=0, output_bps=8, user_flip=0, **matched
+        )
     return rgb / 255.0
 
 
@@ -66,9 +70,9 @@ def renders():
         matched = _libraw(path, no_auto_bright=True, gamma=(2.4, 12.92))
         ours = {}
         for mode in HIGHLIGHT_MODES:
-            samples, _ = render_samples(
-                raw, IspConfig.default().override(highlights=mode), "png", 8
-            )
+            # unrotated, as LibRaw's: it does not mirror (GoPro's DNGs are mirrored)
+            config = IspConfig.default().override(highlights=mode).with_disabled(OrientationStage)
+            samples, _ = render_samples(raw, config, "png", 8)
             ours[mode] = samples.astype(np.float64) / 255.0
         out[path.stem] = (white, matched, ours)
     return out
@@ -78,8 +82,8 @@ def _cases():
     for path in RAWS:
         for mode in HIGHLIGHT_MODES:
             marks = []
-            if mode in UNFOUND.get(path.stem, ()):
-                marks = [pytest.mark.xfail(strict=True, reason="saturation not found (GoPro)")]
+            if mode in SHORT.get(path.stem, ()):
+                marks = [pytest.mark.xfail(strict=True, reason="a codec-spread clip (GoPro)")]
             yield pytest.param(path.stem, mode, marks=marks, id=f"{path.stem}-{mode}")
 
 
@@ -93,13 +97,15 @@ def test_no_magenta_where_libraw_renders_white(renders, name, mode):
     assert share <= MAGENTA_SHARE, f"{100 * share:.2f} % of {white.sum()} white pixels magenta"
 
 
-@pytest.mark.parametrize("name", [p.stem for p in RAWS if p.stem not in UNFOUND])
+@pytest.mark.parametrize("name", [p.stem for p in RAWS])
 def test_clip_carries_no_cast_beyond_libraws(renders, name):
-    """Where LibRaw's clip renders white, rawsim's clip has LibRaw's chroma, within 5 on
-    average (they differ by the demosaic at the edges of what clipped)."""
+    """Where LibRaw's clip renders white, rawsim's clip has no more chroma than LibRaw's,
+    within 5 on average (they differ by the demosaic at the edges of what clipped; on
+    the GoPro crops rawsim's is 5 less: LibRaw does not find where their colours
+    saturated)."""
     white, matched, ours = renders[name]
     excess = (_chroma(ours["clip"]) - _chroma(matched))[white]
-    assert abs(excess.mean()) <= CHROMA, excess.mean()
+    assert excess.mean() <= CHROMA, excess.mean()
 
 
 def test_clip_is_neutral_where_every_colour_saturated():
@@ -129,8 +135,10 @@ def test_clip_is_neutral_where_every_colour_saturated():
 
 def test_saturation_found_as_libraw_finds_its_maximum():
     """The Canon D30's colours pile up 0.5 % below white, each at its own level. LibRaw
-    (``adjust_maximum_thr`` 0.75) takes the data's maximum for the white: the highest of
-    rawsim's levels is that maximum (measured by how much LibRaw's render brightens)."""
+    (``adjust_maximum_thr`` 0.75) takes the data's maximum for the white (measured by
+    how much its render brightens): the top of the highest pile, whose lower quartile
+    (where rawsim takes it to saturate) lies within the pile's band, 1 % of the span,
+    below it."""
     path = DATA / "highlights" / "canon_eos_d30_chrome.dng"
     raw = read_raw(path)
     info = resolve(IspConfig.default(), raw).info
@@ -149,4 +157,5 @@ def test_saturation_found_as_libraw_finds_its_maximum():
     mid = (plain > 0.05 * 65535) & (plain < 0.5 * 65535)  # far from any clip: the gain alone
     ratio = np.median(adjusted[mid] / plain[mid])
     libraw_max = black[0] + (raw.white_level - black[0]) / ratio
-    assert max(levels) == pytest.approx(libraw_max, abs=3)
+    band = 0.01 * (raw.white_level - black[0])
+    assert libraw_max - band <= max(levels) <= libraw_max + 1

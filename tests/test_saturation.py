@@ -45,7 +45,7 @@ def test_a_colour_that_saturates_below_white(rng):
     sat = find_saturation(data, RGGB, BLACK, WHITE)
     assert sat.levels[0] == WHITE and "the white level" in sat.notes[0]
     assert sat.levels[1] == np.round(green_top) and "pile" in sat.notes[1]
-    assert sat.levels[2] == WHITE and "no pile-up" in sat.notes[2]
+    assert sat.levels[2] == WHITE and "a bright patch, not a clip" in sat.notes[2]
     assert sat.fractions(BLACK, WHITE)[1] == pytest.approx(0.96, abs=1e-3)
 
 
@@ -53,7 +53,7 @@ def test_a_soft_knee_below_white(rng):
     """Every colour tops out a little below white, spread over 30 DN (the Canon D30's
     sensor): the top of each pile is its level."""
     s = scene(rng)
-    knee = 4070 - np.abs(rng.normal(0, 10, s.shape))
+    knee = 4070 - np.abs(rng.normal(0, 2, s.shape))
     data = mosaic([np.minimum(128 + s * 3967, knee)] * 3)
     sat = find_saturation(data, RGGB, BLACK, WHITE)
     for c in range(3):
@@ -115,3 +115,17 @@ def test_xtrans_and_three_channel_data(rng):
     rgb = np.stack([np.round(v).astype(np.uint16) for v in values], axis=-1)
     sat = find_saturation(rgb, None, BLACK, WHITE)
     assert sat.levels == (3950.0, 4095.0, 3990.0), sat.notes
+
+
+def test_a_clip_a_codec_spread_is_found(rng):
+    """GoPro's VC-5 spreads a clip ±150 DN around a level 5 % below white, from one
+    plateau to the next, and a few overshoot sites reach white; each plateau is flat
+    (the sites step by 0 DN), where a bright patch steps by its noise."""
+    s = scene(rng)
+    plateau = 3900 + np.round(rng.normal(0, 40, (s.shape[0] // 8 + 1, s.shape[1] // 8 + 1)))
+    plateau = np.kron(plateau, np.ones((8, 8)))[: s.shape[0], : s.shape[1]]
+    data = mosaic([np.minimum(128 + s * 3967, plateau)] * 3)
+    data[3, ::40] = 4095  # overshoot
+    sat = find_saturation(data, RGGB, BLACK, WHITE)
+    for c in range(3):
+        assert 3900 <= sat.levels[c] <= 4040 and "pile up" in sat.notes[c], sat.notes

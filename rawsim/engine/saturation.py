@@ -17,31 +17,33 @@ site. :func:`find_saturation` looks for that pile in each colour's brightest cod
   ``PILE_BAND`` × (white − black) codes that holds at least ``PILE_SITES`` sites
   (and ``PILE_SHARE`` of the colour's) at ``PILE_DENSITY`` times the density of the
   two bands below it, with at most ``PILE_ABOVE`` of its count in the two bands
-  above it and its mean within ``PILE_TOP`` × (white − black) of its top, is a pile
-  (an unsaturated highlight spreads its noise on both sides of its mode): the
-  colour saturates at the top of that band, or the white level if that is lower
-  (sites within
-  ``PILE_BAND`` below it count as saturated, as
-  :data:`~rawsim.isp.config.HIGHLIGHT_CLIPPED` counts them);
-  the scan goes ``PILE_REACH`` × (white − black) below the brightest code, so a
-  few hot pixels above the pile do not hide it;
+  above it, is a pile if it is flat: the median step from its sites to the same
+  colour's next site along the row (itself in the pile) is at most ``PILE_FLAT``
+  of the span, where a bright patch that did not saturate steps by its noise. The
+  colour saturates at the lower quartile of the pile's sites, or the white level if
+  that is lower: a clip's one code, or below the middle of a codec's spread of it
+  (sites within ``PILE_BAND`` below it count as saturated, as
+  :data:`~rawsim.isp.config.HIGHLIGHT_CLIPPED` counts them); the scan goes
+  ``PILE_REACH`` × (white − black) below the brightest code, so a few hot pixels
+  above the pile do not hide it;
 * a colour without a pile, or whose pile lies below ``PILE_LEAST`` of the span,
   saturates at the white level, as the file says (also where a few of its sites
   reach it: hot pixels, or a lossy codec's overshoot).
 
-Raws whose codec spreads saturated values over hundreds of codes (GoPro's VC-5:
-±150 DN around a level 5 % below white) hold no pile this narrow, and keep the
-white level, as LibRaw does.
+A GoPro raw's codec spreads saturated values ±150 DN around a level 5 % below
+white, from one plateau to the next, but leaves each plateau flat: its pile is found.
+
+Three passes over the data, all parallel: each position's maximum over the rows
+of its phase and each row's maximum (vectorised); then, in the rows that reach
+the bands, a histogram of each colour's brightest codes; then, in the same rows,
+the steps of each pile's sites.
 
 A flat patch without noise (a synthetic render) at the top of a colour's range
 piles up as saturation does and is taken for it, as LibRaw's ``adjust_maximum`` takes
-the brightest value for white; real sensors' noise spreads a patch into a peak
-with its upper tail above it, which is not a pile.
+the brightest value for white; a real sensor's noise makes a patch step from site
+to site, which no clip does.
 
-Two passes over the data, both parallel: each position's maximum over the rows
-of its phase and each row's maximum (vectorised); then, in the rows that reach
-the bands, a histogram of each colour's brightest codes. 24 MP take a few
-milliseconds.
+24 MP take about 10 ms.
 """
 
 from __future__ import annotations
@@ -64,12 +66,17 @@ PILE_SHARE = 1e-4
 PILE_BAND = 0.01
 #: ... at this many times the density (sites per code) of the two bands below it.
 PILE_DENSITY = 1.0
-#: ... with at most this share of its count in the two bands above it, and its mean
-#: within this share of (white − black) below its top: a pile leans on its top, where
-#: the sensor stopped counting, as a patch that did not saturate, its mode a few
-#: standard deviations of its noise below its brightest site, does not.
-PILE_ABOVE = 0.05
-PILE_TOP = 0.004
+#: ... with at most this share of its count in the two bands above it (a lossy codec
+#: spreads a clip over both sides of it)...
+PILE_ABOVE = 0.5
+#: ... and flat: its sites' median step to the same colour's next site along the row,
+#: itself in the pile, at most this share of (white − black), and at least
+#: PILE_FLAT_LEAST DN. A saturated plateau holds one code, or steps of a few DN
+#: (0 DN on GoPro's VC-5, 2 DN on a Canon D30's soft knee and a Nikon D1's greens),
+#: where a bright patch that did not saturate steps by its photon noise (50–250 DN
+#: on 14-bit raws at 50–95 % of white).
+PILE_FLAT = 0.001
+PILE_FLAT_LEAST = 2
 #: The scan for a pile reaches this share of (white − black) below a colour's brightest code.
 PILE_REACH = 0.08
 #: A pile below this share of (white − black) above black is not taken for saturation
@@ -182,57 +189,117 @@ def find_saturation(data: np.ndarray, colours: np.ndarray, black, white: float) 
     counts = _histograms(data, rows, np.ascontiguousarray(cover), low, size, threads)
     sites = np.array([(cover == c).sum() for c in range(3)]) * (data.shape[0] / ph)
     least = np.maximum(PILE_SITES, np.ceil(PILE_SHARE * sites)).astype(np.int64)
-    levels, notes = [], []
-    for c in range(3):
-        level, note = _level(
+    found = [
+        _candidate(
             counts[c], int(low[c]), int(brightest[c]), int(band[c]), int(least[c]), black[c], white
         )
+        for c in range(3)
+    ]
+    # each pile's sites against their neighbour one period on: flat where saturated
+    lo = np.array([k - band[c] + 1 if k else 65536 for c, (k, _) in enumerate(_tops(found))])
+    hi = np.array([k if k else 65535 for k, _ in _tops(found)])
+    steps = _steps(data, rows, np.ascontiguousarray(cover), lo, hi, pw, threads)
+    levels, notes = [], []
+    for c, (pile, why) in enumerate(found):
+        if pile is None:
+            levels.append(float(white))
+            notes.append(why)
+            continue
+        k, n, quartile = pile
+        step = _median(steps[c])
+        most = max(PILE_FLAT * span[c], PILE_FLAT_LEAST)
+        if step > most:
+            share = 100 * (min(k, white) - black[c]) / span[c]
+            levels.append(float(white))
+            notes.append(
+                f"none: {n} sites near {k} ({share:.1f} % of white) step {step} DN from their "
+                f"neighbours, more than saturation leaves (a bright patch, not a clip)"
+            )
+            continue
+        level = min(float(quartile), float(white))
+        share = 100 * (level - black[c]) / span[c]
+        where = "the white level" if k >= white else f"{k}"
         levels.append(level)
-        notes.append(note)
+        notes.append(
+            f"{n} sites pile up within {band[c]} DN below {where}, a quarter of them below "
+            f"{level:g} ({share:.1f} % of white)"
+        )
     return Saturation(tuple(levels), tuple(notes))
 
 
-def _level(
+def _tops(found):
+    """(top code, sites) of each colour's pile, (0, 0) where it has none."""
+    return [pile[:2] if pile is not None else (0, 0) for pile, _ in found]
+
+
+#: The steps :func:`_steps` counts: 0 … FLAT_BINS − 1 DN (larger ones in the last).
+FLAT_BINS = 1024
+
+
+@njit(parallel=True, nogil=True, **_JIT)
+def _steps(data, rows, colour, lo, hi, pw, threads):
+    """Each colour's steps (3, FLAT_BINS) int64: how many sites at codes lo[c] … hi[c]
+    differ from the site one period on along their row (the same colour), itself in
+    that range, by each |Δ| in DN (the last bin holds the larger ones), over the rows
+    that reach the least of ``lo``."""
+    h, w = data.shape
+    ph = colour.shape[0]
+    least = min(lo[0], lo[1], lo[2])
+    counts = np.zeros((threads, 3, FLAT_BINS), np.int64)
+    per = -(-h // threads)
+    for t in prange(threads):
+        for y in range(t * per, min(h, (t + 1) * per)):
+            if np.int64(rows[y]) < least:
+                continue
+            row, cr = data[y], colour[y % ph]
+            for x in range(w - pw):
+                c = cr[x]
+                v, u = np.int64(row[x]), np.int64(row[x + pw])
+                if lo[c] <= v <= hi[c] and lo[c] <= u <= hi[c]:
+                    counts[t, c, min(abs(v - u), FLAT_BINS - 1)] += 1
+    return counts.sum(0)
+
+
+def _median(counts: np.ndarray) -> int:
+    """The median step (DN) of :func:`_steps`' counts for one colour (0 where none)."""
+    total = int(counts.sum())
+    if total == 0:
+        return 0
+    return int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
+
+
+def _candidate(
     counts: np.ndarray, low: int, top: int, band: int, least: int, black: float, white: float
 ):
-    """One colour's level (DN) and how it was found, from its sites' ``counts`` at
-    codes ``low`` … (its brightest code ``top``; ``band``: :data:`PILE_BAND` in codes;
-    ``least``: the fewest sites a pile holds)."""
+    """One colour's pile, from its sites' ``counts`` at codes ``low`` … (its brightest
+    code ``top``; ``band``: :data:`PILE_BAND` in codes; ``least``: the fewest sites a
+    pile holds): (the top code of the first band, scanning down, that holds a pile, its
+    sites), or (None, why not, in words)."""
     white = float(white)
     span = white - black
     if top - black < PILE_LEAST * span:
-        return white, f"none: its brightest site is at {100 * (top - black) / span:.0f} % of white"
+        return None, f"none: its brightest site is at {100 * (top - black) / span:.0f} % of white"
     cum = np.concatenate([[0], np.cumsum(counts)])  # cum[i]: sites below code low + i
-    moment = np.concatenate([[0], np.cumsum(counts * np.arange(counts.size))])
 
-    def window(lo, hi):  # sites and code sums at codes lo … hi − 1 (arrays of codes)
-        lo = np.clip(lo - low, 0, cum.size - 1)
-        hi = np.clip(hi - low, 0, cum.size - 1)
-        return cum[hi] - cum[lo], moment[hi] - moment[lo]
+    def sites(lo, hi):  # at codes lo … hi − 1 (arrays of codes)
+        return cum[np.clip(hi - low, 0, cum.size - 1)] - cum[np.clip(lo - low, 0, cum.size - 1)]
 
     floor = max(low + 3 * band, int(np.ceil(black + PILE_LEAST * span)))
     k = np.arange(top, floor - 1, -1)  # each candidate top, scanning down
     k = k[counts[k - low] > 0]
-    pile, sums = window(k - band + 1, k + 1)
-    below, _ = window(k - 3 * band + 1, k - band + 1)
-    above, _ = window(k + 1, k + 2 * band + 1)
-    mean = low + sums / np.maximum(pile, 1)
-    ok = (
-        (pile >= least)
-        & (pile >= PILE_DENSITY * below / 2)
-        & (above <= PILE_ABOVE * pile)
-        & (k - mean <= PILE_TOP * span)
-    )
+    pile = sites(k - band + 1, k + 1)
+    below = sites(k - 3 * band + 1, k - band + 1)
+    above = sites(k + 1, k + 2 * band + 1)
+    ok = (pile >= least) & (pile >= PILE_DENSITY * below / 2) & (above <= PILE_ABOVE * pile)
     if ok.any():
         first = int(np.argmax(ok))
-        k, pile = int(k[first]), int(pile[first])
-        level = min(float(k), white)
-        where = "the white level" if level >= white else f"{k}"
-        return level, (
-            f"{pile} sites pile up within {band} DN below {where} "
-            f"({100 * (level - black) / span:.1f} % of white)"
-        )
+        top, n = int(k[first]), int(pile[first])
+        # where it saturates: the lower quartile of its sites (a clip is one code; a
+        # codec spreads it, and the sites below its top saturated too)
+        lo = max(top - band + 1, low)
+        within = np.cumsum(counts[lo - low : top - low + 1])
+        return (top, n, lo + int(np.searchsorted(within, within[-1] / 4))), ""
     if top >= white:
-        return white, "reaches the white level"
+        return None, "reaches the white level"
     share = 100 * (top - black) / span
-    return white, f"no pile-up below its brightest site ({share:.1f} % of white)"
+    return None, f"no pile-up below its brightest site ({share:.1f} % of white)"
