@@ -93,6 +93,11 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
         "process {out}/linear/linear.dng -o {out}/reconstruct --highlights reconstruct",
     ),
     (
+        "process: unclip",
+        (LINEAR, RENDER),
+        "process {out}/linear/linear.dng -o {out}/unclip --highlights unclip",
+    ),
+    (
         "unprocess: monochrome sensor",
         (BAYER,),
         "unprocess {in}/photo.png -o {out}/mono -p sony_a7s2 --iso 800 --sensor mono",
