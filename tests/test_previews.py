@@ -10,6 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from rawsim.io.images import resize_samples
+from rawsim.isp.config import DemosaicStage
 from rawsim_cli.main import cli
 from tests.conftest import DATA
 
@@ -93,7 +94,7 @@ def test_resize(tmp_path):
     assert side["resize"] == 300 and demosaic["method"] == "half"  # 300 ≤ 960 / 2
     done = _run("process", path, "-o", tmp_path / "b", "--resize", "600")
     side = json.loads((tmp_path / "b" / "canon_eos60d_mlv.process.json").read_text())
-    assert next(s for s in side["config"] if s["name"] == "demosaic")["method"] == "learned"
+    assert next(s for s in side["config"] if s["name"] == "demosaic")["method"] == DemosaicStage().method  # the default, full size
 
 
 def test_resize_is_antialiased_and_keeps_small_images():
