@@ -94,7 +94,8 @@ def test_resize(tmp_path):
     assert side["resize"] == 300 and demosaic["method"] == "half"  # 300 ≤ 960 / 2
     done = _run("process", path, "-o", tmp_path / "b", "--resize", "600")
     side = json.loads((tmp_path / "b" / "canon_eos60d_mlv.process.json").read_text())
-    assert next(s for s in side["config"] if s["name"] == "demosaic")["method"] == DemosaicStage().method  # the default, full size
+    demosaic = next(s for s in side["config"] if s["name"] == "demosaic")
+    assert demosaic["method"] == DemosaicStage().method  # the default, at full size
 
 
 def test_resize_is_antialiased_and_keeps_small_images():
