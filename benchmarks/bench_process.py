@@ -1,6 +1,6 @@
 """Processing speed and memory: rawsim's ISP beside LibRaw (rawpy) and dcraw in the same run.
 
-    python benchmarks/bench_process.py [--quick] [--io]
+    python benchmarks/bench_process.py [--quick] [--io] [--half]
 
 Makes a 24 MP, 14-bit DNG with ``rawsim unprocess`` (a test photo resized to
 6000×4000, Sony A7S II profile, ISO 800), then times, each in a fresh process so
@@ -13,6 +13,10 @@ that peak memory (max RSS) is its own:
     first file, which loads the engine, excluded), 16-bit TIFF out, on the
     compiled engine and, for wcd, on the torch reference (RAWSIM_ENGINE=0);
   * the default output (8-bit PNG) per image, and the write alone;
+  * ``rawsim process --half-size`` (16-bit TIFF) beside the full render (the defaults,
+    16-bit TIFF), per file in a batch, in alternating rounds (:func:`half_vs_full`;
+    ``--half`` runs this alone, on this DNG and on ``--io``'s, whose highlight
+    pre-pass has three times the clipped sites to rebuild), and the embedded preview;
   * single cold invocations of ``rawsim process x.dng --format tiff --bits 16``:
     the first after clearing numba's cache (compiling) and later ones;
   * forward and backward of ``rawsim.process`` with gradients on 1 MP;
@@ -198,8 +202,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one copy, fewer methods")
     ap.add_argument("--io", action="store_true", help="only the I/O floor and batches")
+    ap.add_argument("--half", action="store_true", help="only half size against the full render")
     args = ap.parse_args()
     print("\n".join(describe()), flush=True)
+    if args.half:
+        for exposure in (0.0, IO_EXPOSURE):
+            with tempfile.TemporaryDirectory() as d:
+                dng = make_dng(Path(d), exposure)
+                share = 100 * clipped_share(dng)
+                print(f"the DNG: +{exposure} EV, {share:.2f} % of its sites clipped")
+                half, full = half_vs_full(Path(d), dng, 5)
+                print(
+                    f"  rawsim process --half-size (TIFF 16) {half:.3f} s per file, the full "
+                    f"render (TIFF 16) {full:.3f} s: {half / full:.2f}× (target ≤ 0.4×)"
+                )
+        return
     if args.io:
         with tempfile.TemporaryDirectory() as d:
             dng = make_dng(Path(d), IO_EXPOSURE)
@@ -335,21 +352,22 @@ print(time.perf_counter() - t)
 
 def previews(tmp: Path, batch: Path, copies: int, full: float) -> None:
     """Half-size and embedded-preview renders per image in a batch, beside the full
-    render (wcd → 16-bit TIFF, ``full`` seconds) and LibRaw's half_size and
-    extract_thumb."""
+    render (the half size against one timed in the same rounds, :func:`half_vs_full`;
+    the preview against wcd → 16-bit TIFF, ``full`` seconds) and LibRaw's half_size
+    and extract_thumb."""
     import exiv2
 
-    seconds, _ = rawsim_batch(batch, tmp / "o", ["--half-size", "--format", "tiff", "--bits", "16"])
     env = dict(os.environ, LIBRAW_HALF="1")
     dng = next(batch.iterdir())
+    seconds, alike = half_vs_full(tmp, dng, 5)
     libraw = min(
         timed([sys.executable, "-c", LIBRAW, str(dng), str(tmp / "half.tif")], env)[0]
         for _ in range(copies)
     )
     print(
-        f"  rawsim process --half-size (TIFF 16)         {seconds:6.2f} s  "
-        f"= {seconds / full:4.2f}× the full render; LibRaw half_size + TIFF write "
-        f"(fresh interpreter) {libraw:.2f} s"
+        f"  rawsim process --half-size (TIFF 16)         {seconds:6.3f} s  "
+        f"= {seconds / alike:4.2f}× the full render ({alike:.3f} s, the same rounds); LibRaw "
+        f"half_size + TIFF write (fresh interpreter) {libraw:.2f} s"
     )
     # A camera-sized embedded preview (1620 × 1080 JPEG), as most raws carry
     preview = oiio.ImageBufAlgo.resize(
@@ -372,6 +390,37 @@ def previews(tmp: Path, batch: Path, copies: int, full: float) -> None:
         f"interpreter) {libraw:.2f} s"
     )
     print("  target: half size ≤ 0.4× the full render")
+
+
+def half_vs_full(tmp: Path, dng: Path, rounds: int) -> tuple[float, float]:
+    """Seconds per file in a batch of ``rawsim process --half-size`` and of the full render
+    (the defaults; both 16-bit TIFF), measured alike and alternately: ``rounds`` rounds of
+    whole batches of 4 copies of ``dng`` and of 1, fresh processes, each after ``sync``;
+    the marginal seconds per file over the 3 more, medians. (Each file's own time from
+    ``-v`` is printed to 0.01 s, an eighth of a half-size render.)"""
+    folders = {}
+    for n in (1, 4):
+        folders[n] = tmp / f"half_vs_full{n}"
+        folders[n].mkdir()
+        for i in range(n):
+            shutil.copy(dng, folders[n] / f"copy{i}.dng")
+    out = tmp / "half_vs_full_out"
+    tiff16 = ["--format", "tiff", "--bits", "16"]
+    modes = {"half": ["--half-size", *tiff16], "full": tiff16}
+    times: dict[tuple[str, int], list[float]] = {(m, n): [] for m in modes for n in folders}
+    for _ in range(rounds):
+        for mode, args in modes.items():
+            for n, folder in folders.items():
+                shutil.rmtree(out, ignore_errors=True)
+                os.sync()
+                command = ["rawsim", "-q", "process", str(folder), "-o", str(out), *args]
+                times[mode, n].append(timed(command)[0])
+    shutil.rmtree(out, ignore_errors=True)
+    for folder in folders.values():
+        shutil.rmtree(folder)
+    med = {key: statistics.median(t) for key, t in times.items()}
+    half, full = ((med[m, 4] - med[m, 1]) / 3 for m in modes)
+    return half, full
 
 
 def make_xtrans_dng(path: Path) -> None:

@@ -361,3 +361,28 @@ def test_stream_writers_over_many_blocks():
     ee.v2e_rows(t, x, y, p, rows)
     assert np.array_equal(rows[:, 0], np.round(t * 1e6).astype(np.uint32))
     assert np.array_equal(rows[:, 1:], np.stack([x, y, p], 1))
+
+
+def test_npz_writer_is_numpys_savez_byte_for_byte(tmp_path):
+    """events.npz joins each step's arrays as it writes them (no concatenated copy): the
+    bytes np.savez writes for the joined arrays, whatever the parts (empty ones,
+    strided ones, dtypes that numpy would join by promoting)."""
+    import io
+
+    from rawsim.events.files import _Joined, _savez
+
+    g = np.random.default_rng(3)
+    small = {"frame_ts": np.array([0.0, 0.5]), "frames": np.array(["a.png", "b/ü.png"])}
+    cases = []
+    for n in (1, 2, 5):
+        t = [g.random(int(g.integers(0, 2000))) for _ in range(n)] + [np.empty(0)]
+        counts = [g.integers(0, 9, (2, 3, 5)).astype(np.int32) for _ in range(n + 1)]
+        cases.append((t, counts))
+    cases.append(([np.arange(10.0)[::2], np.arange(3, dtype=np.int64)], [np.zeros((2, 1, 1))]))
+    for t, counts in cases:
+        ours, numpys = io.BytesIO(), io.BytesIO()
+        x = [a.astype(np.uint16) for a in t]
+        _savez(ours, t=_Joined(t), x=_Joined(x), events=_Joined(counts, stacked=True), **small)
+        joined = {"t": np.concatenate(t), "x": np.concatenate(x), "events": np.stack(counts)}
+        np.savez(numpys, **joined, **small)
+        assert ours.getvalue() == numpys.getvalue()

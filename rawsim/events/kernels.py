@@ -288,31 +288,58 @@ def _sort_slot(k, lo, hi, t0, dt, buckets, t_out, x_out, y_out, p_out):
         first = end
 
 
-@njit(inline="always")
-def _fixed_digits(value, out, at, n):
-    """Write ``value`` (uint64) as exactly ``n`` decimal digits (zero-padded) at
-    ``out[at:]``; returns the position after them. Unsigned division by the constant
-    10 compiles to a multiply and a shift."""
-    ten = np.uint64(10)
-    for k in range(n - 1, -1, -1):
-        out[at + k] = np.uint8(48) + np.uint8(value % ten)
-        value //= ten
-    return at + n
+#: "00" … "99": the two digits of each number below 100, for writing two at a time.
+_PAIRS = np.array([ord(c) for k in range(100) for c in f"{k:02d}"], dtype=np.uint8)
 
 
 @njit(inline="always")
-def _digits(value, out, at):
-    """Write ``value`` (uint64) in decimal at ``out[at:]``; returns the position after it."""
+def _width(value):
+    """The decimal digits of ``value`` (uint64)."""
     n = 1
-    v = value // np.uint64(10)
-    while v > np.uint64(0):
+    power = np.uint64(10)
+    while n < 20 and value >= power:
         n += 1
-        v //= np.uint64(10)
-    return _fixed_digits(value, out, at, n)
+        power *= np.uint64(10)
+    return n
+
+
+@njit(inline="always")
+def _put(value, out, end):
+    """Write ``value`` (uint64) in decimal into ``out``, its last digit at ``end`` − 1
+    (the caller made room for :func:`_width` digits), two digits a division."""
+    hundred = np.uint64(100)
+    while value >= hundred:
+        q = value // hundred
+        r = np.intp(value - q * hundred)
+        out[end - 2], out[end - 1] = _PAIRS[2 * r], _PAIRS[2 * r + 1]
+        end -= 2
+        value = q
+    if value >= np.uint64(10):
+        r = np.intp(value)
+        out[end - 2], out[end - 1] = _PAIRS[2 * r], _PAIRS[2 * r + 1]
+    else:
+        out[end - 1] = np.uint8(48) + np.uint8(value)
+
+
+@njit(inline="always")
+def _nine(value, out, at):
+    """Write ``value`` (< 10⁹) as exactly 9 digits, zero-padded, at ``out[at:]``: a digit
+    and four pairs, whose divisions do not wait on each other."""
+    v = np.int64(value)
+    rest = v % 100_000_000
+    out[at] = np.uint8(48 + v // 100_000_000)
+    a, b = rest // 1_000_000, (rest // 10_000) % 100
+    c, d = (rest // 100) % 100, rest % 100
+    out[at + 1], out[at + 2] = _PAIRS[2 * a], _PAIRS[2 * a + 1]
+    out[at + 3], out[at + 4] = _PAIRS[2 * b], _PAIRS[2 * b + 1]
+    out[at + 5], out[at + 6] = _PAIRS[2 * c], _PAIRS[2 * c + 1]
+    out[at + 7], out[at + 8] = _PAIRS[2 * d], _PAIRS[2 * d + 1]
 
 
 #: Events per block of the parallel writers.
 _BLOCK = 65536
+#: Events per block of :func:`text_lines` (small: many blocks share the threads evenly).
+_TEXT_BLOCK = 8192
 #: The most bytes of one text line: seconds < 10¹⁰ with the point and 9 decimals (20),
 #: x and y < 65536 (5 each), p, three spaces and the newline.
 LINE_BYTES = 40
@@ -323,42 +350,44 @@ _GIGA = np.uint64(1_000_000_000)
 def text_lines(t, x, y, p, out):
     """Events as ``t x y p`` lines into the uint8 buffer ``out`` (at least
     ``LINE_BYTES`` per event); returns the bytes used. t (s, ≥ 0) is written with
-    9 decimals from its integer nanoseconds (``np.round``: half to even). Blocks of
-    events are formatted in parallel, each into its own part of ``out``, then moved
-    together."""
+    9 decimals from its integer nanoseconds (``np.round``: half to even).
+
+    Two parallel passes over blocks of events: the bytes of each block's lines
+    (their digits counted), then each block's lines written where the blocks before
+    it end. (Formatting each block into a slot of ``LINE_BYTES`` per event and moving
+    the blocks together after took a serial byte copy of most of the text: 10 → 4 ms
+    for 323 k events on two cores.)"""
     n = t.size
-    blocks = (n + _BLOCK - 1) // _BLOCK
-    used = np.empty(blocks, dtype=np.int64)
+    blocks = (n + _TEXT_BLOCK - 1) // _TEXT_BLOCK
+    starts = np.zeros(blocks + 1, dtype=np.int64)
     for b in prange(blocks):
-        at = start = b * _BLOCK * LINE_BYTES
-        for e in range(b * _BLOCK, min(n, (b + 1) * _BLOCK)):
+        size = 0
+        for e in range(b * _TEXT_BLOCK, min(n, (b + 1) * _TEXT_BLOCK)):
+            seconds = np.uint64(np.rint(t[e] * 1e9)) // _GIGA
+            size += _width(seconds) + _width(np.uint64(x[e])) + _width(np.uint64(y[e])) + 15
+        starts[b + 1] = size
+    for b in range(blocks):
+        starts[b + 1] += starts[b]
+    for b in prange(blocks):
+        at = starts[b]
+        for e in range(b * _TEXT_BLOCK, min(n, (b + 1) * _TEXT_BLOCK)):
             ns = np.uint64(np.rint(t[e] * 1e9))
-            at = _digits(ns // _GIGA, out, at)
+            seconds = ns // _GIGA
+            at += _width(seconds)
+            _put(seconds, out, at)
             out[at] = 46  # "."
-            at = _fixed_digits(ns % _GIGA, out, at + 1, 9)
+            _nine(ns % _GIGA, out, at + 1)
+            out[at + 10] = 32
+            at += 11 + _width(np.uint64(x[e]))
+            _put(np.uint64(x[e]), out, at)
             out[at] = 32
-            at = _digits(np.uint64(x[e]), out, at + 1)
-            out[at] = 32
-            at = _digits(np.uint64(y[e]), out, at + 1)
+            at += 1 + _width(np.uint64(y[e]))
+            _put(np.uint64(y[e]), out, at)
             out[at] = 32
             out[at + 1] = 48 + p[e]
             out[at + 2] = 10
             at += 3
-        used[b] = at - start
-    at = 0
-    for b in range(blocks):  # blocks move forward (never past their own start)
-        _move_down(out, at, b * _BLOCK * LINE_BYTES, used[b])
-        at += used[b]
-    return at
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _move_down(buf, to, start, n):
-    """``buf[start:start + n]`` copied to ``buf[to:]`` (to ≤ start), first byte first:
-    serial, where a slice assignment in a parallel kernel would be split over threads
-    and race on the overlap."""
-    for k in range(n):
-        buf[to + k] = buf[start + k]
+    return starts[blocks]
 
 
 @njit(cache=True, parallel=True, nogil=True)

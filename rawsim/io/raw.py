@@ -460,6 +460,22 @@ def _colours_reason(rows: tuple[str, ...], source: str) -> str:
     )
 
 
+def _visible_colours(raw, pattern: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """``raw.raw_colors_visible[:rows, :cols]``, the colour index of the visible area's
+    first sites, without the (H, W) map rawpy builds for it (``np.pad`` of
+    ``raw_pattern`` over the whole raw, then the visible window: 20–75 ms for 24 MP,
+    in every read): the same values, from the same padding of ``pattern``
+    (rawpy pads by its first side on both axes)."""
+    s = raw.sizes
+    ph, pw = pattern.shape
+    size = (s.raw_height - ph + ph, s.raw_width - ph + pw)  # raw_colors' shape
+    rows = max(0, min(rows, s.height, size[0] - s.top_margin))
+    cols = max(0, min(cols, s.width, size[1] - s.left_margin))
+    i = (s.top_margin + np.arange(rows)) % ph
+    j = (s.left_margin + np.arange(cols)) % pw
+    return pattern[i[:, None], j[None, :]]
+
+
 def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
     """Decode a camera raw with rawpy.
 
@@ -525,7 +541,7 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
                 # The colours of the visible area's first period (its origin may be
                 # anywhere in the pattern), and of a window to check a DNG's against.
                 ph, pw = np.asarray(pattern).shape
-                sites = np.asarray(raw.raw_colors_visible[: 4 * ph, : 4 * pw])
+                sites = _visible_colours(raw, np.asarray(pattern), 4 * ph, 4 * pw)
                 pattern = np.array(sites[:ph, :pw], copy=True)
                 letter = np.array(list(desc) + ["?"] * 4)
                 libraw_rows = tuple("".join(letter[int(i)] for i in row) for row in pattern)
