@@ -19,7 +19,7 @@ DEMOSAICS = ("wcd", "learned", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend", "reconstruct", "unclip")
 DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
 SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
-FORMATS = ("png", "tiff", "jpg", "exr")
+FORMATS = ("png", "tiff", "jpg", "exr", "dng")
 #: Other usual spellings of the formats.
 FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
 
@@ -171,14 +171,15 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     callback=lambda ctx, param, value: FORMAT_ALIASES.get(value.lower(), value.lower()),
     default="png",
     show_default=True,
-    help="Output format; EXR is scene-linear (no tone curve or transfer).",
+    help="Output format; EXR is scene-linear (no tone curve or transfer); DNG is the "
+    "raw's mosaic as a raw for an editor, denoised with --denoise (only that applies).",
 )
 @click.option(
     "--bits",
     type=click.Choice(["8", "16", "32"]),
     default=None,
     help="Bits per sample: 8 or 16 (PNG, TIFF; JPEG 8), 16 (half) or 32 for EXR. "
-    "Default 8, EXR 16.",
+    "Default 8, EXR and DNG 16.",
 )
 @click.option(
     "--resize",
@@ -310,8 +311,8 @@ def command(
                 "--thumbnail writes the raw's embedded JPEG: use --format jpg, or drop it", ctx
             )
         fmt = "jpg"
-    nbits = int(bits) if bits else (16 if fmt == "exr" else 8)
-    valid = {"png": (8, 16), "tiff": (8, 16), "jpg": (8,), "exr": (16, 32)}[fmt]
+    nbits = int(bits) if bits else (16 if fmt in ("exr", "dng") else 8)
+    valid = {"png": (8, 16), "tiff": (8, 16), "jpg": (8,), "exr": (16, 32), "dng": (16,)}[fmt]
     if nbits not in valid:
         raise click.UsageError(f"--format {fmt} takes --bits {' or '.join(map(str, valid))}", ctx)
     checked = check_inputs(

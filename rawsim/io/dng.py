@@ -21,6 +21,7 @@ import numpy as np
 
 from rawsim.cfa import CFA
 from rawsim.color import ILLUMINANT_D65
+from rawsim.io.dng_colour import DngColour
 from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import Output, PhotoMetadata, exif_block, xmp_without
 from rawsim.io.tiff import ASCII, BYTE, DOUBLE, LONG, RATIONAL, SHORT, SRATIONAL, write_tiff
@@ -55,12 +56,17 @@ class DngInfo:
             sample per pixel, LinearRaw, no colour tags). A 6×6 pattern
             (X-Trans) is written with CFARepeatPatternDim 6×6, which LibRaw
             reads as an X-Trans raw.
-        black_level, white_level: DN.
-        xyz_to_camera: (3, 3) D65 XYZ → camera matrix (ColorMatrix1).
-        as_shot_neutral: camera response to the scene white, 1 / white-balance gains.
+        black_level, white_level: DN; ``black_level`` one number, or (ph, pw) per
+            site of the CFA's period (BlackLevelRepeatDim).
+        xyz_to_camera: (3, 3) D65 XYZ → camera matrix (ColorMatrix1), where
+            ``colour`` is None.
+        as_shot_neutral: camera response to the scene white, 1 / white-balance gains;
+            None: no AsShotNeutral (a raw that records no white balance).
         make, model, unique_model: camera identification strings.
         iso: ISO speed.
-        noise_profile: (S, O) for the NoiseProfile tag, or None.
+        noise_profile: (S, O) for the NoiseProfile tag, or (S, O) per colour R, G,
+            B (6 numbers), or None: variance S·x + O of the signal x normalised to
+            white = 1.
         baseline_exposure: stops.
         orientation: TIFF orientation 1–8.
         software: writer name.
@@ -69,13 +75,17 @@ class DngInfo:
             outputs are byte-identical run to run).
         lens: the simulated lens, recorded in the lens tags (LensMake, LensModel,
             FocalLength, FNumber, SubjectDistance), or None.
+        colour: a raw's own DNG colour tags (ColorMatrix1/2 with their
+            CalibrationIlluminant1/2, CameraCalibration1/2, AnalogBalance), written
+            as they are in place of ``xyz_to_camera``; None: ``xyz_to_camera``
+            under D65.
     """
 
     cfa: CFA | None
-    black_level: float
+    black_level: float | np.ndarray
     white_level: float
     xyz_to_camera: tuple
-    as_shot_neutral: tuple[float, float, float]
+    as_shot_neutral: tuple[float, float, float] | None
     make: str
     model: str
     unique_model: str
@@ -86,11 +96,13 @@ class DngInfo:
     software: str = "rawsim"
     metadata: PhotoMetadata = field(default_factory=PhotoMetadata)
     lens: LensParams | None = None
+    colour: DngColour | None = None
 
 
 def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
     """IFD0's DNG tags for ``info``: code → (TIFF field type, values), as
     :func:`rawsim.io.tiff.write_tiff` takes them."""
+    black = np.atleast_2d(np.asarray(info.black_level, np.float64))
     tags = {
         254: (LONG, [0]),  # NewSubfileType: the main image
         262: (SHORT, [32803 if info.cfa is not None else 34892]),  # CFA, else LinearRaw
@@ -102,24 +114,46 @@ def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
         50706: (BYTE, bytes((1, 4, 0, 0))),  # DNGVersion
         50707: (BYTE, bytes((1, 1, 0, 0))),  # DNGBackwardVersion
         50708: (ASCII, info.unique_model),  # UniqueCameraModel
-        50713: (SHORT, [1, 1]),  # BlackLevelRepeatDim
-        50714: (RATIONAL, _rationals([info.black_level], False)),  # BlackLevel
+        50713: (SHORT, list(black.shape)),  # BlackLevelRepeatDim
+        50714: (RATIONAL, _rationals(black.ravel(), False)),  # BlackLevel
         50717: (LONG, [int(round(info.white_level))]),  # WhiteLevel
         50730: (SRATIONAL, _rationals([info.baseline_exposure], True)),  # BaselineExposure
     }
     if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
-        matrix = [v for row in info.xyz_to_camera for v in row]
         tags |= {
             33421: (SHORT, list(info.cfa.dng_repeat)),  # CFARepeatPatternDim: 2×2, 6×6
             33422: (BYTE, bytes(info.cfa.dng_pattern)),  # CFAPattern
             50710: (BYTE, bytes((0, 1, 2))),  # CFAPlaneColor
             50711: (SHORT, [1]),  # CFALayout: rectangular
-            50721: (SRATIONAL, _rationals(matrix, True)),  # ColorMatrix1
-            50728: (RATIONAL, _rationals(info.as_shot_neutral, False)),  # AsShotNeutral
-            50778: (SHORT, [ILLUMINANT_D65]),  # CalibrationIlluminant1
         }
+        if info.as_shot_neutral is not None:
+            tags[50728] = (RATIONAL, _rationals(info.as_shot_neutral, False))  # AsShotNeutral
+        tags |= _colour_tags(info)
     if info.noise_profile is not None:
         tags[51041] = (DOUBLE, [float(v) for v in info.noise_profile])  # NoiseProfile
+    return tags
+
+
+def _colour_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
+    """ColorMatrix1/2, CalibrationIlluminant1/2, CameraCalibration1/2 and AnalogBalance:
+    ``info.colour``'s as they are, else ``info.xyz_to_camera`` under D65."""
+    colour = info.colour
+    if colour is None:
+        matrix = np.asarray(info.xyz_to_camera, np.float64).ravel()
+        return {
+            50721: (SRATIONAL, _rationals(matrix, True)),  # ColorMatrix1
+            50778: (SHORT, [ILLUMINANT_D65]),  # CalibrationIlluminant1
+        }
+    tags = {}
+    for i, (cm, ill, cc) in enumerate(((50721, 50778, 50723), (50722, 50779, 50724)), 1):
+        if i in colour.matrices:
+            code, matrix = colour.matrices[i]
+            tags[cm] = (SRATIONAL, _rationals(np.ravel(matrix), True))
+            tags[ill] = (SHORT, [int(code)])
+        if i in colour.calibration:
+            tags[cc] = (SRATIONAL, _rationals(np.ravel(colour.calibration[i]), True))
+    if colour.analog_balance is not None:
+        tags[50727] = (RATIONAL, _rationals(colour.analog_balance, False))  # AnalogBalance
     return tags
 
 
@@ -171,14 +205,19 @@ def _rational_text(value: float) -> str:
     return f"{numerator}/{denominator}"
 
 
-def write_dng(path: str | Path, mosaic: np.ndarray, info: DngInfo) -> None:
+def write_dng(
+    path: str | Path, mosaic: np.ndarray, info: DngInfo, metadata: PhotoMetadata | None = None
+) -> None:
     """Write a (H, W) uint16 mosaic with ``info`` as an uncompressed DNG at ``path``.
 
     A CFA mosaic when ``info.cfa`` is set; otherwise monochrome LinearRaw data.
+    ``metadata``: the EXIF and XMP to write as they are (a raw's own, for ``process
+    --format dng``); None: :func:`dng_metadata`'s (a photo's, with the simulated
+    camera).
     """
     if mosaic.ndim != 2 or mosaic.dtype != np.uint16:
         raise ValueError(f"mosaic must be a (H, W) uint16 array, got {mosaic.shape} {mosaic.dtype}")
-    meta = dng_metadata(info)
+    meta = dng_metadata(info) if metadata is None else metadata
     h, w = mosaic.shape
     exif = exif_block(meta, Output(info.software, "dng", w, h, orientation=info.orientation))
     write_tiff(path, mosaic[:, :, None], exif, meta.xmp, tags=dng_tags(info))

@@ -26,7 +26,7 @@ from rawsim._version import __version__
 from rawsim.colorspaces import Encoding
 from rawsim.denoise.noise_model import stage_model
 from rawsim.device import resolve_device
-from rawsim.errors import ParameterError
+from rawsim.errors import ParameterError, RawsimError
 from rawsim.io.images import OUTPUT_FORMATS, resize_samples, write_image
 from rawsim.io.metadata import Output, PhotoMetadata, embed_jpeg, read_metadata
 from rawsim.io.outputs import atomic_outputs
@@ -70,8 +70,9 @@ class ProcessOptions:
     Attributes:
         config: the ISP config (see :mod:`rawsim.isp.config`); its TOML form (a
             list of stage tables) is parsed on construction.
-        fmt: output format, one of ``OUTPUT_FORMATS``.
-        bits: 8 or 16 (PNG/TIFF/JPEG), 16 (half) or 32 (float) for EXR.
+        fmt: output format, one of :data:`FORMATS`: ``dng`` writes the raw's mosaic
+            back as a raw (:mod:`rawsim.pipelines.process_dng`).
+        bits: 8 or 16 (PNG/TIFF/JPEG), 16 (half) or 32 (float) for EXR, 16 for DNG.
         device: ``cpu``, ``cuda`` or ``auto``.
         strip_metadata: write none of the raw's metadata (EXIF, GPS, XMP) into the
             image, only rawsim's own tags.
@@ -100,9 +101,29 @@ class ProcessOptions:
                 f"--thumbnail writes the raw's embedded JPEG, not a render: {asked[0]} "
                 "does not apply; drop one of them"
             )
+        if self.fmt == "dng":
+            self.check_dng()
+
+    def check_dng(self) -> None:
+        """Refuse what ``--format dng`` cannot do: the DNG is the raw's mosaic, for an
+        editor to render, so only the raw denoise stage acts on it; a stage that shapes
+        a render (white balance, highlights, demosaic, colour, exposure, tone,
+        transfer, …), ``--resize`` and ``--thumbnail`` are refused."""
+        if self.resize is not None or self.thumbnail:
+            flag = "--resize" if self.resize is not None else "--thumbnail"
+            raise ParameterError(f"--format dng writes the whole raw mosaic: drop {flag}")
+        if self.bits != 16:
+            raise ParameterError(f"--format dng writes 16-bit samples, not {self.bits}")
+        for stage in self.config.enabled:
+            asked = self.config.asked_as(stage)
+            if asked is not None and not isinstance(stage, RawDenoiseStage):
+                raise ParameterError(
+                    f"--format dng writes the raw for an editor to render: {asked} shapes "
+                    "a render and does not apply; drop it (only --denoise acts on the raw)"
+                )
 
     def output_suffixes(self) -> dict[str, str]:
-        return {"image": OUTPUT_FORMATS[self.fmt], "json": ".process.json"}
+        return {"image": FORMATS[self.fmt], "json": ".process.json"}
 
     def effective_config(self) -> IspConfig:
         """EXR is scene-linear: its renders skip the tone curve, transfer and YCbCr."""
@@ -127,6 +148,8 @@ class ProcessOptions:
         ]
 
 
+#: Output formats and their suffixes: the images', and the raw DNG.
+FORMATS = {**OUTPUT_FORMATS, "dng": ".dng"}
 #: The stages an EXR render leaves out: its samples are scene-linear light.
 EXR_LEAVES_OUT = (ToneStage, TransferStage, YCbCrStage)
 
@@ -457,17 +480,7 @@ def engine_render(
     up: ``reconstruct`` and ``unclip`` rebuild the mosaic in place.
     """
     if plan.denoise is not None:
-        from rawsim.engine.denoise import denoise_mosaic
-
-        black = np.asarray(raw.black_level, np.float64)
-        *model, strength, learned = plan.denoise
-        white = plan.info["white_level"]
-        data = denoise_mosaic(raw.data, raw.cfa, black, white, *model, strength)
-        if learned:
-            from rawsim.denoise.learned import refine_mosaic
-
-            data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
-        raw, plan = replace(raw, data=data), replace(plan, denoise=None)
+        raw, plan = denoised(raw, plan), replace(plan, denoise=None)
     if plan.highlights is not None:
         from rawsim.engine.highlights import reconstruct_mosaic, unclip_mosaic
 
@@ -499,6 +512,25 @@ def engine_render(
         )
         raw, plan = replace(raw, data=data), replace(plan, pre_ops=ops, pre_f=numbers, tca=None)
     return _kernels(raw, plan, fmt, bits, tile, reuse)
+
+
+def denoised(raw: RawImage, plan: EnginePlan) -> RawImage:
+    """``raw`` with its (H, W) uint16 mosaic denoised as ``plan.denoise`` says (a new
+    array, DN; :func:`rawsim.engine.denoise.denoise_mosaic`, then for ``learned``
+    :func:`rawsim.denoise.learned.refine_mosaic`), or ``raw`` itself without it."""
+    if plan.denoise is None:
+        return raw
+    from rawsim.engine.denoise import denoise_mosaic
+
+    black = np.asarray(raw.black_level, np.float64)
+    *model, strength, learned = plan.denoise
+    white = plan.info["white_level"]
+    data = denoise_mosaic(raw.data, raw.cfa, black, white, *model, strength)
+    if learned:
+        from rawsim.denoise.learned import refine_mosaic
+
+        data = refine_mosaic(raw.data, data, raw.cfa, black, white, *model)
+    return replace(raw, data=data)
 
 
 def _kernels(raw: RawImage, plan: EnginePlan, fmt: str, bits: int, tile, reuse: bool):
@@ -905,8 +937,10 @@ def output_encoding(config: IspConfig, info: dict) -> Encoding | None:
 
 def process_file(task: Task, options: ProcessOptions) -> dict:
     """Render one raw file to ``task.outputs["image"]`` and its sidecar JSON."""
-    if options.fmt not in OUTPUT_FORMATS:
-        raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(OUTPUT_FORMATS)}")
+    if options.fmt not in FORMATS:
+        raise ParameterError(f"unknown format {options.fmt!r}; valid: {', '.join(FORMATS)}")
+    if options.fmt == "dng":
+        return _process_dng(task, options)
     if options.thumbnail:
         return _write_thumbnail(task, options)
     config = options.effective_config()
@@ -958,6 +992,35 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
 
 
 process_file.read_ahead = read_ahead  # type: ignore[attr-defined]
+
+
+def _process_dng(task: Task, options: ProcessOptions) -> dict:
+    """``process_file`` for ``--format dng``: ``task``'s raw, its mosaic denoised where
+    the config asks (:func:`denoised`, on the engine), written back as a raw
+    (:func:`rawsim.pipelines.process_dng.write_mosaic_dng`)."""
+    from rawsim.pipelines.process_dng import write_mosaic_dng
+
+    raw = _read_while_loading_engine(task.source, "cpu")
+    if raw.cfa is None:
+        kind = "LinearRaw" if raw.data.ndim == 3 and raw.data.shape[2] == 3 else "monochrome"
+        raise RawsimError(
+            f"{task.source}: a {kind} raw holds no CFA mosaic, and --format dng writes "
+            "mosaics (the demosaicked linear kind is not built yet); render it with "
+            "--format tiff --bits 16"
+        )
+    resolved = resolve(options.config, raw)
+    out = raw
+    if resolved.info.get("raw_denoise") not in (None, "none"):
+        plan = _engine_plan(resolved, "tiff")
+        if plan is None:
+            raise RawsimError(
+                f"{task.source}: too small for the compiled engine's denoiser "
+                f"({raw.data.shape[1]} × {raw.data.shape[0]}); drop --denoise"
+            )
+        out = denoised(raw, plan)
+    meta = write_mosaic_dng(task, options, raw, out, resolved.info)
+    _raws.keep_array(raw.data)
+    return meta
 
 
 def _preview_config(config: IspConfig, raw: RawImage, resize: int | None) -> IspConfig:

@@ -1,0 +1,191 @@
+"""``rawsim process --format dng``: a raw's mosaic, denoised, back as a raw.
+
+The output is a CFA DNG (Adobe DNG Specification 1.7.1.0; :func:`rawsim.io.dng.
+write_dng`) that editors open as the original: the mosaic as LibRaw decodes it (the
+visible area, linear DN), after the raw denoise stage when one is asked for, with
+the raw's CFA (2 × 2 Bayer or 6 × 6 X-Trans), black level per site of the period,
+white level, colour (a DNG's own ColorMatrix1/2, CalibrationIlluminant1/2,
+CameraCalibration1/2 and AnalogBalance as they are; otherwise LibRaw's XYZ → camera
+matrix under D65, the Adobe matrix it holds, or its camera → sRGB matrix inverted,
+:func:`~rawsim.io.raw.xyz_to_camera_of`), AsShotNeutral (the camera's white
+balance, where LibRaw would use it), BaselineExposure, orientation and ISO,
+and the raw's EXIF and XMP (camera, lens, exposure, time, GPS; not with
+``--strip-metadata``). White balance, exposure, highlights, colour and tone stay
+the editor's to choose, so options that shape a render are refused
+(:meth:`~rawsim.pipelines.process.ProcessOptions.check_dng`).
+
+The NoiseProfile tag (variance S·x + O per colour, x normalised to white = 1) says
+what noise is left, so that an editor's own denoiser does not count the removed
+noise again: the noise model the denoise stage took, scaled per colour by the
+share of its variance that is left (:func:`noise_left`). Without denoising a DNG's
+own NoiseProfile is kept as it is, and none is written for other raws.
+
+Not written yet: embedded previews (the original's and one of the result), the
+demosaicked ``linear`` kind, and DefaultCrop beyond LibRaw's visible area.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from rawsim._version import __version__
+from rawsim.errors import RawsimError
+from rawsim.io.dng import DngInfo, write_dng
+from rawsim.io.metadata import PhotoMetadata, read_metadata
+from rawsim.io.outputs import atomic_outputs
+from rawsim.io.raw import RawImage, dng_colour, xyz_to_camera_of
+from rawsim.io.task import Task
+
+#: Sites at or above this share of the span between black and white are left out of
+#: :func:`noise_left`'s statistics: clipping removes noise, not the denoiser.
+NOISE_CLIPPED = 0.95
+#: :func:`noise_left` reads at most about this many sites, a centred crop of whole
+#: periods.
+NOISE_SITES = 1_000_000
+
+
+def write_mosaic_dng(task: Task, options, raw: RawImage, out: RawImage, info: dict) -> dict:
+    """Write ``out`` (``raw`` after the raw denoise stage, or ``raw`` itself) to
+    ``task.outputs["image"]`` as a CFA DNG with ``raw``'s metadata, and its sidecar;
+    ``info``: the resolved config's record
+    (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns the sidecar's record."""
+    denoising = out is not raw
+    black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
+    colour = dng_colour(raw.path)
+    matrix, matrix_source = xyz_to_camera_of(raw)
+    if colour is None and matrix is None:
+        raise RawsimError(
+            f"{task.source}: neither the file nor LibRaw gives the camera's colour "
+            "matrix, which a DNG must carry; render it with --format tiff instead"
+        )
+    photo = PhotoMetadata() if options.strip_metadata else read_metadata(task.source)
+    make = photo.get("Exif.Image.Make") or raw.make
+    model = photo.get("Exif.Image.Model") or raw.model
+    neutral, neutral_source = _as_shot_neutral(raw)
+    noise, left = _noise_profile(raw, out, info, denoising)
+    dng = DngInfo(
+        cfa=raw.cfa,
+        black_level=black,
+        white_level=raw.white_level,
+        xyz_to_camera=() if colour is not None else tuple(map(tuple, matrix)),
+        as_shot_neutral=neutral,
+        make=make,
+        model=model,
+        unique_model=f"{make} {model}",
+        iso=raw.iso,
+        noise_profile=noise,
+        baseline_exposure=raw.baseline_exposure,
+        orientation=raw.orientation,
+        software=f"rawsim {__version__}",
+        colour=colour,
+    )
+    h, w = out.data.shape
+    meta = {
+        "rawsim_version": __version__,
+        "input": task.key,
+        "camera": {"make": raw.make, "model": raw.model},
+        "format": "dng",
+        "dng": "mosaic",
+        "cfa_pattern": raw.cfa.pattern,
+        "width": w,
+        "height": h,
+        "black_level": black.tolist(),
+        "white_level": raw.white_level,
+        "iso": raw.iso,
+        "orientation": raw.orientation,
+        "colour_tags": (
+            "the file's own (ColorMatrix, CalibrationIlluminant, CameraCalibration, AnalogBalance)"
+            if colour is not None
+            else f"ColorMatrix1 under D65: {matrix_source}"
+        ),
+        "as_shot_neutral": None if neutral is None else [round(v, 6) for v in neutral],
+        "as_shot_neutral_source": neutral_source,
+        "baseline_exposure": raw.baseline_exposure,
+        "raw_denoise": info.get("raw_denoise", "none"),
+        "noise_model": info.get("noise_model"),
+        "noise_left": left,
+        "noise_profile": None if noise is None else [float(v) for v in noise],
+        "metadata": "stripped" if options.strip_metadata else "the raw's EXIF and XMP",
+        "config": options.config.to_tables(),
+        "warnings": list(info["warnings"]) + list(raw.warnings),
+    }
+    with atomic_outputs(task.outputs) as tmp:
+        write_dng(tmp["image"], out.data, dng, photo)
+        tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
+    return meta
+
+
+def _as_shot_neutral(raw: RawImage) -> tuple[tuple[float, float, float] | None, str]:
+    """AsShotNeutral (the camera's response to the scene's white: 1 / each white-balance
+    gain) from the camera's multipliers, and what it is; None where LibRaw would not
+    use them (:attr:`~rawsim.io.raw.RawImage.as_shot_wb`): the DNG then records no
+    white balance either, and an editor chooses one as for the original."""
+    gains = raw.as_shot_wb
+    if gains is None or not all(g > 0 for g in gains):
+        return None, f"none: the file's multipliers ({raw.camera_wb_note}) are not used"
+    return tuple(float(gains[1] / g) for g in gains), "the camera's multipliers"
+
+
+def _noise_profile(raw: RawImage, out: RawImage, info: dict, denoising: bool):
+    """(NoiseProfile values or None, the share of variance left per colour or None):
+    after denoising, the model's (S, O) per colour R, G, B scaled by
+    :func:`noise_left`; without it, a DNG's own tag, as it is."""
+    from rawsim.denoise.noise_model import NoiseModel, dng_noise_profile
+
+    span = float(raw.white_level) - float(np.mean(raw.black_level))
+    if not denoising:
+        model = dng_noise_profile(raw)
+        if model is None:
+            return None, None
+        gain, offset = model.normalised(span)
+        return _pairs(gain, offset), None
+    gain, offset = NoiseModel.from_dict(info["noise_model"]).normalised(span)
+    left = noise_left(raw.data, out.data, raw, gain, offset)
+    kept = [(g * r, o * r) for g, o, r in zip(gain, offset, left, strict=True)]
+    return _pairs(*zip(*kept, strict=True)), [round(r, 4) for r in left]
+
+
+def _pairs(gain, offset) -> tuple[float, ...]:
+    """NoiseProfile's values: (S, O) for R, G, B in turn."""
+    return tuple(float(v) for pair in zip(gain, offset, strict=True) for v in pair)
+
+
+def noise_left(before: np.ndarray, after: np.ndarray, raw: RawImage, gain, offset) -> list[float]:
+    """The share (0–1) of each colour's (R, G, B) noise variance left in the (H, W)
+    mosaic ``after`` of ``before``: the squared ratio of the two mosaics' robust
+    noise estimates. Each estimate is the median absolute difference between each
+    site and the site one period to its right (the same colour), over the σ the
+    model (``gain``, ``offset``: variance gain·x + offset, x normalised to white = 1)
+    gives that difference, × 1.4826; sites near white (:data:`NOISE_CLIPPED`) are
+    left out. Texture counts as noise in both, so the share is if anything too high
+    (an editor then removes a little more, never counts removed noise again)."""
+    ph, pw = raw.cfa.period
+    h, w = before.shape
+    rows = min(h, max(ph, (NOISE_SITES // max(w, 1)) // ph * ph))
+    y0 = (h - rows) // 2 // ph * ph
+    black = np.broadcast_to(np.asarray(raw.black_level, np.float32), (ph, pw))
+    black = np.tile(black, (rows // ph + 1, w // pw + 1))[:rows, : w - pw]
+    span = np.float32(raw.white_level) - black
+    colours = np.tile(np.array(raw.cfa.colors).reshape(ph, pw), (rows // ph + 1, w // pw + 1))
+    colours = colours[:rows, : w - pw]
+
+    def sigma(mosaic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        part = mosaic[y0 : y0 + rows].astype(np.float32)
+        a, b = part[:, : w - pw], part[:, pw:]
+        level = np.clip(((a + b) / 2 - black) / span, 0, None)
+        g, o = np.asarray(gain, np.float32), np.asarray(offset, np.float32)
+        var = 2 * (g[colours] * level + o[colours])
+        return (a - b) / np.sqrt(np.maximum(var, 1e-12)), level
+
+    z_before, level = sigma(before)
+    z_after, _ = sigma(after)
+    usable = level < NOISE_CLIPPED
+    left = []
+    for c in range(3):
+        keep = np.flatnonzero(usable & (colours == c))
+        s0 = float(np.median(np.abs(z_before.ravel()[keep]))) if keep.size else 0.0
+        s1 = float(np.median(np.abs(z_after.ravel()[keep]))) if keep.size else 0.0
+        left.append(min(1.0, (s1 / s0) ** 2) if s0 > 0 else 1.0)
+    return left
