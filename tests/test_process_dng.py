@@ -106,6 +106,26 @@ def test_a_dngs_own_colour_tags_are_kept(written):
     assert meta["colour_tags"].startswith("the file's own")
 
 
+def test_the_dng_embeds_a_preview_of_the_result(written, tmp_path):
+    """LibRaw finds the preview (IFD1, sRGB) as a file browser would, and it is the
+    default render at half size, unrotated: the mean of each colour within 2 codes of
+    rawsim's own half-size PNG of the original."""
+    src = DATA / "raw" / "canon_eos60d_mlv.dng"
+    dng, meta = written[src]
+    with rawpy.imread(str(dng)) as raw:
+        thumb = raw.extract_thumb()
+    assert thumb.format == rawpy.ThumbFormat.BITMAP
+    assert thumb.data.shape == (meta["preview"]["height"], meta["preview"]["width"], 3)
+    with tifffile.TiffFile(dng) as tif:
+        assert tif.pages[1].tags["NewSubfileType"].value == 1
+        assert tif.pages[1].tags[50970].value == 2  # PreviewColorSpace: sRGB
+    r = run("process", src, "-o", tmp_path, "--half-size")
+    assert r.exit_code == 0, r.output
+    ours = np.asarray(__import__("PIL.Image").Image.open(tmp_path / f"{src.stem}.png"))
+    assert ours.shape == thumb.data.shape
+    assert np.abs(ours.mean((0, 1)) - thumb.data.mean((0, 1))).max() < 2
+
+
 def _numbers(v: np.ndarray) -> np.ndarray:
     """(S)RATIONAL pairs as numbers."""
     return v[0::2] / v[1::2] if v.size % 2 == 0 and v.size > 1 else v

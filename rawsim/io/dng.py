@@ -206,18 +206,24 @@ def _rational_text(value: float) -> str:
 
 
 def write_dng(
-    path: str | Path, mosaic: np.ndarray, info: DngInfo, metadata: PhotoMetadata | None = None
+    path: str | Path,
+    mosaic: np.ndarray,
+    info: DngInfo,
+    metadata: PhotoMetadata | None = None,
+    preview: np.ndarray | None = None,
 ) -> None:
     """Write a (H, W) uint16 mosaic with ``info`` as an uncompressed DNG at ``path``.
 
     A CFA mosaic when ``info.cfa`` is set; otherwise monochrome LinearRaw data.
     ``metadata``: the EXIF and XMP to write as they are (a raw's own, for ``process
     --format dng``); None: :func:`dng_metadata`'s (a photo's, with the simulated
-    camera).
+    camera). ``preview``: an (h, w, 3) uint8 sRGB render in the mosaic's orientation
+    (IFD1, PreviewColorSpace sRGB), or None.
     """
     if mosaic.ndim != 2 or mosaic.dtype != np.uint16:
         raise ValueError(f"mosaic must be a (H, W) uint16 array, got {mosaic.shape} {mosaic.dtype}")
     meta = dng_metadata(info) if metadata is None else metadata
     h, w = mosaic.shape
     exif = exif_block(meta, Output(info.software, "dng", w, h, orientation=info.orientation))
-    write_tiff(path, mosaic[:, :, None], exif, meta.xmp, tags=dng_tags(info))
+    reduced = None if preview is None else (preview, {50970: (LONG, [2])})  # sRGB
+    write_tiff(path, mosaic[:, :, None], exif, meta.xmp, tags=dng_tags(info), preview=reduced)

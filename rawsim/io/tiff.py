@@ -41,6 +41,7 @@ def write_tiff(
     xmp: str = "",
     icc: bytes | None = None,
     tags: dict[int, tuple[int, object]] | None = None,
+    preview: tuple[np.ndarray, dict] | None = None,
 ) -> None:
     """Write (H, W, C) uint8/uint16 samples (C = 1 grey, 3 RGB; 2 and 4 with alpha)
     as a TIFF whose metadata is the EXIF block ``exif``, with the ``xmp`` packet and
@@ -49,7 +50,9 @@ def write_tiff(
     ``tags``: more IFD0 entries, code → (field type, values), which replace the
     writer's own and exiv2's (a DNG's tags, :mod:`rawsim.io.dng`). Values are a
     ``str`` for ASCII, bytes for BYTE/UNDEFINED, else a sequence of numbers;
-    RATIONAL and SRATIONAL take numerator, denominator pairs, flattened."""
+    RATIONAL and SRATIONAL take numerator, denominator pairs, flattened.
+    ``preview``: an (h, w, 3) uint8 RGB image and its own tags, written as IFD1 (a
+    reduced-resolution image, NewSubfileType 1) after the pixels: a DNG's preview."""
     h, w, c = data.shape
     if data.dtype not in (np.uint8, np.uint16) or not 1 <= c <= 4:
         raise UnsupportedInputError(f"tiff output cannot hold {data.dtype} × {c} samples")
@@ -92,7 +95,9 @@ def write_tiff(
     layout = _values_layout(own, values_at)
     pixels_at = max(layout.values(), default=values_at) + 16
     pixels_at += -pixels_at % 16
-    if pixels_at + h * row_bytes >= 2**32:
+    end = pixels_at + h * row_bytes
+    tail = _reduced_ifd(order, end + end % 2, *preview) if preview is not None else b""
+    if end + len(tail) >= 2**32:
         raise UnsupportedInputError(
             f"{path}: a {w}×{h} TIFF of {bits}-bit samples is over 4 GiB; write EXR or PNG"
         )
@@ -111,13 +116,50 @@ def write_tiff(
             at = values_at + len(extra)
             ifd += struct.pack(order + "HHII", tag, kind, n, at)
             extra += payload + b"\0" * (len(payload) % 2)
-    ifd += b"\0\0\0\0"  # no next IFD
+    ifd += struct.pack(order + "I", end + end % 2 if tail else 0)  # the preview's IFD
     header = exif[:4] + struct.pack(order + "I", start)
     head = header + exif[8:] + b"\0" * (start - len(exif)) + bytes(ifd) + bytes(extra)
     head += b"\0" * (pixels_at - len(head))
     samples = np.ascontiguousarray(data, dtype=data.dtype.newbyteorder(order))
     with open_empty(path) as f:
-        write_pieces(f, head, samples)
+        write_pieces(f, head, samples, b"\0" * (end % 2 if tail else 0), tail)
+
+
+def _reduced_ifd(order: str, at: int, image: np.ndarray, tags: dict) -> bytes:
+    """An IFD at file offset ``at`` for the (h, w, 3) uint8 ``image`` (one uncompressed
+    strip, NewSubfileType 1: reduced resolution) with ``tags`` added, its values and the
+    pixels after it; it ends the IFD chain."""
+    h, w, c = image.shape
+    own = {
+        254: (LONG, [1]),
+        256: (LONG, [w]),
+        257: (LONG, [h]),
+        258: (SHORT, [8] * c),
+        259: (SHORT, [1]),
+        262: (SHORT, [2]),
+        273: (LONG, [0]),
+        277: (SHORT, [c]),
+        278: (LONG, [h]),
+        279: (LONG, [h * w * c]),
+        284: (SHORT, [1]),
+        **tags,
+    }
+    codes = sorted(own)
+    values_at = at + 2 + 12 * len(codes) + 4
+    size = sum(len(p) + len(p) % 2 for p, _ in (_pack(order, *own[t]) for t in codes) if len(p) > 4)
+    own[273] = (LONG, [values_at + size])
+    ifd = bytearray(struct.pack(order + "H", len(codes)))
+    extra = bytearray()
+    for tag in codes:
+        kind, values = own[tag]
+        payload, n = _pack(order, kind, values)
+        if len(payload) <= 4:
+            ifd += struct.pack(order + "HHI", tag, kind, n) + payload.ljust(4, b"\0")
+        else:
+            ifd += struct.pack(order + "HHII", tag, kind, n, values_at + len(extra))
+            extra += payload + b"\0" * (len(payload) % 2)
+    ifd += b"\0\0\0\0"
+    return bytes(ifd) + bytes(extra) + np.ascontiguousarray(image, np.uint8).tobytes()
 
 
 def _values_layout(own: dict, values_at: int) -> dict[int, int]:

@@ -20,8 +20,13 @@ noise again: the noise model the denoise stage took, scaled per colour by the
 share of its variance that is left (:func:`noise_left`). Without denoising a DNG's
 own NoiseProfile is kept as it is, and none is written for other raws.
 
-Not written yet: embedded previews (the original's and one of the result), the
-demosaicked ``linear`` kind, and DefaultCrop beyond LibRaw's visible area.
+The DNG embeds a preview of the result (IFD1, sRGB, at most :data:`~rawsim.
+pipelines.process.DNG_PREVIEW` pixels on its longer side: the default render at
+half size, highlights clipped), which file browsers and editors' libraries show
+before they render.
+
+Not written yet: the original's own preview, the demosaicked ``linear`` kind, and
+DefaultCrop beyond LibRaw's visible area.
 """
 
 from __future__ import annotations
@@ -43,14 +48,17 @@ from rawsim.io.task import Task
 NOISE_CLIPPED = 0.95
 #: :func:`noise_left` reads at most about this many sites, a centred crop of whole
 #: periods.
-NOISE_SITES = 1_000_000
+NOISE_SITES = 500_000
 
 
-def write_mosaic_dng(task: Task, options, raw: RawImage, out: RawImage, info: dict) -> dict:
+def write_mosaic_dng(
+    task: Task, options, raw: RawImage, out: RawImage, info: dict, preview: np.ndarray
+) -> dict:
     """Write ``out`` (``raw`` after the raw denoise stage, or ``raw`` itself) to
-    ``task.outputs["image"]`` as a CFA DNG with ``raw``'s metadata, and its sidecar;
-    ``info``: the resolved config's record
-    (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns the sidecar's record."""
+    ``task.outputs["image"]`` as a CFA DNG with ``raw``'s metadata and the ``preview``
+    of ``out`` ((h, w, 3) uint8 sRGB, unrotated), and its sidecar; ``info``: the
+    resolved config's record (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns
+    the sidecar's record."""
     denoising = out is not raw
     black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
     colour = dng_colour(raw.path)
@@ -108,11 +116,16 @@ def write_mosaic_dng(task: Task, options, raw: RawImage, out: RawImage, info: di
         "noise_left": left,
         "noise_profile": None if noise is None else [float(v) for v in noise],
         "metadata": "stripped" if options.strip_metadata else "the raw's EXIF and XMP",
+        "preview": {
+            "width": preview.shape[1],
+            "height": preview.shape[0],
+            "kind": "the default render at half size, highlights clipped, sRGB",
+        },
         "config": options.config.to_tables(),
         "warnings": list(info["warnings"]) + list(raw.warnings),
     }
     with atomic_outputs(task.outputs) as tmp:
-        write_dng(tmp["image"], out.data, dng, photo)
+        write_dng(tmp["image"], out.data, dng, photo, preview)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
