@@ -175,6 +175,14 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "raw's mosaic as a raw for an editor, denoised with --denoise (only that applies).",
 )
 @click.option(
+    "--dng",
+    "dng",
+    type=click.Choice(["mosaic", "linear"]),
+    default=None,
+    help="With --format dng: 'mosaic' (the CFA mosaic; the default for raws with one) or "
+    "'linear' (rawsim's demosaic, as camera RGB: LinearRaw; the default for raws without).",
+)
+@click.option(
     "--bits",
     type=click.Choice(["8", "16", "32"]),
     default=None,
@@ -231,6 +239,7 @@ def command(
     aperture,
     fmt,
     bits,
+    dng,
     resize,
     thumbnail,
     strip_metadata,
@@ -311,6 +320,10 @@ def command(
                 "--thumbnail writes the raw's embedded JPEG: use --format jpg, or drop it", ctx
             )
         fmt = "jpg"
+    if dng is not None and fmt != "dng":
+        raise click.UsageError(
+            f"--dng {dng} is the kind of --format dng: add it, or drop --dng", ctx
+        )
     nbits = int(bits) if bits else (16 if fmt in ("exr", "dng") else 8)
     valid = {"png": (8, 16), "tiff": (8, 16), "jpg": (8,), "exr": (16, 32), "dng": (16,)}[fmt]
     if nbits not in valid:
@@ -331,6 +344,7 @@ def command(
         strip_metadata=strip_metadata,
         resize=resize,
         thumbnail=thumbnail,
+        dng=dng,
     )
     run_files(
         ctx,

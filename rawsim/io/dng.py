@@ -52,10 +52,10 @@ class DngInfo:
     """The metadata written into a DNG.
 
     Attributes:
-        cfa: the mosaic's CFA pattern, or None for a monochrome sensor (one
-            sample per pixel, LinearRaw, no colour tags). A 6×6 pattern
-            (X-Trans) is written with CFARepeatPatternDim 6×6, which LibRaw
-            reads as an X-Trans raw.
+        cfa: the mosaic's CFA pattern, or None for LinearRaw data: one sample per
+            pixel (a monochrome sensor, no colour tags) or three (camera RGB, with
+            the colour tags, ``rgb``). A 6×6 pattern (X-Trans) is written with
+            CFARepeatPatternDim 6×6, which LibRaw reads as an X-Trans raw.
         black_level, white_level: DN; ``black_level`` one number, or (ph, pw) per
             site of the CFA's period (BlackLevelRepeatDim).
         xyz_to_camera: (3, 3) D65 XYZ → camera matrix (ColorMatrix1), where
@@ -75,6 +75,7 @@ class DngInfo:
             outputs are byte-identical run to run).
         lens: the simulated lens, recorded in the lens tags (LensMake, LensModel,
             FocalLength, FNumber, SubjectDistance), or None.
+        rgb: LinearRaw camera RGB (``cfa`` None, three samples a pixel).
         colour: a raw's own DNG colour tags (ColorMatrix1/2 with their
             CalibrationIlluminant1/2, CameraCalibration1/2, AnalogBalance), written
             as they are in place of ``xyz_to_camera``; None: ``xyz_to_camera``
@@ -97,6 +98,7 @@ class DngInfo:
     metadata: PhotoMetadata = field(default_factory=PhotoMetadata)
     lens: LensParams | None = None
     colour: DngColour | None = None
+    rgb: bool = False
 
 
 def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
@@ -119,13 +121,14 @@ def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
         50717: (LONG, [int(round(info.white_level))]),  # WhiteLevel
         50730: (SRATIONAL, _rationals([info.baseline_exposure], True)),  # BaselineExposure
     }
-    if info.cfa is not None:  # monochrome DNGs have one colour plane and no colour tags
+    if info.cfa is not None:
         tags |= {
             33421: (SHORT, list(info.cfa.dng_repeat)),  # CFARepeatPatternDim: 2×2, 6×6
             33422: (BYTE, bytes(info.cfa.dng_pattern)),  # CFAPattern
             50710: (BYTE, bytes((0, 1, 2))),  # CFAPlaneColor
             50711: (SHORT, [1]),  # CFALayout: rectangular
         }
+    if info.cfa is not None or info.rgb:  # monochrome DNGs have no colour tags
         if info.as_shot_neutral is not None:
             tags[50728] = (RATIONAL, _rationals(info.as_shot_neutral, False))  # AsShotNeutral
         tags |= _colour_tags(info)
@@ -214,16 +217,22 @@ def write_dng(
 ) -> None:
     """Write a (H, W) uint16 mosaic with ``info`` as an uncompressed DNG at ``path``.
 
-    A CFA mosaic when ``info.cfa`` is set; otherwise monochrome LinearRaw data.
+    A CFA mosaic when ``info.cfa`` is set; otherwise LinearRaw data: monochrome, or
+    with ``info.rgb`` (H, W, 3) camera RGB.
     ``metadata``: the EXIF and XMP to write as they are (a raw's own, for ``process
     --format dng``); None: :func:`dng_metadata`'s (a photo's, with the simulated
     camera). ``preview``: an (h, w, 3) uint8 sRGB render in the mosaic's orientation
     (IFD1, PreviewColorSpace sRGB), or None.
     """
-    if mosaic.ndim != 2 or mosaic.dtype != np.uint16:
-        raise ValueError(f"mosaic must be a (H, W) uint16 array, got {mosaic.shape} {mosaic.dtype}")
+    shape = (3,) if info.rgb else ()
+    if mosaic.shape[2:] != shape or mosaic.ndim != 2 + len(shape) or mosaic.dtype != np.uint16:
+        raise ValueError(
+            f"the samples must be a (H, W{', 3' * info.rgb}) uint16 array, got "
+            f"{mosaic.shape} {mosaic.dtype}"
+        )
     meta = dng_metadata(info) if metadata is None else metadata
-    h, w = mosaic.shape
+    h, w = mosaic.shape[:2]
     exif = exif_block(meta, Output(info.software, "dng", w, h, orientation=info.orientation))
     reduced = None if preview is None else (preview, {50970: (LONG, [2])})  # sRGB
-    write_tiff(path, mosaic[:, :, None], exif, meta.xmp, tags=dng_tags(info), preview=reduced)
+    samples = mosaic if info.rgb else mosaic[:, :, None]
+    write_tiff(path, samples, exif, meta.xmp, tags=dng_tags(info), preview=reduced)

@@ -79,6 +79,9 @@ class ProcessOptions:
         resize: the output's longer side in pixels (scaled down, antialiased;
             renders at half size first when that is still at least as large).
         thumbnail: write the raw's embedded preview (a JPEG) instead of rendering.
+        dng: with ``fmt`` ``dng``, the kind of DNG (:data:`DNG_KINDS`): ``mosaic``, the
+            CFA mosaic, or ``linear``, demosaicked camera RGB (LinearRaw); None: the
+            raw's own kind (mosaic where it has a CFA, else linear).
     """
 
     config: IspConfig = field(default_factory=IspConfig.default)
@@ -88,6 +91,7 @@ class ProcessOptions:
     strip_metadata: bool = False
     resize: int | None = None
     thumbnail: bool = False
+    dng: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "config", IspConfig.of(self.config))
@@ -101,25 +105,36 @@ class ProcessOptions:
                 f"--thumbnail writes the raw's embedded JPEG, not a render: {asked[0]} "
                 "does not apply; drop one of them"
             )
+        if self.dng is not None and (self.fmt != "dng" or self.dng not in DNG_KINDS):
+            raise ParameterError(
+                f"--dng {self.dng}: give --format dng, and one of {', '.join(DNG_KINDS)}"
+            )
         if self.fmt == "dng":
             self.check_dng()
 
     def check_dng(self) -> None:
-        """Refuse what ``--format dng`` cannot do: the DNG is the raw's mosaic, for an
-        editor to render, so only the raw denoise stage acts on it; a stage that shapes
-        a render (white balance, highlights, demosaic, colour, exposure, tone,
-        transfer, …), ``--resize`` and ``--thumbnail`` are refused."""
+        """Refuse what ``--format dng`` cannot do: the DNG is the raw, for an editor to
+        render, so only the stages before the editor's act on it: raw denoising, and
+        for the ``linear`` kind the demosaic and lens correction too; a stage that
+        shapes a render (white balance, highlights, colour, exposure, tone, transfer,
+        …), ``--resize`` and ``--thumbnail`` are refused."""
         if self.resize is not None or self.thumbnail:
             flag = "--resize" if self.resize is not None else "--thumbnail"
-            raise ParameterError(f"--format dng writes the whole raw mosaic: drop {flag}")
+            raise ParameterError(f"--format dng writes the whole raw: drop {flag}")
         if self.bits != 16:
             raise ParameterError(f"--format dng writes 16-bit samples, not {self.bits}")
+        kept = (RawDenoiseStage,) + (_LINEAR_DNG_STAGES if self.dng == "linear" else ())
         for stage in self.config.enabled:
             asked = self.config.asked_as(stage)
-            if asked is not None and not isinstance(stage, RawDenoiseStage):
+            if asked is not None and not isinstance(stage, kept):
+                acts = (
+                    "--denoise, --demosaic and --lens-correction act"
+                    if self.dng == "linear"
+                    else "only --denoise acts"
+                )
                 raise ParameterError(
                     f"--format dng writes the raw for an editor to render: {asked} shapes "
-                    "a render and does not apply; drop it (only --denoise acts on the raw)"
+                    f"a render and does not apply; drop it ({acts} on the raw)"
                 )
 
     def output_suffixes(self) -> dict[str, str]:
@@ -150,6 +165,11 @@ class ProcessOptions:
 
 #: Output formats and their suffixes: the images', and the raw DNG.
 FORMATS = {**OUTPUT_FORMATS, "dng": ".dng"}
+#: The kinds of ``--format dng``: the CFA mosaic, or demosaicked camera RGB (LinearRaw).
+DNG_KINDS = ("mosaic", "linear")
+#: The stages that act on a ``linear`` DNG besides raw denoising: the editor renders
+#: the rest.
+_LINEAR_DNG_STAGES = (DemosaicStage, LensCorrectionStage)
 #: The stages an EXR render leaves out: its samples are scene-linear light.
 EXR_LEAVES_OUT = (ToneStage, TransferStage, YCbCrStage)
 
@@ -997,20 +1017,25 @@ process_file.read_ahead = read_ahead  # type: ignore[attr-defined]
 def _process_dng(task: Task, options: ProcessOptions) -> dict:
     """``process_file`` for ``--format dng``: ``task``'s raw, its mosaic denoised where
     the config asks (:func:`denoised`, on the engine), written back as a raw
-    (:func:`rawsim.pipelines.process_dng.write_mosaic_dng`)."""
-    from rawsim.pipelines.process_dng import write_mosaic_dng
+    (:func:`rawsim.pipelines.process_dng.write_dng_of`): the mosaic, or for the
+    ``linear`` kind camera RGB (:func:`_camera_rgb`)."""
+    from rawsim.pipelines.process_dng import write_dng_of
 
     raw = _read_while_loading_engine(task.source, "cpu")
-    if raw.cfa is None:
-        kind = "LinearRaw" if raw.data.ndim == 3 and raw.data.shape[2] == 3 else "monochrome"
+    kind = options.dng or ("mosaic" if raw.cfa is not None else "linear")
+    if raw.data.ndim == 3 and raw.data.shape[2] != 3:
         raise RawsimError(
-            f"{task.source}: a {kind} raw holds no CFA mosaic, and --format dng writes "
-            "mosaics (the demosaicked linear kind is not built yet); render it with "
-            "--format tiff --bits 16"
+            f"{task.source}: a monochrome raw has no colour for a DNG's colour tags; "
+            "render it with --format tiff --bits 16"
+        )
+    if kind == "mosaic" and raw.cfa is None:
+        raise RawsimError(
+            f"{task.source}: a LinearRaw raw holds no CFA mosaic; --dng linear writes "
+            "its camera RGB (the default for it)"
         )
     resolved = resolve(options.config, raw)
     out = raw
-    if resolved.info.get("raw_denoise") not in (None, "none"):
+    if resolved.info.get("raw_denoise") not in (None, "none") and raw.cfa is not None:
         plan = _engine_plan(resolved, "tiff")
         if plan is None:
             raise RawsimError(
@@ -1018,9 +1043,54 @@ def _process_dng(task: Task, options: ProcessOptions) -> dict:
                 f"({raw.data.shape[1]} × {raw.data.shape[0]}); drop --denoise"
             )
         out = denoised(raw, plan)
-    meta = write_mosaic_dng(task, options, raw, out, resolved.info, _dng_preview(out))
+    rgb = _camera_rgb(out, options.config) if kind == "linear" else None
+    meta = write_dng_of(task, options, raw, out, resolved.info, _dng_preview(out), rgb)
+    if rgb is not None:
+        release(rgb[0])
     _raws.keep_array(raw.data)
     return meta
+
+
+def _camera_rgb(raw: RawImage, config: IspConfig) -> tuple[np.ndarray, dict]:
+    """``raw`` demosaicked into camera RGB for a LinearRaw DNG: (H, W, 3) uint16, black 0,
+    white 65535 (the raw's white level), and what was done (the render's record).
+
+    A mosaic is white-balanced for the demosaic (its colour differences need it) and
+    the balance taken out after: the samples are the camera's own, as the DNG says
+    (the editor balances them by AsShotNeutral). Nothing is clipped before (no
+    highlights stage), so a clipped colour stays at the white level; the lens
+    correction runs where ``config`` asks. A raw without a CFA is its own camera RGB,
+    scaled by its levels."""
+    if raw.cfa is None:
+        black = np.asarray(raw.black_level, np.float32).reshape(1, 1, -1)
+        linear = raw.data.astype(np.float32) - black
+        return _codes(linear, np.float32(65535) / (np.float32(raw.white_level) - black)), {}
+    linear_config = config.override(output_space="camera").with_disabled(
+        RawDenoiseStage,  # ``raw`` is denoised already
+        HighlightsStage,
+        ExposureStage,
+        ToneStage,
+        TransferStage,
+        YCbCrStage,
+        OrientationStage,
+    )
+    samples, info = render_samples(raw, linear_config, "exr", 32, reuse=True)
+    scale = np.float32(65535) / np.asarray(info["white_balance"], np.float32)
+    codes = _codes(samples, scale)
+    release(samples)
+    return codes, {"stages": info["stages"]}
+
+
+def _codes(linear: np.ndarray, scale) -> np.ndarray:
+    """Linear values (white = 1 / ``scale`` per channel, or one number) as uint16 codes,
+    0–65535, rounded, in an array the batch keeps (:func:`release` it once written);
+    ``linear`` (float32) is overwritten."""
+    np.multiply(linear, scale, out=linear)
+    np.clip(linear, 0, 65535, out=linear)
+    np.rint(linear, out=linear)
+    codes = _spare.array(linear.shape, np.uint16)
+    np.copyto(codes, linear, casting="unsafe")
+    return codes
 
 
 #: The longer side (pixels) of the preview a ``--format dng`` file embeds, at most.

@@ -1,10 +1,15 @@
-"""``rawsim process --format dng``: a raw's mosaic, denoised, back as a raw.
+"""``rawsim process --format dng``: a raw, denoised, back as a raw.
 
-The output is a CFA DNG (Adobe DNG Specification 1.7.1.0; :func:`rawsim.io.dng.
+Two kinds (``--dng``): ``mosaic``, the CFA mosaic, for raws that have one; and
+``linear``, rawsim's demosaic as camera RGB (LinearRaw, as Lightroom's and DxO
+PureRAW's denoised DNGs are; :func:`~rawsim.pipelines.process._camera_rgb`), for
+every raw, LinearRaw DNGs and the old 3-colour raws included.
+
+The mosaic kind is a CFA DNG (Adobe DNG Specification 1.7.1.0; :func:`rawsim.io.dng.
 write_dng`) that editors open as the original: the mosaic as LibRaw decodes it (the
 visible area, linear DN), after the raw denoise stage when one is asked for, with
 the raw's CFA (2 × 2 Bayer or 6 × 6 X-Trans), black level per site of the period,
-white level, colour (a DNG's own ColorMatrix1/2, CalibrationIlluminant1/2,
+white level; both kinds carry the colour (a DNG's own ColorMatrix1/2, CalibrationIlluminant1/2,
 CameraCalibration1/2 and AnalogBalance as they are; otherwise LibRaw's XYZ → camera
 matrix under D65, the Adobe matrix it holds, or its camera → sRGB matrix inverted,
 :func:`~rawsim.io.raw.xyz_to_camera_of`), AsShotNeutral (the camera's white
@@ -25,8 +30,8 @@ pipelines.process.DNG_PREVIEW` pixels on its longer side: the default render at
 half size, highlights clipped), which file browsers and editors' libraries show
 before they render.
 
-Not written yet: the original's own preview, the demosaicked ``linear`` kind, and
-DefaultCrop beyond LibRaw's visible area.
+Not written yet: the original's own preview, and DefaultCrop beyond LibRaw's
+visible area.
 """
 
 from __future__ import annotations
@@ -51,16 +56,28 @@ NOISE_CLIPPED = 0.95
 NOISE_SITES = 500_000
 
 
-def write_mosaic_dng(
-    task: Task, options, raw: RawImage, out: RawImage, info: dict, preview: np.ndarray
+def write_dng_of(
+    task: Task,
+    options,
+    raw: RawImage,
+    out: RawImage,
+    info: dict,
+    preview: np.ndarray,
+    rgb: tuple[np.ndarray, dict] | None = None,
 ) -> dict:
     """Write ``out`` (``raw`` after the raw denoise stage, or ``raw`` itself) to
-    ``task.outputs["image"]`` as a CFA DNG with ``raw``'s metadata and the ``preview``
-    of ``out`` ((h, w, 3) uint8 sRGB, unrotated), and its sidecar; ``info``: the
-    resolved config's record (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns
-    the sidecar's record."""
+    ``task.outputs["image"]`` as a DNG with ``raw``'s metadata and the ``preview`` of
+    ``out`` ((h, w, 3) uint8 sRGB, unrotated), and its sidecar: its CFA mosaic, or
+    where ``rgb`` is given, those (H, W, 3) uint16 camera RGB samples (black 0, white
+    65535) and the record of their render, as LinearRaw. ``info``: the resolved
+    config's record (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns the
+    sidecar's record."""
     denoising = out is not raw
-    black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
+    if rgb is not None:
+        black, white = np.zeros((1, 1)), 65535.0
+    else:
+        black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
+        white = raw.white_level
     colour = dng_colour(raw.path)
     matrix, matrix_source = xyz_to_camera_of(raw)
     if colour is None and matrix is None:
@@ -74,9 +91,9 @@ def write_mosaic_dng(
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
     dng = DngInfo(
-        cfa=raw.cfa,
+        cfa=raw.cfa if rgb is None else None,
         black_level=black,
-        white_level=raw.white_level,
+        white_level=white,
         xyz_to_camera=() if colour is not None else tuple(map(tuple, matrix)),
         as_shot_neutral=neutral,
         make=make,
@@ -88,19 +105,22 @@ def write_mosaic_dng(
         orientation=raw.orientation,
         software=f"rawsim {__version__}",
         colour=colour,
+        rgb=rgb is not None,
     )
-    h, w = out.data.shape
+    samples = out.data if rgb is None else rgb[0]
+    h, w = samples.shape[:2]
     meta = {
         "rawsim_version": __version__,
         "input": task.key,
         "camera": {"make": raw.make, "model": raw.model},
         "format": "dng",
-        "dng": "mosaic",
-        "cfa_pattern": raw.cfa.pattern,
+        "dng": "mosaic" if rgb is None else "linear",
+        "cfa_pattern": None if raw.cfa is None else raw.cfa.pattern,
+        "linear": None if rgb is None else rgb[1],
         "width": w,
         "height": h,
         "black_level": black.tolist(),
-        "white_level": raw.white_level,
+        "white_level": white,
         "iso": raw.iso,
         "orientation": raw.orientation,
         "colour_tags": (
@@ -125,7 +145,7 @@ def write_mosaic_dng(
         "warnings": list(info["warnings"]) + list(raw.warnings),
     }
     with atomic_outputs(task.outputs) as tmp:
-        write_dng(tmp["image"], out.data, dng, photo, preview)
+        write_dng(tmp["image"], samples, dng, photo, preview)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
