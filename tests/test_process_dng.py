@@ -191,6 +191,9 @@ def test_denoised_dng_is_closer_to_the_clean_raw_through_libraw(noisy_pairs, tmp
         s_in = np.asarray(a.pages.first.tags["NoiseProfile"].value)
         s_out = np.asarray(b.pages.first.tags["NoiseProfile"].value).reshape(3, 2)
         assert (s_out[:, 0] < 0.5 * s_in[0]).all()  # S per colour: what is left
+        num, den = b.pages.first.tags[50935].value  # NoiseReductionApplied
+        assert num / den == pytest.approx(1 - np.mean(meta["noise_left"]), abs=1e-3)
+        assert 50935 not in a.pages.first.tags
 
 
 def test_xtrans_dng_keeps_its_6x6_pattern(noisy_pairs, tmp_path):

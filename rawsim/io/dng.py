@@ -76,6 +76,8 @@ class DngInfo:
         lens: the simulated lens, recorded in the lens tags (LensMake, LensModel,
             FocalLength, FNumber, SubjectDistance), or None.
         rgb: LinearRaw camera RGB (``cfa`` None, three samples a pixel).
+        noise_reduction_applied: NoiseReductionApplied, how much of the noise was
+            removed (0–1), or None (not written: none was).
         colour: a raw's own DNG colour tags (ColorMatrix1/2 with their
             CalibrationIlluminant1/2, CameraCalibration1/2, AnalogBalance), written
             as they are in place of ``xyz_to_camera``; None: ``xyz_to_camera``
@@ -99,6 +101,7 @@ class DngInfo:
     lens: LensParams | None = None
     colour: DngColour | None = None
     rgb: bool = False
+    noise_reduction_applied: float | None = None
 
 
 def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
@@ -134,6 +137,9 @@ def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
         tags |= _colour_tags(info)
     if info.noise_profile is not None:
         tags[51041] = (DOUBLE, [float(v) for v in info.noise_profile])  # NoiseProfile
+    if info.noise_reduction_applied is not None:
+        applied = _rationals([info.noise_reduction_applied], False)
+        tags[50935] = (RATIONAL, applied)  # NoiseReductionApplied
     return tags
 
 

@@ -22,7 +22,9 @@ the editor's to choose, so options that shape a render are refused
 The NoiseProfile tag (variance S·x + O per colour, x normalised to white = 1) says
 what noise is left, so that an editor's own denoiser does not count the removed
 noise again: the noise model the denoise stage took, scaled per colour by the
-share of its variance that is left (:func:`noise_left`). Without denoising a DNG's
+share of its variance that is left (:func:`noise_left`); NoiseReductionApplied
+says how much was removed (1 − the mean share left), the DNG specification's way of
+telling an editor to lower its own default noise reduction. Without denoising a DNG's
 own NoiseProfile is kept as it is, and none is written for other raws.
 
 The DNG embeds a preview of the result (IFD1, sRGB, at most :data:`~rawsim.
@@ -106,6 +108,7 @@ def write_dng_of(
         software=f"rawsim {__version__}",
         colour=colour,
         rgb=rgb is not None,
+        noise_reduction_applied=None if left is None else 1 - float(np.mean(left)),
     )
     samples = out.data if rgb is None else rgb[0]
     h, w = samples.shape[:2]
