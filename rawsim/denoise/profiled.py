@@ -15,7 +15,10 @@ The method, on a mosaic normalised so that black is 0 and white 1:
    transform (:data:`~rawsim.denoise.layout.BAYER_MIX`: their mean, the two
    chroma differences, the green split), which keeps the noise white with σ 1
    and puts most of the signal in one channel; then each channel is filtered on
-   its own.
+   its own. A one-plane mosaic (X-Trans) has its colour pattern taken out
+   (:func:`colour_modulation`: each site's colour's mean over the period around
+   it, less the mean of all its colours), which the patches would otherwise keep
+   as detail, with the noise in it; it is put back before step 5.
 4. **Two passes of sliding 8×8 DCT shrinkage** (Yu & Sapiro, "DCT image
    denoising: a simple and effective image denoising algorithm", IPOL 2011; the
    second, Wiener pass as in BM3D's, without block matching): patches start every
@@ -56,6 +59,7 @@ from rawsim.denoise.layout import (
     STEP,
     THRESHOLD,
     large_enough,
+    modulation_pads,
     plane_layout,
     plane_shape,
 )
@@ -137,6 +141,28 @@ def _pass(noisy, n0, pilot, a, lo, hi, hp, sigma, threshold, basis):
     return _unpatch(back, *size)[cut], _unpatch(ones, *size)[cut]
 
 
+def colour_modulation(y: torch.Tensor, cfa: CFA) -> torch.Tensor:
+    """:func:`rawsim.denoise.layout.colour_modulation` in torch: the CFA's colour
+    pattern in the transformed one-plane mosaic ``y`` (H, W), the same box means
+    (mirrored edges; each colour's sum over its count, less the box's mean)."""
+    top, bottom, left, right = modulation_pads(cfa)
+    ph, pw = cfa.period
+    h, w = y.shape
+    colors = torch.as_tensor(cfa.colors, device=y.device).reshape(ph, pw)
+    colours = colors.repeat(-(-h // ph), -(-w // pw))[:h, :w]
+
+    def box(a: torch.Tensor) -> torch.Tensor:
+        a = F.pad(a[None, None], (left, right, top, bottom), mode="reflect")
+        return F.avg_pool2d(a, (ph, pw), stride=1)[0, 0]
+
+    out = -box(y)
+    for c in colours.unique().tolist():
+        mask = (colours == c).to(y.dtype)
+        count = box(mask).clamp_min(0.5 / (ph * pw))  # never 0 where a site reads it
+        out = out + torch.where(colours == c, box(y * mask) / count, 0.0)
+    return out
+
+
 def profiled_denoise(
     x: torch.Tensor,
     cfa: CFA,
@@ -171,6 +197,9 @@ def profiled_denoise(
     for n in range(x.shape[0]):
         planes = torch.stack([x[n, 0][ys][:, xs] for ys, xs in sites])
         y = torch.einsum("cd,dhw->chw", mix_t, forward_vst(planes, g, o))
+        pattern = None if cfa.is_bayer else colour_modulation(y[0], cfa)
+        if pattern is not None:
+            y = y - pattern
         result = []
         for r0 in range(0, hp, chunk):
             r1 = min(hp, r0 + chunk)
@@ -183,6 +212,8 @@ def profiled_denoise(
             num, den = _pass(noisy, a - REACH, e1, a, r0, r1, hp, strength, threshold, basis)
             result.append(num / den)
         est = torch.einsum("dc,dhw->chw", mix_t, torch.cat(result, 1))
+        if pattern is not None:
+            est = est + pattern
         denoised = torch.empty_like(est)
         for c in col.unique().tolist():  # each colour's sites, through its own inverse
             sel = col == c

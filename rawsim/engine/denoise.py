@@ -26,6 +26,7 @@ from rawsim.denoise.layout import (
     REACH,
     STEP,
     THRESHOLD,
+    colour_modulation,
     large_enough,
     plane_layout,
     plane_shape,
@@ -249,9 +250,11 @@ def _chunk(
     den,
     scratch,
     values,
+    pattern,
 ):
     """Chunk ``k`` of :func:`denoise_worker`: its plane rows of ``out``, with the thread's
     buffers."""
+    patterned = pattern.shape[0] > 0
     channels, wp = offsets.shape[0], num.shape[2]
     ph, pw = colors.shape
     r0, r1 = k * CHUNK, min(hp, (k + 1) * CHUNK)
@@ -267,6 +270,8 @@ def _chunk(
                 col = colors[sy, sx]
                 v = (np.float32(raw[my, mx]) - black[sy, sx]) / span[sy, sx]
                 values[c] = _forward_vst(v, gain[col], offset[col])
+                if patterned:
+                    values[c] -= pattern[my, mx]
             for c in range(channels):
                 acc = np.float32(0.0)
                 for d in range(channels):
@@ -296,6 +301,8 @@ def _chunk(
                 if np.float32(dn) - black[sy, sx] >= span[sy, sx]:
                     continue  # clipped: kept as it is
                 col = colors[sy, sx]
+                if patterned:
+                    acc += pattern[my, mx]
                 v = _inverse_vst(acc, gain[col], offset[col], td[col], tx[col])
                 dnv = black[sy, sx] + v * span[sy, sx]
                 out[my, mx] = min(max(round(dnv), 0), 65535)
@@ -320,6 +327,7 @@ def denoise_worker(
     tx,
     sigma,
     threshold,
+    pattern,
 ):
     """One thread's share of denoising the (H, W) uint16 mosaic ``raw`` into ``out``
     (DN, rounded, in [0, 65535]; ``out`` starts as a copy of ``raw``): chunks of
@@ -336,6 +344,9 @@ def denoise_worker(
     (:func:`rawsim.denoise.vst.tables`); ``matrix`` (C, C) orthonormal, mixing the planes'
     transformed values. ``sigma``: the noise σ the passes assume after the transform
     (1 × strength); ``threshold``: the first pass's hard threshold in σ.
+    ``pattern``: (H, W) float32, the colour pattern taken out of a one-plane mosaic's
+    transformed values and put back after
+    (:func:`~rawsim.denoise.layout.colour_modulation`), or (0, 0): none (Bayer).
     """
     channels = offsets.shape[0]
     even, odd = _basis()
@@ -375,6 +386,7 @@ def denoise_worker(
             den,
             scratch,
             values,
+            pattern,
         )
 
 
@@ -393,6 +405,21 @@ def _basis():
             else:
                 even[k // 2, j] = value
     return even, odd
+
+
+def _pattern(raw, cfa: CFA, black, span, gain, offset) -> np.ndarray:
+    """:func:`~rawsim.denoise.layout.colour_modulation` of the transformed mosaic (the
+    kernel's float32 transform, vectorised) for a one-plane layout; (0, 0) for Bayer."""
+    if cfa.is_bayer:
+        return np.zeros((0, 0), np.float32)
+    ph, pw = cfa.period
+    h, w = raw.shape
+    reps = (-(-h // ph), -(-w // pw))
+    colours = np.tile(np.array(cfa.colors).reshape(ph, pw), reps)[:h, :w]
+    v = (raw.astype(np.float32) - np.tile(black, reps)[:h, :w]) / np.tile(span, reps)[:h, :w]
+    g, o = gain[colours], offset[colours]
+    y = np.float32(2.0) * np.sqrt(np.maximum(v / g + np.float32(0.375) + o / (g * g), 0))
+    return colour_modulation(y, cfa)
 
 
 def denoise_mosaic(
@@ -432,7 +459,7 @@ def denoise_mosaic(
     args = (raw, out, np.zeros(1, np.int64), hp, wp, offsets, step, colors, mix, black, span)
     args += model
     args += tables(*model)
-    args += (np.float32(strength), np.float32(threshold))
+    args += (np.float32(strength), np.float32(threshold), _pattern(raw, cfa, black, span, *model))
     threads = max(1, min(numba.get_num_threads(), -(-hp // CHUNK)))
     if threads == 1:
         denoise_worker(*args)
