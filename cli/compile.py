@@ -71,6 +71,11 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
     ),
     (XTRANS, (BAYER,), "unprocess {in}/photo.png -o {out}/xtrans -p fujifilm_xt3 --iso 800"),
     ("process: X-Trans", (XTRANS,), "process {out}/xtrans/photo.dng -o {out}/xtrans_png"),
+    (  # the profiled denoiser's colour pattern of a one-plane mosaic
+        "process: X-Trans profiled denoise",
+        (XTRANS, "process: profiled denoise"),
+        "process {out}/xtrans/photo.dng -o {out}/xtrans_denoised --denoise profiled",
+    ),
     (
         LENS,
         (BAYER,),

@@ -51,37 +51,10 @@ def large_enough(shape: tuple[int, int], cfa: CFA) -> bool:
 
 
 def modulation_pads(cfa: CFA) -> tuple[int, int, int, int]:
-    """(top, bottom, left, right): the mirror padding that makes the box of
-    :func:`colour_modulation` one CFA period around each site (rows i − ph // 2 to
-    i − ph // 2 + ph − 1, likewise columns)."""
+    """(top, bottom, left, right): the mirror padding that makes the box of the colour
+    pattern ``profiled`` takes out of a one-plane mosaic
+    (:func:`rawsim.denoise.profiled.colour_modulation`,
+    :func:`rawsim.engine.denoise.colour_pattern`) one CFA period around each site
+    (rows i − ph // 2 to i − ph // 2 + ph − 1, likewise columns)."""
     ph, pw = cfa.period
     return ph // 2, ph - 1 - ph // 2, pw // 2, pw - 1 - pw // 2
-
-
-def colour_modulation(y: np.ndarray, cfa: CFA) -> np.ndarray:
-    """The CFA's colour pattern in the transformed mosaic ``y`` (H, W) of a one-plane
-    layout (X-Trans …): at each site, the mean of ``y`` over the sites of its colour
-    in the period-sized box around it, less the mean of every site in that box
-    (:func:`modulation_pads`; the mosaic mirrored at its edges, sums in float64);
-    (H, W) float32. ``profiled`` takes it out before its patches, which would keep the
-    pattern as detail and the noise with it, and puts it back after (its own noise,
-    a mean of 8 or more sites, stays). The torch reference forms the same
-    (:func:`rawsim.denoise.profiled.colour_modulation`)."""
-    top, bottom, left, right = modulation_pads(cfa)
-    ph, pw = cfa.period
-    h, w = y.shape
-    colours = np.tile(np.array(cfa.colors).reshape(ph, pw), (-(-h // ph), -(-w // pw)))[:h, :w]
-
-    def box(a: np.ndarray) -> np.ndarray:
-        a = np.pad(a, ((top, bottom), (left, right)), mode="reflect")
-        c = np.zeros((a.shape[0] + 1, a.shape[1] + 1))
-        c[1:, 1:] = np.cumsum(np.cumsum(a, 0), 1)
-        return c[ph:, pw:] - c[:-ph, pw:] - c[ph:, :-pw] + c[:-ph, :-pw]
-
-    values = y.astype(np.float64)
-    out = -box(values) / (ph * pw)
-    for c in np.unique(colours):
-        mask = (colours == c).astype(np.float64)
-        # a site's own colour is in its box: its count is never 0 where it is read
-        out[colours == c] += (box(values * mask) / np.maximum(box(mask), 0.5))[colours == c]
-    return out.astype(np.float32)

@@ -142,9 +142,14 @@ def _pass(noisy, n0, pilot, a, lo, hi, hp, sigma, threshold, basis):
 
 
 def colour_modulation(y: torch.Tensor, cfa: CFA) -> torch.Tensor:
-    """:func:`rawsim.denoise.layout.colour_modulation` in torch: the CFA's colour
-    pattern in the transformed one-plane mosaic ``y`` (H, W), the same box means
-    (mirrored edges; each colour's sum over its count, less the box's mean)."""
+    """The CFA's colour pattern in the transformed mosaic ``y`` (H, W) of a one-plane
+    layout (X-Trans …): at each site, the mean of ``y`` over the sites of its colour
+    in the period-sized box around it, less the mean of every site in that box
+    (:func:`~rawsim.denoise.layout.modulation_pads`; the mosaic mirrored at its
+    edges without repeating them). Taken out before the patches, which would keep
+    the pattern as detail and the noise with it, and put back after (its own noise,
+    a mean of 8 or more sites, stays). The engine's form:
+    :func:`rawsim.engine.denoise.colour_pattern`."""
     top, bottom, left, right = modulation_pads(cfa)
     ph, pw = cfa.period
     h, w = y.shape

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from rawsim.cfa import CFA
 from rawsim.denoise.layout import (
@@ -26,8 +26,8 @@ from rawsim.denoise.layout import (
     REACH,
     STEP,
     THRESHOLD,
-    colour_modulation,
     large_enough,
+    modulation_pads,
     plane_layout,
     plane_shape,
 )
@@ -346,7 +346,7 @@ def denoise_worker(
     (1 × strength); ``threshold``: the first pass's hard threshold in σ.
     ``pattern``: (H, W) float32, the colour pattern taken out of a one-plane mosaic's
     transformed values and put back after
-    (:func:`~rawsim.denoise.layout.colour_modulation`), or (0, 0): none (Bayer).
+    (:func:`colour_pattern`), or (0, 0): none (Bayer).
     """
     channels = offsets.shape[0]
     even, odd = _basis()
@@ -407,19 +407,83 @@ def _basis():
     return even, odd
 
 
+@njit(parallel=True, nogil=True, **_JIT)
+def colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threads):
+    """The colour pattern of the transformed one-plane mosaic (the torch reference's
+    :func:`rawsim.denoise.profiled.colour_modulation`) into ``out`` (H, W) float32:
+    at each site of the (H, W) uint16 ``raw``, the mean of the transformed values
+    (:func:`_forward_vst` of (DN − black) / span, as :func:`_chunk` forms them) of its
+    colour over the (ph, pw) box from ``top`` rows above and ``left`` columns left
+    of it, less the mean of all sites there, the mosaic mirrored at its edges
+    (:func:`_reflect`). Bands of rows go to the threads as they finish one: each
+    forms its rows' sums along rows (float64), then adds ``ph`` of them."""
+    h, w = raw.shape
+    ph, pw = colors.shape
+    band = 32
+    counter = np.zeros(1, np.int64)  # the next band (rawsim.engine.tiles)
+    for _ in prange(threads):
+        rows = band + ph - 1
+        sums = np.empty((rows, 4, w), np.float64)  # R, G, B, all: sums along a row
+        counts = np.empty((rows, 3, w), np.float64)
+        line = np.empty(w + pw - 1, np.float32)
+        kind = np.empty(w + pw - 1, np.int64)
+        while True:
+            k = next_tile(counter)
+            y0 = k * band
+            if y0 >= h:
+                break
+            y1 = min(h, y0 + band)
+            for rr in range(y1 - y0 + ph - 1):
+                src = _reflect(y0 - top + rr, h)
+                for xx in range(w + pw - 1):
+                    x = _reflect(xx - left, w)
+                    sy, sx = src % ph, x % pw
+                    col = colors[sy, sx]
+                    v = (np.float32(raw[src, x]) - black[sy, sx]) / span[sy, sx]
+                    line[xx] = _forward_vst(v, gain[col], offset[col])
+                    kind[xx] = col
+                for x in range(w):
+                    s0 = s1 = s2 = s3 = 0.0
+                    n0 = n1 = n2 = 0.0
+                    for d in range(pw):
+                        value = np.float64(line[x + d])
+                        s3 += value
+                        col = kind[x + d]
+                        if col == 0:
+                            s0 += value
+                            n0 += 1.0
+                        elif col == 1:
+                            s1 += value
+                            n1 += 1.0
+                        else:
+                            s2 += value
+                            n2 += 1.0
+                    sums[rr, 0, x], sums[rr, 1, x], sums[rr, 2, x] = s0, s1, s2
+                    sums[rr, 3, x] = s3
+                    counts[rr, 0, x], counts[rr, 1, x], counts[rr, 2, x] = n0, n1, n2
+            for y in range(y0, y1):
+                for x in range(w):
+                    col = colors[y % ph, x % pw]
+                    own, n, everything = 0.0, 0.0, 0.0
+                    for d in range(ph):
+                        own += sums[y - y0 + d, col, x]
+                        n += counts[y - y0 + d, col, x]
+                        everything += sums[y - y0 + d, 3, x]
+                    out[y, x] = np.float32(own / n - everything / (ph * pw))
+
+
 def _pattern(raw, cfa: CFA, black, span, gain, offset) -> np.ndarray:
-    """:func:`~rawsim.denoise.layout.colour_modulation` of the transformed mosaic (the
-    kernel's float32 transform, vectorised) for a one-plane layout; (0, 0) for Bayer."""
+    """:func:`colour_pattern` of ``raw`` for a one-plane layout; (0, 0) for Bayer."""
     if cfa.is_bayer:
         return np.zeros((0, 0), np.float32)
-    ph, pw = cfa.period
-    h, w = raw.shape
-    reps = (-(-h // ph), -(-w // pw))
-    colours = np.tile(np.array(cfa.colors).reshape(ph, pw), reps)[:h, :w]
-    v = (raw.astype(np.float32) - np.tile(black, reps)[:h, :w]) / np.tile(span, reps)[:h, :w]
-    g, o = gain[colours], offset[colours]
-    y = np.float32(2.0) * np.sqrt(np.maximum(v / g + np.float32(0.375) + o / (g * g), 0))
-    return colour_modulation(y, cfa)
+    import numba
+
+    top, _, left, _ = modulation_pads(cfa)
+    colors = np.array(cfa.colors, np.int64).reshape(cfa.period)
+    out = np.empty(raw.shape, np.float32)
+    threads = numba.get_num_threads()
+    colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threads)
+    return out
 
 
 def denoise_mosaic(
