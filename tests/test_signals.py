@@ -202,3 +202,32 @@ def test_a_stopped_pool_leaves_no_manager_thread_to_race_the_exit():
     _terminate(pool)
     assert time.monotonic() - start < 2.0
     assert not manager.is_alive()
+
+
+def test_a_swallowed_signal_that_comes_back_inside_the_hook_is_sent_again(monkeypatch):
+    """The hook that re-sends a signal a finalizer swallowed must return before the
+    signal comes back; where starting its timer outlasts the delay (a loaded machine:
+    here the first start is made slow), the signal raised inside the hook is caught and
+    sent once more, and then raised where the job can unwind."""
+    import threading
+    from types import SimpleNamespace
+
+    from rawsim.run import jobs
+
+    monkeypatch.setattr(jobs, "REDELIVER_S", 0.2)
+    start, slow = threading.Timer.start, []
+
+    def first_start_slow(self):
+        start(self)
+        if not slow:
+            slow.append(True)
+            time.sleep(0.6)  # the timer fires while the hook waits here
+
+    monkeypatch.setattr(threading.Timer, "start", first_start_slow)
+    hook = jobs._redelivering(lambda unraisable: None)
+    with jobs.stop_on_signals():
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # as the first delivery leaves it
+        hook(SimpleNamespace(exc_value=jobs.Interrupted(signal.SIGTERM)))  # returns
+        assert slow
+        with pytest.raises(jobs.Interrupted):
+            time.sleep(2.0)

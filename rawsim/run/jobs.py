@@ -26,8 +26,13 @@ from rawsim.io import outputs, remote
 from rawsim.io.atomic import running
 from rawsim.io.task import Task
 
-#: Seconds after which a signal that a finalizer swallowed is sent again.
-REDELIVER_S = 0.01
+#: Seconds after which a signal that a finalizer swallowed is sent again: long enough
+#: for the hook that sends it to return first on a loaded machine (at 0.01 s a
+#: thread's start under a full test run could outlast it, and the signal was then
+#: raised inside the hook, where it is printed, not raised).
+REDELIVER_S = 0.1
+#: Times the hook starts the sender again when the signal came back before it returned.
+REDELIVER_TRIES = 5
 
 
 class Interrupted(BaseException):
@@ -86,10 +91,15 @@ def _redelivering(previous: Callable) -> Callable:
             previous(unraisable)
             return
         signum = unraisable.exc_value.signum
-        signal.signal(signum, _worker_terminated if _worker else _stop_on_signal)
-        again = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
-        again.daemon = True
-        again.start()
+        for _ in range(REDELIVER_TRIES):
+            signal.signal(signum, _worker_terminated if _worker else _stop_on_signal)
+            again = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+            again.daemon = True
+            try:
+                again.start()
+                return
+            except Interrupted:  # it came back before the hook returned: send it again
+                continue
 
     return hook
 
