@@ -392,18 +392,24 @@ def previews(tmp: Path, batch: Path, copies: int, full: float) -> None:
     print("  target: half size ≤ 0.4× the full render")
 
 
+def batches(tmp: Path, dng: Path, name: str, sizes: tuple[int, ...]) -> dict[int, Path]:
+    """Folders ``tmp/<name><n>`` of ``n`` copies of ``dng`` each, for each n of ``sizes``."""
+    folders = {}
+    for n in sizes:
+        folders[n] = tmp / f"{name}{n}"
+        folders[n].mkdir()
+        for i in range(n):
+            shutil.copy(dng, folders[n] / f"copy{i}.dng")
+    return folders
+
+
 def half_vs_full(tmp: Path, dng: Path, rounds: int) -> tuple[float, float]:
     """Seconds per file in a batch of ``rawsim process --half-size`` and of the full render
     (the defaults; both 16-bit TIFF), measured alike and alternately: ``rounds`` rounds of
     whole batches of 4 copies of ``dng`` and of 1, fresh processes, each after ``sync``;
     the marginal seconds per file over the 3 more, medians. (Each file's own time from
     ``-v`` is printed to 0.01 s, an eighth of a half-size render.)"""
-    folders = {}
-    for n in (1, 4):
-        folders[n] = tmp / f"half_vs_full{n}"
-        folders[n].mkdir()
-        for i in range(n):
-            shutil.copy(dng, folders[n] / f"copy{i}.dng")
+    folders = batches(tmp, dng, "half_vs_full", (1, 4))
     out = tmp / "half_vs_full_out"
     tiff16 = ["--format", "tiff", "--bits", "16"]
     modes = {"half": ["--half-size", *tiff16], "full": tiff16}
@@ -497,12 +503,7 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     """``rawsim process`` per file in a batch against the I/O floor, and 8 files with
     ``--jobs 2`` against ``dcraw_emu -T -6`` two at a time: ``rounds`` interleaved
     rounds of fresh processes, medians."""
-    folders = {}
-    for n in (1, 4, 8):
-        folders[n] = tmp / f"batch{n}"
-        folders[n].mkdir()
-        for i in range(n):
-            shutil.copy(dng, folders[n] / f"copy{i}.dng")
+    folders = batches(tmp, dng, "batch", (1, 4, 8))
     out = tmp / "out"
     tiff16 = ["--format", "tiff", "--bits", "16"]
 
