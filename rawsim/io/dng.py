@@ -78,6 +78,9 @@ class DngInfo:
         rgb: LinearRaw camera RGB (``cfa`` None, three samples a pixel).
         noise_reduction_applied: NoiseReductionApplied, how much of the noise was
             removed (0–1), or None (not written: none was).
+        extra_tags: more tags, code → (TIFF field type, values), written as they are
+            where this writer sets no tag of that code (a raw's own rendering tags:
+            :func:`rawsim.pipelines.process_dng.render_tags`).
         colour: a raw's own DNG colour tags (ColorMatrix1/2 with their
             CalibrationIlluminant1/2, CameraCalibration1/2, AnalogBalance), written
             as they are in place of ``xyz_to_camera``; None: ``xyz_to_camera``
@@ -102,6 +105,7 @@ class DngInfo:
     colour: DngColour | None = None
     rgb: bool = False
     noise_reduction_applied: float | None = None
+    extra_tags: dict = field(default_factory=dict)
 
 
 def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
@@ -140,7 +144,7 @@ def dng_tags(info: DngInfo) -> dict[int, tuple[int, object]]:
     if info.noise_reduction_applied is not None:
         applied = _rationals([info.noise_reduction_applied], False)
         tags[50935] = (RATIONAL, applied)  # NoiseReductionApplied
-    return tags
+    return {**info.extra_tags, **tags}
 
 
 def _colour_tags(info: DngInfo) -> dict[int, tuple[int, object]]:

@@ -26,8 +26,18 @@ from rawsim.errors import UnsupportedInputError
 from rawsim.io.pieces import open_empty, write_pieces
 
 #: TIFF field types this writer packs, and their struct codes.
-BYTE, ASCII, SHORT, LONG, RATIONAL, UNDEFINED, SRATIONAL, DOUBLE = 1, 2, 3, 4, 5, 7, 10, 12
-_CODES = {SHORT: "H", LONG: "I", RATIONAL: "I", SRATIONAL: "i", DOUBLE: "d"}
+BYTE, ASCII, SHORT, LONG, RATIONAL, SBYTE, UNDEFINED = 1, 2, 3, 4, 5, 6, 7
+SSHORT, SLONG, SRATIONAL, FLOAT, DOUBLE = 8, 9, 10, 11, 12
+_CODES = {
+    SHORT: "H",
+    LONG: "I",
+    RATIONAL: "I",
+    SSHORT: "h",
+    SLONG: "i",
+    SRATIONAL: "i",
+    FLOAT: "f",
+    DOUBLE: "d",
+}
 #: Bytes per strip (about): small enough for any reader, few enough offsets.
 STRIP_BYTES = 1 << 18
 #: Tags this writer sets itself (image structure, XMP, ICC); exiv2's copies are dropped.
@@ -179,7 +189,7 @@ def _pack(order: str, kind: int, values) -> tuple[bytes, int]:
     if kind == ASCII:
         text = values.encode("ascii", "replace") + b"\0"
         return text, len(text)
-    if kind in (BYTE, UNDEFINED):
-        return bytes(values), len(values)
+    if kind in (BYTE, SBYTE, UNDEFINED):
+        return bytes(v & 0xFF for v in values) if kind == SBYTE else bytes(values), len(values)
     packed = struct.pack(f"{order}{len(values)}{_CODES[kind]}", *values)
     return packed, len(values) // (2 if kind in (RATIONAL, SRATIONAL) else 1)

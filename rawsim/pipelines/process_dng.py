@@ -13,8 +13,9 @@ white level; both kinds carry the colour (a DNG's own ColorMatrix1/2, Calibratio
 CameraCalibration1/2 and AnalogBalance as they are; otherwise LibRaw's XYZ → camera
 matrix under D65, the Adobe matrix it holds, or its camera → sRGB matrix inverted,
 :func:`~rawsim.io.raw.xyz_to_camera_of`), AsShotNeutral (the camera's white
-balance, where LibRaw would use it), BaselineExposure, orientation and ISO,
-and the raw's EXIF and XMP (camera, lens, exposure, time, GPS; not with
+balance, where LibRaw would use it), BaselineExposure, orientation and ISO, a
+DNG's own rendering tags (:data:`RENDER_TAGS`: its crop, profile and gain maps), and
+the raw's EXIF and XMP (camera, lens, exposure, time, GPS; not with
 ``--strip-metadata``). White balance, exposure, highlights, colour and tone stay
 the editor's to choose, so options that shape a render are refused
 (:meth:`~rawsim.pipelines.process.ProcessOptions.check_dng`).
@@ -92,6 +93,9 @@ def write_dng_of(
     model = photo.get("Exif.Image.Model") or raw.model
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
+    carried = render_tags(raw)
+    if rgb is not None and raw.cfa is not None:  # demosaicked: no map of CFA sites holds
+        carried.pop(OPCODE_LIST2, None)
     dng = DngInfo(
         cfa=raw.cfa if rgb is None else None,
         black_level=black,
@@ -109,6 +113,7 @@ def write_dng_of(
         colour=colour,
         rgb=rgb is not None,
         noise_reduction_applied=None if left is None else 1 - float(np.mean(left)),
+        extra_tags=carried,
     )
     samples = out.data if rgb is None else rgb[0]
     h, w = samples.shape[:2]
@@ -139,6 +144,7 @@ def write_dng_of(
         "noise_left": left,
         "noise_profile": None if noise is None else [float(v) for v in noise],
         "metadata": "stripped" if options.strip_metadata else "the raw's EXIF and XMP",
+        "dng_tags_kept": sorted(_TAG_NAMES.get(c, str(c)) for c in carried),
         "preview": {
             "width": preview.shape[1],
             "height": preview.shape[0],
@@ -151,6 +157,67 @@ def write_dng_of(
         write_dng(tmp["image"], samples, dng, photo, preview)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
+
+
+#: A DNG's tags that say how to render its raw data and still hold for the visible
+#: area written back (its ActiveArea: the stage-2 image whose coordinates they use),
+#: copied as they are: DefaultScale, DefaultCropOrigin, DefaultCropSize,
+#: BayerGreenSplit, BaselineNoise, BaselineSharpness, LinearResponseLimit,
+#: CameraSerialNumber, AntiAliasStrength, ShadowScale, BestQualityScale, ProfileName,
+#: ProfileHueSatMapDims, ProfileHueSatMapData1/2, ProfileToneCurve, ProfileEmbedPolicy,
+#: ProfileCopyright, ForwardMatrix1/2, ProfileLookTableDims/Data, OpcodeList2 (on the
+#: linear raw data: a lens's gain maps), OpcodeList3 (after the demosaic: its
+#: warps), BaselineExposureOffset, DefaultBlackRender, ProfileHueSatMapEncoding,
+#: ProfileLookTableEncoding, DefaultUserCrop. Not OpcodeList1: it acts on the stored
+#: data before linearisation, which LibRaw has done.
+RENDER_TAGS = (
+    50718, 50719, 50720, 50733, 50731, 50732, 50734, 50735, 50738, 50739, 50780,
+    50936, 50937, 50938, 50939, 50940, 50941, 50942, 50964, 50965, 50981, 50982,
+    51009, 51022, 51109, 51110, 51107, 51108, 51125,
+)  # fmt: skip
+
+
+#: The names tifffile gives :data:`RENDER_TAGS` (for the sidecar), as they are met.
+_TAG_NAMES: dict[int, str] = {}
+#: The tag that holds a DNG's opcodes for the linear raw data (gain maps).
+OPCODE_LIST2 = 51009
+
+
+def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
+    """:data:`RENDER_TAGS` of ``raw``'s DNG (IFD0, then the raw image's IFD), code →
+    (TIFF field type, values) as :func:`rawsim.io.tiff.write_tiff` takes them; none
+    for other raws, or where the visible area LibRaw decoded is not the DNG's
+    ActiveArea (the tags' coordinates would not hold)."""
+    import tifffile
+
+    out: dict[int, tuple[int, object]] = {}
+    try:
+        with tifffile.TiffFile(raw.path) as tif:
+            first = tif.pages.first
+            if "DNGVersion" not in first.tags:
+                return out
+            pages = [p for top in tif.pages for p in (top, *(top.pages or ()))]
+            main = next(
+                (p for p in pages if p.subfiletype == 0 and p.photometric in (32803, 34892)),
+                first,
+            )
+            tags = {**dict(main.tags.items()), **dict(first.tags.items())}
+            top, left, bottom, right = (
+                tags[50829].value if 50829 in tags else (0, 0, *main.shape[:2])
+            )
+            if (bottom - top, right - left) != raw.data.shape[:2]:
+                return out
+            for code in RENDER_TAGS:
+                if code not in tags:
+                    continue
+                _TAG_NAMES[code] = tags[code].name
+                kind, value = int(tags[code].dtype), tags[code].value
+                if isinstance(value, int | float):
+                    value = [value]
+                out[code] = (kind, value if isinstance(value, str | bytes) else list(value))
+    except Exception:  # not TIFF-based, or unreadable here: nothing carried over
+        return {}
+    return out
 
 
 def _as_shot_neutral(raw: RawImage) -> tuple[tuple[float, float, float] | None, str]:
