@@ -444,3 +444,15 @@ def test_darktable_applies_the_kept_gain_map_as_on_the_original(gain_mapped, tmp
     assert a.shape == b.shape == plain.shape
     assert psnr(block_means(a), block_means(plain)) < 25  # darktable applied the map
     assert psnr(block_means(a), block_means(b)) >= 40
+
+
+def test_the_linear_kind_says_it_leaves_the_gain_maps_out(gain_mapped, tmp_path):
+    original, _ = gain_mapped
+    r = run("process", original, "-o", tmp_path, "--format", "dng", "--dng", "linear")
+    assert r.exit_code == 0, r.output
+    line = next(s for s in r.output.splitlines() if "OpcodeList2" in s)
+    assert line.startswith("warning: ") and "mapped.dng" in line and "--dng mosaic keeps it" in line
+    meta = json.loads((tmp_path / "mapped.process.json").read_text())
+    assert "OpcodeList2" not in meta["dng_tags_kept"]
+    with tifffile.TiffFile(tmp_path / "mapped.dng") as tif:
+        assert 51009 not in tif.pages.first.tags

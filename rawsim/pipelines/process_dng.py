@@ -94,8 +94,14 @@ def write_dng_of(
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
     carried = render_tags(raw)
-    if rgb is not None and raw.cfa is not None:  # demosaicked: no map of CFA sites holds
-        carried.pop(OPCODE_LIST2, None)
+    warnings = list(info["warnings"]) + list(raw.warnings)
+    if rgb is not None and raw.cfa is not None and OPCODE_LIST2 in carried:
+        del carried[OPCODE_LIST2]  # demosaicked: no map of CFA sites holds
+        warnings.append(
+            "the DNG's OpcodeList2 (gain maps: its lens shading) maps mosaic sites and "
+            "is not applied by rawsim: the linear DNG leaves it out, and editors render "
+            "its corners darker than the original's (--dng mosaic keeps it)"
+        )
     dng = DngInfo(
         cfa=raw.cfa if rgb is None else None,
         black_level=black,
@@ -151,7 +157,7 @@ def write_dng_of(
             "kind": "the default render at half size, highlights clipped, sRGB",
         },
         "config": options.config.to_tables(),
-        "warnings": list(info["warnings"]) + list(raw.warnings),
+        "warnings": warnings,
     }
     with atomic_outputs(task.outputs) as tmp:
         write_dng(tmp["image"], samples, dng, photo, preview)
