@@ -456,3 +456,15 @@ def test_the_linear_kind_says_it_leaves_the_gain_maps_out(gain_mapped, tmp_path)
     assert "OpcodeList2" not in meta["dng_tags_kept"]
     with tifffile.TiffFile(tmp_path / "mapped.dng") as tif:
         assert 51009 not in tif.pages.first.tags
+
+
+def test_a_batch_with_two_workers_writes_the_same_bytes(tmp_path):
+    """--jobs 2 (a pool of worker processes) gives the DNGs and sidecars of one process."""
+    folder = DATA / "highlights"
+    for name, jobs in (("one", "1"), ("two", "2")):
+        r = run("process", folder, "-o", tmp_path / name, "--format", "dng", "--jobs", jobs)
+        assert r.exit_code == 0, r.output
+    one = sorted((tmp_path / "one").glob("*.dng"))
+    assert len(one) == len(list(folder.glob("*.dng")))
+    for path in one:
+        assert path.read_bytes() == (tmp_path / "two" / path.name).read_bytes(), path.name
