@@ -72,7 +72,8 @@ def write_dng_of(
     ``task.outputs["image"]`` as a DNG with ``raw``'s metadata and the ``preview`` of
     ``out`` ((h, w, 3) uint8 sRGB, unrotated), and its sidecar: its CFA mosaic, or
     where ``rgb`` is given, those (H, W, 3) uint16 camera RGB samples (black 0, white
-    65535) and the record of their render, as LinearRaw. ``info``: the resolved
+    65535) and the record of their render, as LinearRaw. ``options``: the job's
+    :class:`~rawsim.pipelines.process.ProcessOptions`; ``info``: the resolved
     config's record (:attr:`~rawsim.isp.config.ResolvedIsp.info`). Returns the
     sidecar's record."""
     denoising = out is not raw
@@ -150,7 +151,7 @@ def write_dng_of(
         "noise_left": left,
         "noise_profile": None if noise is None else [float(v) for v in noise],
         "metadata": "stripped" if options.strip_metadata else "the raw's EXIF and XMP",
-        "dng_tags_kept": sorted(_TAG_NAMES.get(c, str(c)) for c in carried),
+        "dng_tags_kept": sorted(tag_name(code) for code in carried),
         "preview": {
             "width": preview.shape[1],
             "height": preview.shape[0],
@@ -183,8 +184,6 @@ RENDER_TAGS = (
 )  # fmt: skip
 
 
-#: The names tifffile gives :data:`RENDER_TAGS` (for the sidecar), as they are met.
-_TAG_NAMES: dict[int, str] = {}
 #: The tag that holds a DNG's opcodes for the linear raw data (gain maps).
 OPCODE_LIST2 = 51009
 
@@ -216,7 +215,6 @@ def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
             for code in RENDER_TAGS:
                 if code not in tags:
                     continue
-                _TAG_NAMES[code] = tags[code].name
                 kind, value = int(tags[code].dtype), tags[code].value
                 if isinstance(value, int | float):
                     value = [value]
@@ -224,6 +222,13 @@ def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
     except Exception:  # not TIFF-based, or unreadable here: nothing carried over
         return {}
     return out
+
+
+def tag_name(code: int) -> str:
+    """A TIFF/DNG tag's name (tifffile's table), or its number."""
+    import tifffile
+
+    return tifffile.TIFF.TAGS.get(code, str(code))
 
 
 def _as_shot_neutral(raw: RawImage) -> tuple[tuple[float, float, float] | None, str]:
