@@ -129,6 +129,18 @@ def test_the_dng_embeds_a_preview_of_the_result(written, tmp_path):
     assert np.abs(ours.mean((0, 1)) - thumb.data.mean((0, 1))).max() < 2
 
 
+def test_a_dngs_mirrored_orientation_is_kept(written):
+    """The GoPro crops say Orientation 2 (mirrored), which LibRaw's flip has no value for:
+    the DNG written back says 2 as well, so an editor that honours it (RawTherapee)
+    shows it as the original."""
+    src = DATA / "highlights" / "gopro_hero6_sky.dng"
+    dng, meta = written[src]
+    with tifffile.TiffFile(src) as a, tifffile.TiffFile(dng) as b:
+        assert a.pages.first.tags["Orientation"].value == 2
+        assert b.pages.first.tags["Orientation"].value == 2
+    assert meta["orientation"] == 2
+
+
 def _numbers(v: np.ndarray) -> np.ndarray:
     """(S)RATIONAL pairs as numbers."""
     return v[0::2] / v[1::2] if v.size % 2 == 0 and v.size > 1 else v

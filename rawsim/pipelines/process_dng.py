@@ -95,6 +95,8 @@ def write_dng_of(
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
     carried = render_tags(raw)
+    # a DNG's own Orientation, mirrors included (LibRaw's flip has none)
+    orientation = int(carried.pop(ORIENTATION, (0, [raw.orientation]))[1][0])
     warnings = list(info["warnings"]) + list(raw.warnings)
     if rgb is not None and raw.cfa is not None and OPCODE_LIST2 in carried:
         del carried[OPCODE_LIST2]  # demosaicked: no map of CFA sites holds
@@ -115,7 +117,7 @@ def write_dng_of(
         iso=raw.iso,
         noise_profile=noise,
         baseline_exposure=raw.baseline_exposure,
-        orientation=raw.orientation,
+        orientation=orientation,
         software=f"rawsim {__version__}",
         colour=colour,
         rgb=rgb is not None,
@@ -137,7 +139,7 @@ def write_dng_of(
         "black_level": black.tolist(),
         "white_level": white,
         "iso": raw.iso,
-        "orientation": raw.orientation,
+        "orientation": orientation,
         "colour_tags": (
             "the file's own (ColorMatrix, CalibrationIlluminant, CameraCalibration, AnalogBalance)"
             if colour is not None
@@ -168,7 +170,8 @@ def write_dng_of(
 
 #: A DNG's tags that say how to render its raw data and still hold for the visible
 #: area written back (its ActiveArea: the stage-2 image whose coordinates they use),
-#: copied as they are: DefaultScale, DefaultCropOrigin, DefaultCropSize,
+#: copied as they are: Orientation (with its mirrors, which LibRaw's flip lacks),
+#: DefaultScale, DefaultCropOrigin, DefaultCropSize,
 #: BayerGreenSplit, BaselineNoise, BaselineSharpness, LinearResponseLimit,
 #: CameraSerialNumber, AntiAliasStrength, ShadowScale, BestQualityScale, ProfileName,
 #: ProfileHueSatMapDims, ProfileHueSatMapData1/2, ProfileToneCurve, ProfileEmbedPolicy,
@@ -178,12 +181,15 @@ def write_dng_of(
 #: ProfileLookTableEncoding, DefaultUserCrop. Not OpcodeList1: it acts on the stored
 #: data before linearisation, which LibRaw has done.
 RENDER_TAGS = (
+    274,
     50718, 50719, 50720, 50733, 50731, 50732, 50734, 50735, 50738, 50739, 50780,
     50936, 50937, 50938, 50939, 50940, 50941, 50942, 50964, 50965, 50981, 50982,
     51009, 51022, 51109, 51110, 51107, 51108, 51125,
 )  # fmt: skip
 
 
+#: TIFF's Orientation (1–8), read from a DNG as editors read it: with its mirrors.
+ORIENTATION = 274
 #: The tag that holds a DNG's opcodes for the linear raw data (gain maps).
 OPCODE_LIST2 = 51009
 
