@@ -293,6 +293,25 @@ def test_libraw_renders_the_linear_dng_as_the_original(linear, src):
         assert 50721 in tags and "CFAPattern" not in tags
 
 
+def test_the_raws_own_preview_is_kept_beside_the_render(linear, written):
+    """The Canon 6D DNG's JPEG preview is the DNG's third image, byte for byte (IFD2,
+    its colour space unknown), after rawsim's render (IFD1, sRGB); the Kodak DC50's
+    bitmap likewise; a raw without one gets the render alone."""
+    from rawsim.io.thumbnail import read_thumbnail
+
+    with tifffile.TiffFile(linear[LINEAR]) as tif:
+        assert [p.tags[50970].value for p in tif.pages[1:]] == [2, 0]
+        page = tif.pages[2]
+        jpeg = tif.filehandle
+        jpeg.seek(page.dataoffsets[0])
+        assert jpeg.read(page.databytecounts[0]) == read_thumbnail(LINEAR).jpeg
+    kdc = DATA / "raw" / "kodak_dc50_grbg.kdc"
+    with tifffile.TiffFile(written[kdc][0]) as tif:
+        assert np.array_equal(tif.pages[2].asarray(), read_thumbnail(kdc).bitmap)
+    with tifffile.TiffFile(written[RAWS[0]][0]) as tif:
+        assert len(tif.pages) == 2  # the 60D DNG holds no preview of its own
+
+
 def test_a_linear_raw_takes_the_linear_kind_by_default(tmp_path):
     r = run("process", LINEAR, "-o", tmp_path, "--format", "dng")
     assert r.exit_code == 0, r.output

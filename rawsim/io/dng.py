@@ -223,7 +223,7 @@ def write_dng(
     mosaic: np.ndarray,
     info: DngInfo,
     metadata: PhotoMetadata | None = None,
-    preview: np.ndarray | None = None,
+    previews: tuple[tuple[np.ndarray | bytes, int], ...] = (),
 ) -> None:
     """Write a (H, W) uint16 mosaic with ``info`` as an uncompressed DNG at ``path``.
 
@@ -231,8 +231,9 @@ def write_dng(
     with ``info.rgb`` (H, W, 3) camera RGB.
     ``metadata``: the EXIF and XMP to write as they are (a raw's own, for ``process
     --format dng``); None: :func:`dng_metadata`'s (a photo's, with the simulated
-    camera). ``preview``: an (h, w, 3) uint8 sRGB render in the mosaic's orientation
-    (IFD1, PreviewColorSpace sRGB), or None.
+    camera). ``previews``: images in the mosaic's orientation and their
+    PreviewColorSpace (0 unknown, 2 sRGB), written as IFD1, IFD2, …: (h, w, 3) uint8
+    arrays, or the bytes of baseline JPEGs.
     """
     shape = (3,) if info.rgb else ()
     if mosaic.shape[2:] != shape or mosaic.ndim != 2 + len(shape) or mosaic.dtype != np.uint16:
@@ -243,6 +244,6 @@ def write_dng(
     meta = dng_metadata(info) if metadata is None else metadata
     h, w = mosaic.shape[:2]
     exif = exif_block(meta, Output(info.software, "dng", w, h, orientation=info.orientation))
-    reduced = None if preview is None else (preview, {50970: (LONG, [2])})  # sRGB
+    reduced = tuple((image, {50970: (LONG, [space])}) for image, space in previews)
     samples = mosaic if info.rgb else mosaic[:, :, None]
-    write_tiff(path, samples, exif, meta.xmp, tags=dng_tags(info), preview=reduced)
+    write_tiff(path, samples, exif, meta.xmp, tags=dng_tags(info), previews=reduced)

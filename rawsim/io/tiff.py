@@ -51,7 +51,7 @@ def write_tiff(
     xmp: str = "",
     icc: bytes | None = None,
     tags: dict[int, tuple[int, object]] | None = None,
-    preview: tuple[np.ndarray, dict] | None = None,
+    previews: tuple[tuple[np.ndarray | bytes, dict], ...] = (),
 ) -> None:
     """Write (H, W, C) uint8/uint16 samples (C = 1 grey, 3 RGB; 2 and 4 with alpha)
     as a TIFF whose metadata is the EXIF block ``exif``, with the ``xmp`` packet and
@@ -61,8 +61,10 @@ def write_tiff(
     writer's own and exiv2's (a DNG's tags, :mod:`rawsim.io.dng`). Values are a
     ``str`` for ASCII, bytes for BYTE/UNDEFINED, else a sequence of numbers;
     RATIONAL and SRATIONAL take numerator, denominator pairs, flattened.
-    ``preview``: an (h, w, 3) uint8 RGB image and its own tags, written as IFD1 (a
-    reduced-resolution image, NewSubfileType 1) after the pixels: a DNG's preview."""
+    ``previews``: images and their own tags, written after the pixels as IFD1, IFD2, …
+    (reduced-resolution images, NewSubfileType 1: a DNG's previews), each an (h, w, 3)
+    uint8 RGB array (uncompressed) or the bytes of a baseline JPEG (Compression 7,
+    YCbCr, as DNG previews are stored)."""
     h, w, c = data.shape
     if data.dtype not in (np.uint8, np.uint16) or not 1 <= c <= 4:
         raise UnsupportedInputError(f"tiff output cannot hold {data.dtype} × {c} samples")
@@ -106,7 +108,11 @@ def write_tiff(
     pixels_at = max(layout.values(), default=values_at) + 16
     pixels_at += -pixels_at % 16
     end = pixels_at + h * row_bytes
-    tail = _reduced_ifd(order, end + end % 2, *preview) if preview is not None else b""
+    tail = b""
+    for k, (image, own_tags) in enumerate(previews):
+        at = end + end % 2 + len(tail)
+        tail += _reduced_ifd(order, at, image, own_tags, last=k == len(previews) - 1)
+        tail += b"\0" * (len(tail) % 2)
     if end + len(tail) >= 2**32:
         raise UnsupportedInputError(
             f"{path}: a {w}×{h} TIFF of {bits}-bit samples is over 4 GiB; write EXR or PNG"
@@ -126,7 +132,7 @@ def write_tiff(
             at = values_at + len(extra)
             ifd += struct.pack(order + "HHII", tag, kind, n, at)
             extra += payload + b"\0" * (len(payload) % 2)
-    ifd += struct.pack(order + "I", end + end % 2 if tail else 0)  # the preview's IFD
+    ifd += struct.pack(order + "I", end + end % 2 if tail else 0)  # the previews' IFDs
     header = exif[:4] + struct.pack(order + "I", start)
     head = header + exif[8:] + b"\0" * (start - len(exif)) + bytes(ifd) + bytes(extra)
     head += b"\0" * (pixels_at - len(head))
@@ -135,22 +141,33 @@ def write_tiff(
         write_pieces(f, head, samples, b"\0" * (end % 2 if tail else 0), tail)
 
 
-def _reduced_ifd(order: str, at: int, image: np.ndarray, tags: dict) -> bytes:
-    """An IFD at file offset ``at`` for the (h, w, 3) uint8 ``image`` (one uncompressed
-    strip, NewSubfileType 1: reduced resolution) with ``tags`` added, its values and the
-    pixels after it; it ends the IFD chain."""
-    h, w, c = image.shape
+def _reduced_ifd(order: str, at: int, image, tags: dict, last: bool) -> bytes:
+    """An IFD at file offset ``at`` for ``image`` (NewSubfileType 1: reduced resolution;
+    one strip): an (h, w, 3) uint8 array, uncompressed RGB, or the bytes of a baseline
+    JPEG (Compression 7, YCbCr), with ``tags`` added; its values and the image after
+    it. The next IFD follows it, unless ``last``."""
+    if isinstance(image, bytes | bytearray):
+        import io
+
+        from PIL import Image
+
+        with Image.open(io.BytesIO(image)) as jpeg:
+            w, h = jpeg.size
+        c, data, compression, photometric = 3, bytes(image), 7, 6
+    else:
+        h, w, c = image.shape
+        data, compression, photometric = np.ascontiguousarray(image, np.uint8).tobytes(), 1, 2
     own = {
         254: (LONG, [1]),
         256: (LONG, [w]),
         257: (LONG, [h]),
         258: (SHORT, [8] * c),
-        259: (SHORT, [1]),
-        262: (SHORT, [2]),
+        259: (SHORT, [compression]),
+        262: (SHORT, [photometric]),
         273: (LONG, [0]),
         277: (SHORT, [c]),
         278: (LONG, [h]),
-        279: (LONG, [h * w * c]),
+        279: (LONG, [len(data)]),
         284: (SHORT, [1]),
         **tags,
     }
@@ -168,8 +185,9 @@ def _reduced_ifd(order: str, at: int, image: np.ndarray, tags: dict) -> bytes:
         else:
             ifd += struct.pack(order + "HHII", tag, kind, n, values_at + len(extra))
             extra += payload + b"\0" * (len(payload) % 2)
-    ifd += b"\0\0\0\0"
-    return bytes(ifd) + bytes(extra) + np.ascontiguousarray(image, np.uint8).tobytes()
+    after = values_at + size + len(data)
+    ifd += struct.pack(order + "I", 0 if last else after + after % 2)
+    return bytes(ifd) + bytes(extra) + data
 
 
 def _values_layout(own: dict, values_at: int) -> dict[int, int]:

@@ -31,10 +31,11 @@ own NoiseProfile is kept as it is, and none is written for other raws.
 The DNG embeds a preview of the result (IFD1, sRGB, at most :data:`~rawsim.
 pipelines.process.DNG_PREVIEW` pixels on its longer side: the default render at
 half size, highlights clipped), which file browsers and editors' libraries show
-before they render.
+before they render, and keeps the raw's own preview where it has one (IFD2: its
+JPEG as stored, or its bitmap).
 
-Not written yet: the original's own preview, and DefaultCrop beyond LibRaw's
-visible area.
+Not written yet: trimming to DefaultCrop beyond LibRaw's visible area (the
+DefaultCrop tags are kept).
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ def write_dng_of(
     model = photo.get("Exif.Image.Model") or raw.model
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
+    previews = ((preview, SRGB_PREVIEW), *_original_preview(raw))
     carried = render_tags(raw)
     # a DNG's own Orientation, mirrors included (LibRaw's flip has none)
     orientation = int(carried.pop(ORIENTATION, (0, [raw.orientation]))[1][0])
@@ -154,6 +156,7 @@ def write_dng_of(
         "noise_profile": None if noise is None else [float(v) for v in noise],
         "metadata": "stripped" if options.strip_metadata else "the raw's EXIF and XMP",
         "dng_tags_kept": sorted(tag_name(code) for code in carried),
+        "original_preview": len(previews) > 1,
         "preview": {
             "width": preview.shape[1],
             "height": preview.shape[0],
@@ -163,7 +166,7 @@ def write_dng_of(
         "warnings": warnings,
     }
     with atomic_outputs(task.outputs) as tmp:
-        write_dng(tmp["image"], samples, dng, photo, preview)
+        write_dng(tmp["image"], samples, dng, photo, previews)
         tmp["json"].write_text(json.dumps(meta, indent=2) + "\n")
     return meta
 
@@ -228,6 +231,24 @@ def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
     except Exception:  # not TIFF-based, or unreadable here: nothing carried over
         return {}
     return out
+
+
+#: PreviewColorSpace: unknown, and sRGB.
+UNKNOWN_PREVIEW, SRGB_PREVIEW = 0, 2
+
+
+def _original_preview(raw: RawImage) -> tuple[tuple[np.ndarray | bytes, int], ...]:
+    """The raw's own embedded preview (:func:`rawsim.io.thumbnail.read_thumbnail`: its
+    JPEG as stored, or its bitmap), to keep beside the render of the result; its colour
+    space unknown. None where it has none."""
+    from rawsim.errors import UnsupportedInputError
+    from rawsim.io.thumbnail import read_thumbnail
+
+    try:
+        thumb = read_thumbnail(raw.path)
+    except UnsupportedInputError:
+        return ()
+    return ((thumb.jpeg if thumb.jpeg is not None else thumb.bitmap, UNKNOWN_PREVIEW),)
 
 
 def tag_name(code: int) -> str:
