@@ -18,7 +18,12 @@ from rawsim_cli.report import check_inputs, run_files
 DEMOSAICS = ("wcd", "learned", "menon", "malvar", "bilinear")
 HIGHLIGHTS = ("clip", "blend", "reconstruct", "unclip")
 DENOISES = ("none", "gaussian", "bilateral", "profiled", "learned")
-SPACES = ("srgb", "display-p3", "adobe-rgb", "rec2020", "prophoto", "xyz", "camera")
+#: The ACES spaces, whose outputs are OpenEXR unless --format says otherwise.
+ACES_SPACES = ("aces2065-1", "acescg")
+SPACES = (
+    "srgb", "display-p3", "adobe-rgb", "rec2020", "aces2065-1", "acescg", "prophoto", "xyz",
+    "camera",
+)  # fmt: skip
 FORMATS = ("png", "tiff", "jpg", "exr", "dng")
 #: Other usual spellings of the formats.
 FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
@@ -129,7 +134,9 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     "--output-space",
     type=click.Choice(SPACES),
     help="Colour space of the output (default srgb), each with its own transfer and an "
-    "embedded ICC profile; xyz is CIE XYZ (D65); camera is the camera's RGB, untagged.",
+    "embedded ICC profile; xyz is CIE XYZ (D65); camera is the camera's RGB, untagged; "
+    "aces2065-1 and acescg are linear and written as OpenEXR unless --format is given "
+    "(aces2065-1 at 16 bits as the ACES container, SMPTE ST 2065-4).",
 )
 @click.option(
     "--transfer",
@@ -320,6 +327,9 @@ def command(
                 "--thumbnail writes the raw's embedded JPEG: use --format jpg, or drop it", ctx
             )
         fmt = "jpg"
+    given = ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT
+    if output_space in ACES_SPACES and not given and not thumbnail:
+        fmt = "exr"  # ACES is scene-linear: OpenEXR, as ST 2065-4 stores it
     if dng is not None and fmt != "dng":
         raise click.UsageError(
             f"--dng {dng} is the kind of --format dng: add it, or drop --dng", ctx

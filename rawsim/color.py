@@ -124,7 +124,8 @@ def xy_to_xyz(x: float, y: float) -> np.ndarray:
 
 def rgb_to_xyz_matrix(primaries, white) -> np.ndarray:
     """Linear RGB → CIE XYZ (3, 3) of an RGB space (SMPTE RP 177): each primary's XYZ
-    direction (from its xy) scaled so that RGB (1, 1, 1) is ``white``.
+    direction (from its xy; y may be ≤ 0 for an imaginary primary) scaled so that RGB
+    (1, 1, 1) is ``white``.
 
     Args:
         primaries: (3, 2) xy chromaticities of red, green and blue.
@@ -134,7 +135,11 @@ def rgb_to_xyz_matrix(primaries, white) -> np.ndarray:
         (3, 3) float64 matrix whose columns are the primaries' XYZ; its row sums are ``white``.
     """
     xy = as_matrix(primaries, "primaries", (3, 2))
-    directions = np.stack([xy_to_xyz(x, y) for x, y in xy], axis=1)
+    # a primary's XYZ direction: Y = 1 where it can be, else (x, y, z) itself (an
+    # imaginary primary below the xy plane's y = 0 line, ACES's AP0 blue)
+    directions = np.stack(
+        [xy_to_xyz(x, y) if y > 0 else np.array([x, y, 1.0 - x - y]) for x, y in xy], axis=1
+    )
     if abs(np.linalg.det(directions)) < 1e-12:
         raise ParameterError("primaries are collinear: they span no RGB space")
     scale = np.linalg.solve(directions, np.asarray(white, dtype=np.float64))

@@ -1,7 +1,7 @@
 """Output colour spaces and their transfer functions: the standards' numbers, in one place.
 
 An output is described by an :class:`Encoding`: a space (:data:`OUTPUT_SPACES`:
-five RGB spaces, CIE XYZ, or the camera's own RGB) and a transfer function
+seven RGB spaces, ACES's two among them, CIE XYZ, or the camera's own RGB) and a transfer function
 (:class:`TransferSpec`). Each RGB space (:data:`RGB_SPACES`) has its primaries,
 white and own transfer, with the standard they come from; the transfers with a
 linear toe (:class:`ToeCurve`: sRGB's, BT.2020's, ROMM's) are written once,
@@ -15,7 +15,9 @@ space is normalised to it, so camera white (sRGB (1, 1, 1)) is (1, 1, 1) in
 each of them. Standards that derive their matrix from xy (0.3127, 0.3290)
 differ from these in the fourth decimal. D50 is ICC's (0.9642, 1, 0.8249):
 ProPhoto (ROMM RGB) is reached from D65 with a Bradford adaptation, as ICC
-profiles do it.
+profiles do it, and so are ACES2065-1 and ACEScg, whose white (xy 0.32168,
+0.33767) is near D60: their matrices from the raw's colour matrix are the
+matrix-based input transform, as rawtoaces makes it where it has no spectral data.
 
 Numpy only (torch where a tensor is passed in): the compiled engine and the CLI
 import this without torch.
@@ -235,6 +237,9 @@ _D50 = tuple(float(v) for v in XYZ_D50)
 #: BT.2020) and ROMM RGB's D50 (ISO 22028-2).
 _D65_XY = (0.3127, 0.3290)
 _D50_XY = (0.3457, 0.3585)
+#: The ACES white (SMPTE ST 2065-1: near D60), as xy and as XYZ (Y = 1).
+_ACES_XY = (0.32168, 0.33767)
+_ACES_WHITE = (_ACES_XY[0] / _ACES_XY[1], 1.0, (1 - sum(_ACES_XY)) / _ACES_XY[1])
 
 #: The RGB output spaces, by name.
 RGB_SPACES: dict[str, RgbSpace] = {
@@ -279,6 +284,26 @@ RGB_SPACES: dict[str, RgbSpace] = {
             "bt2020",
             9,
             "ITU-R BT.2020-2",
+        ),
+        RgbSpace(
+            "aces2065-1",
+            "ACES2065-1 (AP0)",
+            ((0.7347, 0.2653), (0.0, 1.0), (0.0001, -0.0770)),
+            _ACES_WHITE,
+            _ACES_XY,
+            "linear",
+            None,
+            "SMPTE ST 2065-1:2012 (AP0 primaries, the ACES white)",
+        ),
+        RgbSpace(
+            "acescg",
+            "ACEScg (AP1)",
+            ((0.713, 0.293), (0.165, 0.830), (0.128, 0.044)),
+            _ACES_WHITE,
+            _ACES_XY,
+            "linear",
+            None,
+            "Academy S-2014-004 (AP1 primaries, the ACES white)",
         ),
         RgbSpace(
             "prophoto",

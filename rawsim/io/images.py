@@ -442,13 +442,20 @@ def write_image(
         raise UnsupportedInputError(f"{fmt} output cannot hold {data.dtype} samples")
     spec = oiio.ImageSpec(w, h, c, kind)
     if fmt == "exr":
-        spec.attribute("compression", "zip")
-        linear_srgb = color is not None and color.space == "srgb"
-        spec.attribute("oiio:ColorSpace", "lin_rec709" if linear_srgb else "Linear")
+        # ACES2065-1 in half floats, uncompressed, is the ACES container (SMPTE ST 2065-4)
+        container = color is not None and color.space == "aces2065-1" and kind == oiio.HALF
+        container = container and c == 3 and color.transfer.kind == "linear"
+        spec.attribute("compression", "none" if container else "zip")
+        # OpenImageIO's names of the linear spaces it knows (it checks the container's)
+        known = {"srgb": "lin_rec709", "aces2065-1": "lin_ap0_scene", "acescg": "lin_ap1_scene"}
+        name = known.get(color.space) if color is not None else None
+        spec.attribute("oiio:ColorSpace", name or "Linear")
         if color is not None and c >= 3:  # OpenEXR's primaries and white (xy)
             spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), color.chromaticities)
-            if color.rgb_space is None:  # XYZ: say which white is neutral
+            if color.rgb_space is None or color.space.startswith("aces"):  # the neutral
                 spec.attribute("adoptedNeutral", oiio.TypeDesc("float[2]"), color.neutral_xy)
+        if container:
+            spec.attribute("acesImageContainerFlag", 1)
     elif srgb:
         spec.attribute("oiio:ColorSpace", "sRGB")
     if profile is not None:

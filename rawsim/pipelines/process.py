@@ -1002,6 +1002,14 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
         **{k: v for k, v in info.items() if k != "white_level"},
         "white_level_used": info.get("white_level", raw.white_level),
     }
+    if color is not None and color.space.startswith("aces"):
+        meta["aces"] = {
+            "idt": "from the colour matrix (matrix_source): camera → XYZ (D65), then "
+            "Bradford's adaptation to the ACES white; no spectral sensitivities",
+            "container": "SMPTE ST 2065-4"
+            if color.space == "aces2065-1" and options.fmt == "exr" and options.bits == 16
+            else None,
+        }
     with atomic_outputs(task.outputs) as tmp:
         software = {"Software": f"rawsim {__version__}"}
         write_image(tmp["image"], samples, options.fmt, color, software, photo)
