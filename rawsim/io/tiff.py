@@ -102,8 +102,7 @@ def write_tiff(
         own[34675] = (UNDEFINED, bytes(icc))
     own.update(tags or {})
     start = len(exif) + len(exif) % 2
-    codes = sorted([*entries, *own])
-    values_at = start + 2 + 12 * len(codes) + 4
+    values_at = start + 2 + 12 * len({*entries, *own}) + 4
     layout = _values_layout(own, values_at)
     pixels_at = max(layout.values(), default=values_at) + 16
     pixels_at += -pixels_at % 16
@@ -118,20 +117,7 @@ def write_tiff(
             f"{path}: a {w}×{h} TIFF of {bits}-bit samples is over 4 GiB; write EXR or PNG"
         )
     own[273] = (LONG, [pixels_at + s * rows * row_bytes for s in range(strips)])
-    ifd = bytearray(struct.pack(order + "H", len(codes)))
-    extra = bytearray()
-    for tag in codes:
-        if tag in entries:
-            ifd += entries[tag]
-            continue
-        kind, values = own[tag]
-        payload, n = _pack(order, kind, values)
-        if len(payload) <= 4:
-            ifd += struct.pack(order + "HHI", tag, kind, n) + payload.ljust(4, b"\0")
-        else:
-            at = values_at + len(extra)
-            ifd += struct.pack(order + "HHII", tag, kind, n, at)
-            extra += payload + b"\0" * (len(payload) % 2)
+    ifd, extra = _ifd(order, own, values_at, entries)
     ifd += struct.pack(order + "I", end + end % 2 if tail else 0)  # the previews' IFDs
     header = exif[:4] + struct.pack(order + "I", start)
     head = header + exif[8:] + b"\0" * (start - len(exif)) + bytes(ifd) + bytes(extra)
@@ -171,13 +157,28 @@ def _reduced_ifd(order: str, at: int, image, tags: dict, last: bool) -> bytes:
         284: (SHORT, [1]),
         **tags,
     }
-    codes = sorted(own)
-    values_at = at + 2 + 12 * len(codes) + 4
-    size = sum(len(p) + len(p) % 2 for p, _ in (_pack(order, *own[t]) for t in codes) if len(p) > 4)
-    own[273] = (LONG, [values_at + size])
+    values_at = at + 2 + 12 * len(own) + 4
+    data_at = max(_values_layout(own, values_at).values(), default=values_at)
+    own[273] = (LONG, [data_at])
+    ifd, extra = _ifd(order, own, values_at)
+    after = data_at + len(data)
+    ifd += struct.pack(order + "I", 0 if last else after + after % 2)
+    return bytes(ifd) + bytes(extra) + data
+
+
+def _ifd(order: str, own: dict, values_at: int, entries: dict | None = None):
+    """An IFD's entry count and entries, without the next IFD's offset, and its
+    out-of-line values, which start at file offset ``values_at``: ``own`` (code →
+    (field type, values)) packed, and ``entries`` (code → 12 bytes as exiv2 wrote
+    them) as they are, in tag order."""
+    entries = entries or {}
+    codes = sorted([*entries, *own])
     ifd = bytearray(struct.pack(order + "H", len(codes)))
     extra = bytearray()
     for tag in codes:
+        if tag in entries:
+            ifd += entries[tag]
+            continue
         kind, values = own[tag]
         payload, n = _pack(order, kind, values)
         if len(payload) <= 4:
@@ -185,9 +186,7 @@ def _reduced_ifd(order: str, at: int, image, tags: dict, last: bool) -> bytes:
         else:
             ifd += struct.pack(order + "HHII", tag, kind, n, values_at + len(extra))
             extra += payload + b"\0" * (len(payload) % 2)
-    after = values_at + size + len(data)
-    ifd += struct.pack(order + "I", 0 if last else after + after % 2)
-    return bytes(ifd) + bytes(extra) + data
+    return ifd, extra
 
 
 def _values_layout(own: dict, values_at: int) -> dict[int, int]:
