@@ -80,7 +80,7 @@ class DngInfo:
             removed (0–1), or None (not written: none was).
         extra_tags: more tags, code → (TIFF field type, values), written as they are
             where this writer sets no tag of that code (a raw's own rendering tags:
-            :func:`rawsim.pipelines.process_dng.render_tags`).
+            :func:`rawsim.pipelines.process_dng.read_source_dng`).
         colour: a raw's own DNG colour tags (ColorMatrix1/2 with their
             CalibrationIlluminant1/2, CameraCalibration1/2, AnalogBalance), written
             as they are in place of ``xyz_to_camera``; None: ``xyz_to_camera``

@@ -260,12 +260,6 @@ def _tiff_facts(path: Path) -> _TiffFacts:
         return _TiffFacts(*_exiv2_camera(path))
 
 
-def dng_colour(path: str | Path) -> DngColour | None:
-    """A DNG's own colour tags (:func:`~rawsim.io.dng_colour.read_dng_colour`), None for
-    other raws or a DNG without a 3×3 ColorMatrix."""
-    return _tiff_facts(Path(path)).colour
-
-
 def _dng_cfa(tif) -> tuple[str, ...] | None:
     """The CFA of a DNG's raw image (the full-size CFA IFD, top level or SubIFD), rows
     of TIFF/EP colour letters; None for other files or codes beyond TIFF/EP's."""

@@ -14,7 +14,8 @@ CameraCalibration1/2 and AnalogBalance as they are; otherwise LibRaw's XYZ → c
 matrix under D65, the Adobe matrix it holds, or its camera → sRGB matrix inverted,
 :func:`~rawsim.io.raw.xyz_to_camera_of`), AsShotNeutral (the camera's white
 balance, where LibRaw would use it), BaselineExposure, orientation and ISO, a
-DNG's own rendering tags (:data:`RENDER_TAGS`: its crop, profile and gain maps), and
+DNG's own Orientation and rendering tags (:data:`RENDER_TAGS`: its crop, profile and
+gain maps; :func:`read_source_dng`), and
 the raw's EXIF and XMP (camera, lens, exposure, time, GPS; not with
 ``--strip-metadata``). White balance, exposure, highlights, colour and tone stay
 the editor's to choose, so options that shape a render are refused
@@ -41,15 +42,17 @@ DefaultCrop tags are kept).
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from rawsim._version import __version__
 from rawsim.errors import RawsimError
 from rawsim.io.dng import DngInfo, write_dng
+from rawsim.io.dng_colour import DngColour, read_dng_colour
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
-from rawsim.io.raw import RawImage, dng_colour, xyz_to_camera_of
+from rawsim.io.raw import RawImage, xyz_to_camera_of
 from rawsim.io.task import Task
 
 #: Sites at or above this share of the span between black and white are left out of
@@ -83,7 +86,8 @@ def write_dng_of(
     else:
         black = np.broadcast_to(np.asarray(raw.black_level, np.float64), raw.cfa.period)
         white = raw.white_level
-    colour = dng_colour(raw.path)
+    source = read_source_dng(raw)
+    colour = source.colour
     matrix, matrix_source = xyz_to_camera_of(raw)
     if colour is None and matrix is None:
         raise RawsimError(
@@ -96,9 +100,8 @@ def write_dng_of(
     neutral, neutral_source = _as_shot_neutral(raw)
     noise, left = _noise_profile(raw, out, info, denoising)
     previews = ((preview, SRGB_PREVIEW), *_original_preview(raw))
-    carried = render_tags(raw)
-    # a DNG's own Orientation, mirrors included (LibRaw's flip has none)
-    orientation = int(carried.pop(ORIENTATION, (0, [raw.orientation]))[1][0])
+    carried = dict(source.tags)
+    orientation = source.orientation or raw.orientation
     warnings = list(info["warnings"]) + list(raw.warnings)
     if rgb is not None and raw.cfa is not None and OPCODE_LIST2 in carried:
         del carried[OPCODE_LIST2]  # demosaicked: no map of CFA sites holds
@@ -173,8 +176,7 @@ def write_dng_of(
 
 #: A DNG's tags that say how to render its raw data and still hold for the visible
 #: area written back (its ActiveArea: the stage-2 image whose coordinates they use),
-#: copied as they are: Orientation (with its mirrors, which LibRaw's flip lacks),
-#: DefaultScale, DefaultCropOrigin, DefaultCropSize,
+#: copied as they are: DefaultScale, DefaultCropOrigin, DefaultCropSize,
 #: BayerGreenSplit, BaselineNoise, BaselineSharpness, LinearResponseLimit,
 #: CameraSerialNumber, AntiAliasStrength, ShadowScale, BestQualityScale, ProfileName,
 #: ProfileHueSatMapDims, ProfileHueSatMapData1/2, ProfileToneCurve, ProfileEmbedPolicy,
@@ -184,32 +186,46 @@ def write_dng_of(
 #: ProfileLookTableEncoding, DefaultUserCrop. Not OpcodeList1: it acts on the stored
 #: data before linearisation, which LibRaw has done.
 RENDER_TAGS = (
-    274,
     50718, 50719, 50720, 50733, 50731, 50732, 50734, 50735, 50738, 50739, 50780,
     50936, 50937, 50938, 50939, 50940, 50941, 50942, 50964, 50965, 50981, 50982,
     51009, 51022, 51109, 51110, 51107, 51108, 51125,
 )  # fmt: skip
 
 
-#: TIFF's Orientation (1–8), read from a DNG as editors read it: with its mirrors.
-ORIENTATION = 274
 #: The tag that holds a DNG's opcodes for the linear raw data (gain maps).
 OPCODE_LIST2 = 51009
 
 
-def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
-    """:data:`RENDER_TAGS` of ``raw``'s DNG (IFD0, then the raw image's IFD), code →
-    (TIFF field type, values) as :func:`rawsim.io.tiff.write_tiff` takes them; none
-    for other raws, or where the visible area LibRaw decoded is not the DNG's
-    ActiveArea (the tags' coordinates would not hold)."""
+@dataclass(frozen=True)
+class SourceDng:
+    """What a raw that is itself a DNG says for its DNG written back, read in one pass:
+    its own ``colour`` tags (:func:`~rawsim.io.dng_colour.read_dng_colour`, None
+    without a 3 × 3 ColorMatrix), its ``orientation`` (IFD0's, mirrors included, which
+    LibRaw's flip lacks; None without one), and its rendering ``tags``
+    (:data:`RENDER_TAGS`, code → (TIFF field type, values) as
+    :func:`rawsim.io.tiff.write_tiff` takes them; none where the visible area LibRaw
+    decoded is not the DNG's ActiveArea, whose coordinates they use)."""
+
+    colour: DngColour | None = None
+    orientation: int | None = None
+    tags: dict = field(default_factory=dict)
+
+
+def read_source_dng(raw: RawImage) -> SourceDng:
+    """:class:`SourceDng` of ``raw``'s file (IFD0, then the raw image's IFD); empty for
+    other raws, and for what cannot be read here (LibRaw's reading stands)."""
     import tifffile
 
-    out: dict[int, tuple[int, object]] = {}
     try:
         with tifffile.TiffFile(raw.path) as tif:
             first = tif.pages.first
             if "DNGVersion" not in first.tags:
-                return out
+                return SourceDng()
+            try:
+                colour = read_dng_colour(first.tags)
+            except Exception:  # a colour tag we cannot parse: LibRaw's matrix stands
+                colour = None
+            orientation = int(first.tags[274].value) if 274 in first.tags else None
             pages = [p for top in tif.pages for p in (top, *(top.pages or ()))]
             main = next(
                 (p for p in pages if p.subfiletype == 0 and p.photometric in (32803, 34892)),
@@ -219,18 +235,18 @@ def render_tags(raw: RawImage) -> dict[int, tuple[int, object]]:
             top, left, bottom, right = (
                 tags[50829].value if 50829 in tags else (0, 0, *main.shape[:2])
             )
-            if (bottom - top, right - left) != raw.data.shape[:2]:
-                return out
-            for code in RENDER_TAGS:
-                if code not in tags:
-                    continue
-                kind, value = int(tags[code].dtype), tags[code].value
-                if isinstance(value, int | float):
-                    value = [value]
-                out[code] = (kind, value if isinstance(value, str | bytes) else list(value))
+            kept = {}
+            if (bottom - top, right - left) == raw.data.shape[:2]:
+                for code in RENDER_TAGS:
+                    if code not in tags:
+                        continue
+                    kind, value = int(tags[code].dtype), tags[code].value
+                    if isinstance(value, int | float):
+                        value = [value]
+                    kept[code] = (kind, value if isinstance(value, str | bytes) else list(value))
     except Exception:  # not TIFF-based, or unreadable here: nothing carried over
-        return {}
-    return out
+        return SourceDng()
+    return SourceDng(colour, orientation, kept)
 
 
 #: PreviewColorSpace: unknown, and sRGB.
