@@ -321,13 +321,13 @@ def command(
         from rawsim.io.lensfun import find_lens
 
         find_lens(lens, required=True)
+    given = ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT
     if thumbnail:
-        if ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT and fmt != "jpg":
+        if given and fmt != "jpg":
             raise click.UsageError(
                 "--thumbnail writes the raw's embedded JPEG: use --format jpg, or drop it", ctx
             )
         fmt = "jpg"
-    given = ctx.get_parameter_source("fmt") != click.core.ParameterSource.DEFAULT
     if output_space in ACES_SPACES and not given and not thumbnail:
         fmt = "exr"  # ACES is scene-linear: OpenEXR, as ST 2065-4 stores it
     if dng is not None and fmt != "dng":
