@@ -351,11 +351,9 @@ def _editor_render(editor: str, src, out, tmp):
 @pytest.mark.slow
 @pytest.mark.parametrize("editor", ["darktable-cli", "rawtherapee-cli"])
 def test_editors_open_the_dng_and_render_it_as_the_original(written, tmp_path, editor):
-    """darktable and RawTherapee (not in CI's packages: skipped where absent) open the
-    mosaic DNGs; where they open the original too, their renders agree (16 × 16 block
-    means, ≥ 40 dB)."""
-    if shutil.which(editor) is None:
-        pytest.skip(f"{editor} not installed")
+    """darktable and RawTherapee open the mosaic DNGs; where they open the original too,
+    their renders agree (16 × 16 block means, ≥ 40 dB)."""
+    require_tool(editor)
     opened = 0
     for src in (
         DATA / "highlights" / "nikon_d1_roofs.dng",
@@ -380,11 +378,10 @@ def test_editors_open_the_dng_and_render_it_as_the_original(written, tmp_path, e
 
 @pytest.mark.slow
 def test_rawtherapee_renders_the_linear_dng_as_the_original(linear, tmp_path):
-    """RawTherapee (skipped where absent) renders the linear DNG of the Nikon D1 crop as
-    its original (16 × 16 block means ≥ 40 dB), once the 4-pixel border it trims from
-    a mosaic's render is trimmed from the linear one's too."""
-    if shutil.which("rawtherapee-cli") is None:
-        pytest.skip("rawtherapee-cli not installed")
+    """RawTherapee renders the linear DNG of the Nikon D1 crop as its original (16 × 16
+    block means ≥ 40 dB), once the 4-pixel border it trims from a mosaic's render is
+    trimmed from the linear one's too."""
+    require_tool("rawtherapee-cli")
     src = DATA / "highlights" / "nikon_d1_roofs.dng"
     shutil.copy(src, tmp_path / "orig.dng")
     shutil.copy(linear[src], tmp_path / "linear.dng")
@@ -462,11 +459,10 @@ def test_a_dngs_rendering_tags_are_kept(written, gain_mapped):
 
 @pytest.mark.slow
 def test_darktable_applies_the_kept_gain_map_as_on_the_original(gain_mapped, tmp_path):
-    """darktable (skipped where absent) applies a DNG's GainMap: the DNG written back
-    keeps it, so darktable renders it as the original (16 × 16 block means ≥ 40 dB),
-    where without it the right edge would be a stop darker."""
-    if shutil.which("darktable-cli") is None:
-        pytest.skip("darktable-cli not installed")
+    """darktable applies a DNG's GainMap: the DNG written back keeps it, so darktable
+    renders it as the original (16 × 16 block means ≥ 40 dB), where without it the
+    right edge would be a stop darker."""
+    require_tool("darktable-cli")
     original, ours = gain_mapped
     a = _editor_render("darktable-cli", original, tmp_path / "a.tif", tmp_path)
     b = _editor_render("darktable-cli", ours, tmp_path / "b.tif", tmp_path)
