@@ -264,11 +264,13 @@ def test_of_two_matrices_the_d65_one_through_its_calibration_and_analog_balance(
         @ tags["CameraCalibration2"].reshape(3, 3)
         @ tags["ColorMatrix2"].reshape(3, 3)
     )
-    np.testing.assert_allclose(p.xyz_to_camera, want, rtol=1e-6)
+    # exiftool writes a decimal as a rational of its own choosing, which its -n reads
+    # back rounded: the two agree to about 1e-6 (CI's exiftool, 1.3e-6 once)
+    np.testing.assert_allclose(p.xyz_to_camera, want, rtol=1e-5)
     assert "AnalogBalance · CameraCalibration2 · ColorMatrix2 (D65)" in p.source["xyz_to_camera"]
     raw = read_raw(dng)  # what process renders with: LibRaw's own choice, the same
     np.testing.assert_allclose(srgb_from_camera(raw.xyz_to_camera), raw.camera_to_srgb, atol=1e-5)
-    np.testing.assert_allclose(raw.xyz_to_camera, want, rtol=1e-6)
+    np.testing.assert_allclose(raw.xyz_to_camera, want, rtol=1e-5)
 
 
 def test_a_matrix_libraw_has_built_in_is_taken_as_process_takes_it(tmp_path):
