@@ -35,6 +35,16 @@ BRADFORD = np.array(
     ],
     dtype=np.float64,
 )
+#: The CAT02 cone-response matrix (CIE 159:2004, CIECAM02), XYZ → LMS: the
+#: adaptation rawtoaces and the ACES input transforms use.
+CAT02 = np.array(
+    [
+        [0.7328, 0.4296, -0.1624],
+        [-0.7036, 1.6975, 0.0061],
+        [0.0030, 0.0136, 0.9834],
+    ],
+    dtype=np.float64,
+)
 
 
 def as_matrix(values, name: str = "matrix", shape: tuple[int, int] = (3, 3)) -> np.ndarray:
@@ -146,13 +156,67 @@ def rgb_to_xyz_matrix(primaries, white) -> np.ndarray:
     return directions * scale
 
 
-def bradford_adaptation(source_white, target_white) -> np.ndarray:
-    """Bradford chromatic adaptation (ICC.1 Annex E): the (3, 3) float64 matrix
-    taking XYZ seen under ``source_white`` to corresponding XYZ under ``target_white``
-    (both (3,) XYZ, Y = 1). It maps ``source_white`` onto ``target_white`` exactly
-    (to rounding); for equal whites it is the identity."""
-    src = BRADFORD @ np.asarray(source_white, dtype=np.float64)
-    dst = BRADFORD @ np.asarray(target_white, dtype=np.float64)
+def chromatic_adaptation(source_white, target_white, cone=BRADFORD) -> np.ndarray:
+    """Von Kries chromatic adaptation in the cone space ``cone`` (Bradford's, ICC.1
+    Annex E, unless told; :data:`CAT02` for ACES's): the (3, 3) float64 matrix taking
+    XYZ seen under ``source_white`` to corresponding XYZ under ``target_white`` (both
+    (3,) XYZ, Y = 1). It maps ``source_white`` onto ``target_white`` exactly (to
+    rounding); for equal whites it is the identity."""
+    src = cone @ np.asarray(source_white, dtype=np.float64)
+    dst = cone @ np.asarray(target_white, dtype=np.float64)
     if (src <= 0).any() or (dst <= 0).any():
         raise ParameterError("whites must have positive cone responses (XYZ of a real white)")
-    return np.linalg.solve(BRADFORD, np.diag(dst / src) @ BRADFORD)
+    return np.linalg.solve(cone, np.diag(dst / src) @ cone)
+
+
+def xyz_to_lab(xyz, white) -> np.ndarray:
+    """CIE XYZ (…, 3) → CIE L*a*b* (…, 3) relative to ``white`` (3,) XYZ (CIE 15:2004
+    (8.1)–(8.3), the linear segment below (6/29)³)."""
+    t = np.asarray(xyz, dtype=np.float64) / np.asarray(white, dtype=np.float64)
+    e = (6 / 29) ** 3
+    f = np.where(t > e, np.cbrt(np.maximum(t, e)), t / (3 * (6 / 29) ** 2) + 4 / 29)
+    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
+    return np.stack([116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)], axis=-1)
+
+
+def delta_e_2000(lab1, lab2) -> np.ndarray:
+    """CIEDE2000 colour difference (…,) between L*a*b* arrays (…, 3) (CIE 142:2001,
+    kL = kC = kH = 1; Sharma, Wu and Dalal's 2005 notes on the hue terms)."""
+    lab1, lab2 = np.asarray(lab1, dtype=np.float64), np.asarray(lab2, dtype=np.float64)
+    l1, a1, b1 = np.moveaxis(lab1, -1, 0)
+    l2, a2, b2 = np.moveaxis(lab2, -1, 0)
+    c_mean = (np.hypot(a1, b1) + np.hypot(a2, b2)) / 2
+    g = 0.5 * (1 - np.sqrt(c_mean**7 / (c_mean**7 + 25.0**7)))
+    a1p, a2p = (1 + g) * a1, (1 + g) * a2
+    c1p, c2p = np.hypot(a1p, b1), np.hypot(a2p, b2)
+    h1p = np.degrees(np.arctan2(b1, a1p)) % 360
+    h2p = np.degrees(np.arctan2(b2, a2p)) % 360
+    dl, dc = l2 - l1, c2p - c1p
+    dh = h2p - h1p
+    dh = np.where(dh > 180, dh - 360, np.where(dh < -180, dh + 360, dh))
+    dh = np.where(c1p * c2p == 0, 0.0, dh)
+    dhh = 2 * np.sqrt(c1p * c2p) * np.sin(np.radians(dh / 2))
+    l_mean, cp_mean = (l1 + l2) / 2, (c1p + c2p) / 2
+    h_sum = h1p + h2p
+    h_mean = np.where(
+        np.abs(h1p - h2p) <= 180, h_sum / 2, np.where(h_sum < 360, (h_sum + 360) / 2, (h_sum - 360) / 2)
+    )
+    h_mean = np.where(c1p * c2p == 0, h_sum, h_mean)
+    t = (
+        1
+        - 0.17 * np.cos(np.radians(h_mean - 30))
+        + 0.24 * np.cos(np.radians(2 * h_mean))
+        + 0.32 * np.cos(np.radians(3 * h_mean + 6))
+        - 0.20 * np.cos(np.radians(4 * h_mean - 63))
+    )
+    sl = 1 + 0.015 * (l_mean - 50) ** 2 / np.sqrt(20 + (l_mean - 50) ** 2)
+    sc = 1 + 0.045 * cp_mean
+    sh = 1 + 0.015 * cp_mean * t
+    rt = (
+        -2
+        * np.sqrt(cp_mean**7 / (cp_mean**7 + 25.0**7))
+        * np.sin(np.radians(60 * np.exp(-(((h_mean - 275) / 25) ** 2))))
+    )
+    return np.sqrt(
+        (dl / sl) ** 2 + (dc / sc) ** 2 + (dhh / sh) ** 2 + rt * (dc / sc) * (dhh / sh)
+    )

@@ -35,7 +35,7 @@ from rawsim.color import (
     SRGB_TO_XYZ,
     XYZ_D50,
     XYZ_D65,
-    bradford_adaptation,
+    chromatic_adaptation,
     rgb_to_xyz_matrix,
 )
 from rawsim.errors import ParameterError
@@ -344,7 +344,7 @@ def space_from_srgb(space: str) -> np.ndarray:
     rgb = RGB_SPACES[space]
     if space == "srgb":
         return np.eye(3)
-    adapt = bradford_adaptation(XYZ_D65, rgb.white)
+    adapt = chromatic_adaptation(XYZ_D65, rgb.white)
     return np.linalg.solve(rgb.to_xyz, adapt @ SRGB_TO_XYZ)
 
 

@@ -19,7 +19,7 @@ import torch
 from click.testing import CliRunner
 from PIL import Image, ImageCms
 
-from rawsim.color import SRGB_TO_XYZ, XYZ_D50, XYZ_D65, bradford_adaptation, srgb_from_camera
+from rawsim.color import SRGB_TO_XYZ, XYZ_D50, XYZ_D65, chromatic_adaptation, srgb_from_camera
 from rawsim.colorspaces import (
     ADOBE_RGB_GAMMA,
     BT2020_CURVE,
@@ -134,8 +134,8 @@ def test_bradford_against_the_published_matrix():
         [0.0295424, 0.9904844, -0.0170491],
         [-0.0092345, 0.0150436, 0.7521316],
     ]
-    assert np.abs(bradford_adaptation(d65, d50) - published).max() < 1e-6
-    assert np.allclose(bradford_adaptation(d65, d65), np.eye(3), atol=1e-15)
+    assert np.abs(chromatic_adaptation(d65, d50) - published).max() < 1e-6
+    assert np.allclose(chromatic_adaptation(d65, d65), np.eye(3), atol=1e-15)
 
 
 @pytest.mark.parametrize("space", OUTPUT_SPACES)
@@ -161,7 +161,7 @@ def test_camera_matrix_goes_through_xyz(space):
         assert np.allclose(m, xyz, atol=1e-12)
         return
     rgb = RGB_SPACES[space]
-    adapted = bradford_adaptation(XYZ_D65, rgb.white) @ xyz
+    adapted = chromatic_adaptation(XYZ_D65, rgb.white) @ xyz
     assert np.allclose(rgb.to_xyz @ m, adapted, atol=1e-12)
     assert np.allclose(m @ np.ones(3), 1.0, atol=1e-12)
 

@@ -35,7 +35,7 @@ import struct
 
 import numpy as np
 
-from rawsim.color import XYZ_D50, XYZ_D65, bradford_adaptation
+from rawsim.color import XYZ_D50, XYZ_D65, chromatic_adaptation
 from rawsim.colorspaces import Encoding
 
 #: ICC.1:2022 (profile version 4.3.0.0).
@@ -94,7 +94,7 @@ def colorants(encoding: Encoding) -> tuple[np.ndarray, np.ndarray]:
         to_xyz, white = np.eye(3), XYZ_D65
     else:
         to_xyz, white = rgb.to_xyz, np.asarray(rgb.white)
-    chad = bradford_adaptation(white, XYZ_D50)
+    chad = chromatic_adaptation(white, XYZ_D50)
     return chad, chad @ to_xyz
 
 
