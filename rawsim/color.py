@@ -199,7 +199,9 @@ def delta_e_2000(lab1, lab2) -> np.ndarray:
     l_mean, cp_mean = (l1 + l2) / 2, (c1p + c2p) / 2
     h_sum = h1p + h2p
     h_mean = np.where(
-        np.abs(h1p - h2p) <= 180, h_sum / 2, np.where(h_sum < 360, (h_sum + 360) / 2, (h_sum - 360) / 2)
+        np.abs(h1p - h2p) <= 180,
+        h_sum / 2,
+        np.where(h_sum < 360, (h_sum + 360) / 2, (h_sum - 360) / 2),
     )
     h_mean = np.where(c1p * c2p == 0, h_sum, h_mean)
     t = (
@@ -217,6 +219,4 @@ def delta_e_2000(lab1, lab2) -> np.ndarray:
         * np.sqrt(cp_mean**7 / (cp_mean**7 + 25.0**7))
         * np.sin(np.radians(60 * np.exp(-(((h_mean - 275) / 25) ** 2))))
     )
-    return np.sqrt(
-        (dl / sl) ** 2 + (dc / sc) ** 2 + (dhh / sh) ** 2 + rt * (dc / sc) * (dhh / sh)
-    )
+    return np.sqrt((dl / sl) ** 2 + (dc / sc) ** 2 + (dhh / sh) ** 2 + rt * (dc / sc) * (dhh / sh))

@@ -144,7 +144,9 @@ def _least_squares(residuals: Callable, x: np.ndarray, iterations: int = 200) ->
     cost, damping = r @ r, 1e-3
     for _ in range(iterations):
         h = 1e-7 * (1 + np.abs(x))
-        jac = np.stack([(residuals(x + h[i] * np.eye(len(x))[i]) - r) / h[i] for i in range(len(x))], 1)
+        jac = np.stack(
+            [(residuals(x + h[i] * np.eye(len(x))[i]) - r) / h[i] for i in range(len(x))], 1
+        )
         normal, grad = jac.T @ jac, jac.T @ r
         while True:
             step = np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12), -grad)

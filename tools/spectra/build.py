@@ -4,7 +4,8 @@ Run from the repository root with a snapshot of the repository as a git director
 (``fetch`` gives one; any clone works) and colour-science installed (for the CIE's
 tabulated illuminants only)::
 
-    python tools/spectra/build.py --rawtoaces-data /work/.mirror/AcademySoftwareFoundation+rawtoaces-data/repo
+    python tools/spectra/build.py \\
+        --rawtoaces-data /work/.mirror/AcademySoftwareFoundation+rawtoaces-data/repo
 
 Writes two files; only figures are carried, each with its file, commit and licence:
 
@@ -38,8 +39,14 @@ RELEASE = "v1.1.0"
 
 
 def git_json(repo: Path, path: str) -> dict:
-    return json.loads(subprocess.run(["git", f"--git-dir={repo}", "show", f"HEAD:{path}"],
-                                     check=True, capture_output=True, text=True).stdout)
+    return json.loads(
+        subprocess.run(
+            ["git", f"--git-dir={repo}", "show", f"HEAD:{path}"],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+    )
 
 
 def sig(x: float) -> float:
@@ -57,15 +64,22 @@ def main() -> None:
     ap.add_argument("--rawtoaces-data", type=Path, required=True)
     a = ap.parse_args()
     repo = a.rawtoaces_data
-    commit = subprocess.run(["git", f"--git-dir={repo}", "rev-parse", "HEAD"], check=True,
-                            capture_output=True, text=True).stdout.strip()
-    files = subprocess.run(["git", f"--git-dir={repo}", "ls-tree", "--name-only", "HEAD",
-                            "data/camera/"], check=True, capture_output=True,
-                           text=True).stdout.split()
+    commit = subprocess.run(
+        ["git", f"--git-dir={repo}", "rev-parse", "HEAD"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    files = subprocess.run(
+        ["git", f"--git-dir={repo}", "ls-tree", "--name-only", "HEAD", "data/camera/"],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.split()
     aliases = git_json(repo, "data/aliases.json")["data"]["camera"]["model"]
     # the repository's own model → its other names ("EOS R5m2" → "EOS R5 Mark II")
     other = {}
-    for make, names in aliases.items():
+    for names in aliases.values():
         for name, to in names.items():
             other.setdefault((to["make"], to["model"]), []).append(name)
     out, unmatched = {}, []
