@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import click
+import numpy as np
 
 from rawsim_cli.options import (
     PathType,
@@ -44,10 +45,13 @@ def list_cmd(text, as_json):
     """List every profile: the bundled ones, then each camera LibRaw knows.
 
     Each row says whether the camera's noise is measured (a published
-    calibration) or estimated from its sensor's physics, and which of its
+    calibration) or estimated from its sensor's physics, which of its
     values are assumed (no public table gives them; 'profiles show' says how
-    each was chosen), or "-" where none is. --json prints each profile whole
-    (levels, matrix, noise, sources, and "assumed", the keys assumed), as
+    each was chosen), or "-" where none is, and whether its measured spectral
+    sensitivities are published ("curves": 'profiles matrices' fits colour
+    matrices from them; unprocess renders spectral scenes through them).
+    --json prints each profile whole (levels, matrix, noise, sources,
+    "assumed", the keys assumed, and its spectral sensitivities' source), as
     'profiles show --json'.
 
     \b
@@ -97,6 +101,7 @@ def list_cmd(text, as_json):
             "noise": p.noise_kind or "unstated",
             "iso": _iso_range(*p.iso_range),
             "assumed": ",".join(_SHORT.get(k, k) for k in p.assumed) or "-",
+            "curves": "yes" if p.curves else "-",
         }
         for p in profiles
     ]
@@ -230,6 +235,13 @@ def show_cmd(profile, iso, as_json, plot):
                     f"{k} {v:.4g}" for k, v in values.items() if isinstance(v, float) and k != "iso"
                 )
             )
+    if p.curves:
+        click.echo(f"  spectral sensitivities: measured ({p.curves.source})")
+    else:
+        click.echo(
+            "  spectral sensitivities: none published for this camera "
+            "('rawsim profiles list' marks the cameras that have them)"
+        )
     for key, src in p.source.items():
         click.echo(f"  source[{key}]: {src}")
     for why in p.unreliable:
@@ -288,3 +300,97 @@ def from_raw_cmd(raw, output, overwrite):
         f"black {p.black_level:g}, white {p.white_level:g} DN, ISO {_iso_range(*p.iso_range)}"
     )
     click.echo(noise_summary(profile))
+
+
+@command.command("matrices")
+@output_options
+@click.argument("profile", metavar="NAME|PATH")
+@click.option(
+    "--illuminant",
+    "lights",
+    multiple=True,
+    metavar="NAME|FILE",
+    help="Fit under this light: D50, D55, D65, D75, A, F2, F11, ISO7589, or a file of "
+    "two columns (nm, power). Repeat for several. [default: D65 and A]",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@usage_errors
+def matrices_cmd(profile, lights, as_json):
+    """Fit a camera's colour matrices from its measured spectral sensitivities.
+
+    For each light: the XYZ→camera matrix (a DNG ColorMatrix, the light's
+    white mapping to a largest camera value of 1) that minimises the CIEDE2000
+    ΔE of rawtoaces' 190 training reflectances lit by it, the camera's white
+    kept exactly. Each fit prints its mean and worst ΔE00 on those patches; under
+    D65 the profile's own matrix (usually Adobe's) is measured on the same
+    patches beside it. Only cameras with curves ('profiles list' marks them).
+
+    \b
+    Example:
+      rawsim profiles matrices nikon_d850
+      rawsim profiles matrices "Canon EOS R6" --illuminant F2 --json
+    """
+    from rawsim.cameras import spectra
+    from rawsim.errors import RawsimError
+    from rawsim.profiles import load_profile
+    from rawsim.spectral import fit, tables
+
+    try:
+        p = load_profile(profile)
+    except RawsimError as err:
+        raise bad_option("NAME|PATH", err) from None
+    curves = p.curves
+    if curves is None:
+        have = spectra.labels()
+        raise bad_option(
+            "NAME|PATH",
+            f"no spectral sensitivities are published for {p.make} {p.model}; the "
+            f"{len(have)} cameras that have them: {', '.join(have)}",
+        )
+    fits = []
+    for light in lights or ("D65", "A"):
+        try:
+            spd = tables.illuminant(light)
+            f = fit.color_matrix(curves.rgb, spd)
+        except RawsimError as err:
+            raise bad_option("--illuminant", err) from None
+        entry = {
+            "illuminant": str(light),
+            "calibration_illuminant": _LIGHT_SOURCE.get(str(light).upper()),
+            "xyz_to_camera": np.round(f.xyz_to_camera, 6).tolist(),
+            "white_xyz": np.round(f.white_xyz, 6).tolist(),
+            "delta_e00": {"mean": round(f.mean_delta_e, 3), "max": round(f.max_delta_e, 3)},
+        }
+        if str(light).upper() == "D65":
+            own = fit.delta_e(curves.rgb, spd, p.xyz_to_camera)
+            entry["profile_matrix_delta_e00"] = {
+                "mean": round(float(own.mean()), 3),
+                "max": round(float(own.max()), 3),
+                "source": p.source.get("xyz_to_camera"),
+            }
+        fits.append(entry)
+    patches = tables.source("training_190")
+    if as_json:
+        out = {"camera": curves.label, "curves": curves.source, "patches": patches}
+        click.echo(json.dumps({**out, "fits": fits}, indent=2, ensure_ascii=False))
+        return
+    click.echo(f"{curves.label}: curves {curves.source}")
+    click.echo(f"  fitted on {patches}")
+    for e in fits:
+        code = e["calibration_illuminant"]
+        tag = f" (CalibrationIlluminant {code})" if code else ""
+        click.echo(f"  {e['illuminant']}{tag}: XYZ→camera")
+        for row in e["xyz_to_camera"]:
+            click.echo("    " + " ".join(f"{v:+.4f}" for v in row))
+        de = e["delta_e00"]
+        click.echo(f"    ΔE00 on the patches: mean {de['mean']:.2f}, worst {de['max']:.2f}")
+        if "profile_matrix_delta_e00" in e:
+            own = e["profile_matrix_delta_e00"]
+            click.echo(
+                f"    the profile's own matrix there: mean {own['mean']:.2f}, "
+                f"worst {own['max']:.2f} ({own['source']})"
+            )
+
+
+#: EXIF LightSource codes (DNG CalibrationIlluminant) of the lights known by name.
+_LIGHT_SOURCE = {"D50": 23, "D55": 20, "D65": 21, "D75": 22, "A": 17, "F2": 14, "ISO7589": 24}

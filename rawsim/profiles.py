@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from rawsim import cameras
+from rawsim.cameras import spectra
 from rawsim.cfa import CFA
 from rawsim.color import (
     as_matrix,
@@ -129,6 +130,12 @@ class SensorProfile:
         return replace(self, cfa=cfa, source={**self.source, "cfa_pattern": note})
 
     @property
+    def curves(self) -> spectra.Curves | None:
+        """The camera's measured spectral sensitivities (:mod:`rawsim.cameras.spectra`),
+        None where none are published for it."""
+        return spectra.of_profile(self)
+
+    @property
     def assumed(self) -> tuple[str, ...]:
         """The keys whose value is assumed (their source begins "assumed"), not taken
         from a table, a file or a measurement."""
@@ -196,6 +203,9 @@ class SensorProfile:
             "path": self.path,
             "unreliable": list(self.unreliable),
             "noise_kind": self.noise_kind,
+            "spectral_sensitivities": None
+            if (c := self.curves) is None
+            else {"camera": c.label, "source": c.source},
         }
 
 

@@ -74,11 +74,24 @@ def color_matrix(curves: np.ndarray, light: np.ndarray) -> MatrixFit:
         return delta_e_2000(xyz_to_lab(rgb @ matrix(p).T, white), lab)
 
     start = np.linalg.lstsq(rgb, xyz, rcond=None)[0].T[:, :2].ravel()
-    p = _least_squares(residuals, start)
-    errors = residuals(p)
-    to_camera = np.linalg.inv(matrix(p) @ np.diag(1 / rgb_white))
+    to_camera = np.linalg.inv(matrix(_least_squares(residuals, start)) @ np.diag(1 / rgb_white))
     to_camera /= (to_camera @ white).max()
+    errors = delta_e(curves, light, to_camera, refl)
     return MatrixFit(to_camera, white, float(errors.mean()), float(errors.max()))
+
+
+def delta_e(curves: np.ndarray, light: np.ndarray, xyz_to_camera, reflectances=None):
+    """(N,) CIEDE2000 ΔE of ``reflectances`` (81, N; the training patches unless given)
+    under ``light`` between what the observer sees and what a raw converter makes of
+    the camera's responses with ``xyz_to_camera`` (any scale), as the DNG specification
+    renders: camera → XYZ by its inverse, the camera's white (its response to the
+    light) taken as the white, so each side is CIELAB relative to its own white."""
+    refl = tables.training_reflectances() if reflectances is None else reflectances
+    to_xyz = np.linalg.inv(np.asarray(xyz_to_camera, dtype=np.float64))
+    seen_white = to_xyz @ (curves.T @ light)
+    seen = camera_responses(curves, light, refl) @ to_xyz.T / seen_white[1]
+    xyz, white = observer_xyz(light, refl)
+    return delta_e_2000(xyz_to_lab(seen, seen_white / seen_white[1]), xyz_to_lab(xyz, white))
 
 
 def white_balance(curves: np.ndarray, light: np.ndarray) -> np.ndarray:
