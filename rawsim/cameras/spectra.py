@@ -67,10 +67,16 @@ def of_camera(name: str) -> Curves | None:
     )
 
 
+def of_make_model(make: str, model: str) -> Curves | None:
+    """The curves of the camera a file's Make and Model name (any form
+    :func:`rawsim.cameras.find_camera` takes), None where it has none."""
+    found = cameras.find_camera(make, model)
+    return None if found is None else of_camera(found.name)
+
+
 def of_profile(profile) -> Curves | None:
     """The curves of a :class:`~rawsim.profiles.SensorProfile`'s camera: a database
     camera's by its name, a bundled or user profile's by its make and model; None
     where the camera has none."""
     found = cameras.find(profile.name) if "_" in profile.name else None
-    found = found or cameras.find_camera(profile.make, profile.model)
-    return None if found is None else of_camera(found.name)
+    return of_camera(found.name) if found else of_make_model(profile.make, profile.model)

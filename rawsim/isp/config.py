@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from rawsim.cameras import spectra
 from rawsim.color import SRGB_TO_XYZ, XYZ_D65, srgb_from_camera
 from rawsim.colorspaces import OUTPUT_SPACES as COLOR_SPACES
 from rawsim.colorspaces import space_from_srgb, space_transfer
@@ -43,6 +44,7 @@ from rawsim.errors import ParameterError
 from rawsim.io.lensfun import CORRECTIONS as LENS_CORRECTIONS
 from rawsim.io.lensfun import DEFAULT_DISTANCE, without_tca
 from rawsim.isp.curves import TransferSpec
+from rawsim.spectral.fit import aces_from_camera
 
 if TYPE_CHECKING:
     from rawsim.io.raw import RawImage
@@ -678,7 +680,37 @@ class ColorMatrixStage(Stage):
         return space_from_srgb(self.output_space) @ to_srgb
 
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
-        """``info["color_matrix"]``: :meth:`matrix` as nested lists."""
+        """``info["color_matrix"]``: :meth:`matrix` as nested lists; into an ACES space,
+        where the raw's camera has measured spectral sensitivities, the spectral input
+        transform instead (:func:`rawsim.spectral.fit.aces_from_camera`, for the white
+        balance used). ``info["aces_idt"]`` says which and from what."""
+        if self.output_space.startswith("aces"):
+            curves = spectra.of_make_model(raw.make, raw.model)
+            if curves is not None and "white_balance" in info:
+                matrix, used = aces_from_camera(
+                    curves.rgb, info["white_balance"], self.output_space
+                )
+                info["color_matrix"] = matrix.tolist()
+                info["aces_idt"] = {
+                    "kind": "spectral",
+                    "how": "rawtoaces' procedure: B fitted from the spectral sensitivities "
+                    "on the 190 training patches (CIELAB, CAT02 to the ACES white) under "
+                    "the candidate light whose white balance is nearest the one used, "
+                    "which stays (b: rawtoaces' own for that light)",
+                    "curves": curves.source,
+                    **used,
+                }
+                return
+            info["aces_idt"] = {
+                "kind": "matrix",
+                "how": "from the colour matrix (matrix_source): camera → XYZ (D65), then "
+                "Bradford's adaptation to the ACES white; "
+                + (
+                    "no spectral sensitivities are published for this camera"
+                    if curves is None
+                    else "no white balance was applied"
+                ),
+            }
         info["color_matrix"] = self.matrix(raw).tolist()
 
 

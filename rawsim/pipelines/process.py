@@ -1004,8 +1004,7 @@ def process_file(task: Task, options: ProcessOptions) -> dict:
     }
     if color is not None and color.space.startswith("aces"):
         meta["aces"] = {
-            "idt": "from the colour matrix (matrix_source): camera → XYZ (D65), then "
-            "Bradford's adaptation to the ACES white; no spectral sensitivities",
+            "idt": meta.pop("aces_idt", None),
             "container": "SMPTE ST 2065-4"
             if color.space == "aces2065-1" and options.fmt == "exr" and options.bits == 16
             else None,

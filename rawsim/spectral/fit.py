@@ -126,6 +126,26 @@ def aces_idt(curves: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndar
     return matrix(_least_squares(residuals, np.array([1.0, 0, 0, 1, 0, 0]))), b
 
 
+def aces_from_camera(curves: np.ndarray, gains, space: str) -> tuple[np.ndarray, dict]:
+    """The spectral input transform for camera RGB already white-balanced by ``gains``
+    (3,), as ``rawsim process`` holds it, into ``space`` ("aces2065-1" or "acescg"),
+    by rawtoaces' procedure: B of :func:`aces_idt` under the candidate light whose
+    white balance is nearest ``gains`` (:func:`best_illuminant`). The white balance
+    stays the one used (B's rows sum to 1, so its neutral stays neutral); rawtoaces'
+    own b for that light is reported beside it. Returns ((3, 3) matrix, what was
+    used: the light, b, B)."""
+    name, light = best_illuminant(curves, gains)
+    idt, b = aces_idt(curves, light)
+    matrix = idt
+    if space == "acescg":
+        to_ap1 = np.linalg.solve(RGB_SPACES["acescg"].to_xyz, RGB_SPACES["aces2065-1"].to_xyz)
+        matrix = to_ap1 @ idt
+    elif space != "aces2065-1":
+        raise ParameterError(f"no spectral input transform into {space!r}: ACES spaces only")
+    used = {"illuminant": name, "b": np.round(b, 6).tolist(), "B": np.round(idt, 6).tolist()}
+    return matrix, used
+
+
 def rawtoaces_illuminants() -> dict[str, np.ndarray]:
     """rawtoaces' candidate lights for a shot: CIE daylights at 4000–25000 K in 500 K
     steps (nominal, rescaled by 1.4388/1.4380 as the CIE's tables are), blackbodies at

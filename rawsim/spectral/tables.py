@@ -59,7 +59,8 @@ def cmf() -> np.ndarray:
 
 
 def training_reflectances() -> np.ndarray:
-    """(81, 190) float64: rawtoaces' 190 training patches, reflectance 0–1."""
+    """(81, 190) float64: rawtoaces' 190 training patches' reflectance (≥ 0; a few
+    fluorescent patches exceed 1)."""
     return np.asarray(_tables()["training_190"]["reflectance"], dtype=np.float64).T
 
 
@@ -69,8 +70,9 @@ def _at_560(spd: np.ndarray) -> np.ndarray:
 
 def daylight(cct: float) -> np.ndarray:
     """(81,) the CIE daylight illuminant of correlated colour temperature ``cct`` (K,
-    4000–25000): its chromaticity by CIE 15:2004 (3.3)–(3.4), then S0 + M1·S1 + M2·S2."""
-    if not 4000 <= cct <= 25000:
+    4000–25000, and the 25014 K that 25000 K becomes rescaled as the CIE's tables are):
+    its chromaticity by CIE 15:2004 (3.3)–(3.4), then S0 + M1·S1 + M2·S2."""
+    if not 4000 <= cct <= 25000 * 1.4388 / 1.4380:
         raise ParameterError(f"a daylight's CCT must be 4000–25000 K, got {cct:g}")
     t = 1e3 / cct
     if cct <= 7000:

@@ -1,0 +1,158 @@
+"""A spectral scene seen by a camera: its raw camera RGB, exactly, from the camera's
+spectral sensitivities and the light.
+
+The raw value of channel c at a pixel is the sum over the grid
+(:data:`~rawsim.spectral.tables.WAVELENGTHS`, 380–780 nm, 5 nm) of
+
+- ``curve_c · light · reflectance`` for a reflectance scene,
+- ``curve_c · radiance`` for a radiance scene,
+
+divided by ``Σ curve_G · light``: a perfect white reflector under the light (or a
+radiance equal to the light) gives G = 1, as sRGB white gives G = 1 after the RGB path's
+inverse white balance, and R, B the camera's neutral (:func:`neutral`, the DNG's
+AsShotNeutral). The scene is put on the grid by linear interpolation, its end values
+held beyond its ends (:func:`rawsim.spectral.tables.resample`); as interpolation is
+linear, the sum is taken through the (N, 3) weights it gives the scene's own bands
+(:func:`band_weights`), the same numbers with no (81, H, W) copy of the scene.
+
+A named light is the CIE's (or ISO's) table scaled to 100 at 560 nm
+(:func:`rawsim.spectral.tables.illuminant`), as is a light read from a file; a light a
+scene carries as a spectrum is taken as it is, in the scene's units.
+
+Shapes: curves (81, 3), spectra on the grid (81,), scenes (H, W, N) with N wavelengths.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import numpy as np
+
+from rawsim.cameras import spectra
+from rawsim.errors import ParameterError
+from rawsim.spectral import fit, tables
+
+#: How many cameras a refusal names before "… and N more".
+_NAMED = 12
+#: DNG CalibrationIlluminant codes (EXIF LightSource) of the two matrices written.
+ILLUMINANT_A, ILLUMINANT_D65 = 17, 21
+
+
+@dataclass(frozen=True)
+class Light:
+    """The light a scene is rendered under: ``spectrum`` (81,) on the grid; ``name``
+    (a table's name, a file's path, or ``"the scene's spectrum"``); ``origin``:
+    ``"scene"`` (it carries it), ``"--illuminant"`` (given), ``"default"`` (D65 for a
+    reflectance scene that has none); ``file``: whether ``name`` is a file read."""
+
+    spectrum: np.ndarray
+    name: str
+    origin: str
+    file: bool = False
+
+
+def curves_for(profile) -> spectra.Curves:
+    """The spectral sensitivities a profile's camera is simulated with: the measured
+    ones (:mod:`rawsim.cameras.spectra`), else a seed config's ``wavelengths`` and
+    ``*_spectral_response`` put on the grid. Raises :class:`ParameterError` naming the
+    cameras that have curves where it has neither."""
+    measured = spectra.of_profile(profile)
+    if measured is not None:
+        return measured
+    seed = profile.spectral
+    if seed is not None:
+        where = f"profile {profile.name!r} ({profile.path or 'config'})"
+        rgb = tables.resample(
+            seed["wavelengths"],
+            np.column_stack([seed["red"], seed["green"], seed["blue"]]),
+            f"{where}: its spectral responses",
+        )
+        source = f"{where}: its wavelengths and red/green/blue_spectral_response"
+        return spectra.Curves(profile.name, profile.name, rgb, source)
+    names = spectra.labels()
+    more = len(names) - _NAMED
+    listed = ", ".join(names[:_NAMED]) + (f" and {more} more" if more > 0 else "")
+    raise ParameterError(
+        f"profile {profile.name!r} ({profile.make} {profile.model}) has no spectral "
+        f"sensitivities, so it cannot see a spectral scene: give --profile one of the "
+        f"cameras that have them ({listed})"
+    )
+
+
+def light_of(carried: np.ndarray | str | None, given: str | None, nm, kind: str, what: str):
+    """The :class:`Light` a scene is rendered under and a warning or None: ``given``
+    (``--illuminant``: a name or a file) where there is one, else the one the scene
+    ``carried`` (a name, or a spectrum on its wavelengths ``nm``), else D65 for a
+    reflectance; a radiance without either is refused (``what`` names the file)."""
+    warning = None
+    if given is not None:
+        if carried is not None:
+            said = carried if isinstance(carried, str) else "a spectrum"
+            warning = f"the scene carries its illuminant ({said}); --illuminant {given} is used"
+        named = str(given).upper() in tables.ILLUMINANTS
+        name = str(given).upper() if named else str(given)
+        return Light(tables.illuminant(given), name, "--illuminant", not named), warning
+    if isinstance(carried, str):
+        try:
+            return Light(tables.illuminant(carried), carried.upper(), "scene"), None
+        except ParameterError:
+            raise ParameterError(
+                f"{what}: unknown illuminant {carried!r}: name one of "
+                f"{', '.join(tables.ILLUMINANTS)}, or give --illuminant"
+            ) from None
+    if carried is not None:
+        light = tables.resample(nm, carried, f"{what}: its illuminant")
+        return Light(light, "the scene's spectrum", "scene"), None
+    if kind == "radiance":
+        raise ParameterError(
+            f"{what}: a radiance scene needs its illuminant, to know its white: give "
+            f"--illuminant ({', '.join(tables.ILLUMINANTS)} or a file), or store one in it"
+        )
+    return Light(tables.illuminant("D65"), "D65", "default"), None
+
+
+def band_weights(nm, curves: np.ndarray, light: np.ndarray, kind: str) -> np.ndarray:
+    """(N, 3) float64 weights of a scene's N bands at wavelengths ``nm``: raw camera RGB
+    = scene (…, N) @ weights (see the module's notes for the normalisation)."""
+    nm = np.asarray(nm, dtype=np.float64)
+    onto_grid = tables.resample(nm, np.eye(len(nm)), "the scene's wavelengths")  # (81, N)
+    white = curves[:, 1] @ light
+    if not white > 0:
+        raise ParameterError("the camera's green curve sees nothing of this light")
+    seen = curves * light[:, None] if kind == "reflectance" else curves
+    return onto_grid.T @ seen / white
+
+
+def camera_rgb(scene: np.ndarray, nm, curves: np.ndarray, light: np.ndarray, kind: str):
+    """(H, W, 3) float32 raw camera RGB of ``scene`` (H, W, N) at wavelengths ``nm``:
+    linear, white (reflectance 1) at G = 1; summed in float64."""
+    weights = band_weights(nm, curves, light, kind)
+    h, w, n = scene.shape
+    rgb = scene.reshape(-1, n).astype(np.float64) @ weights
+    return rgb.reshape(h, w, 3).astype(np.float32)
+
+
+def neutral(curves: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """(3,) the camera's response to ``light``'s white, G = 1: the DNG's AsShotNeutral."""
+    white = curves.T @ light
+    return white / white[1]
+
+
+_fits: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def dng_matrices(curves: spectra.Curves) -> tuple[np.ndarray, np.ndarray]:
+    """((3, 3) XYZ → camera under illuminant A, the same under D65): the DNG's
+    ColorMatrix1 and ColorMatrix2 (:func:`rawsim.spectral.fit.color_matrix`), fitted
+    once per camera."""
+    key = (curves.camera, curves.source)
+    if key not in _fits:
+        _fits[key] = tuple(
+            fit.color_matrix(curves.rgb, tables.illuminant(n)).xyz_to_camera for n in ("A", "D65")
+        )
+    return _fits[key]
+
+
+def light_record(light: Light) -> dict:
+    """The sidecar's record of a :class:`Light`: its name (or file), whether it was read
+    from a file, and where it came from (the scene, ``--illuminant``, the default)."""
+    return {"name": light.name, "file": light.file, "origin": light.origin}
