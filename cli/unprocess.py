@@ -135,6 +135,14 @@ NOISES = ("poisson-gaussian", "physics", "gaussian", "none")
     "clipped (--highlights clip).",
 )
 @click.option(
+    "--illuminant",
+    metavar="NAME|FILE",
+    help="The light spectral scenes (.npz, wavelength-named EXR) are seen under: D50, "
+    "D55, D65, D75, A, F2, F11, ISO7589, or a file of two columns (nm, power); it "
+    "replaces the one a scene carries (default: the scene's; D65 for a reflectance "
+    "that has none).",
+)
+@click.option(
     "--strip-metadata",
     is_flag=True,
     help="Write none of the input's metadata (capture time, exposure, GPS, artist, "
@@ -165,6 +173,7 @@ def command(
     aperture,
     vignetting,
     wb_inverse,
+    illuminant,
     strip_metadata,
     jobs,
     executor,
@@ -177,14 +186,19 @@ def command(
     """Turn sRGB or scene-linear images into the noisy raw DNGs a sensor would record.
 
     INPUTS are image files or folders (searched recursively for PNG, JPEG, TIFF,
-    EXR, HDR, BMP, WebP). 8/16-bit images are display-referred: the inverse tone
-    curve and the transfer are undone. Float images (EXR, HDR, float TIFF) are
-    scene-linear. Then: sRGB → camera RGB through the profile's matrix, inverse
-    white balance, mosaic in the profile's CFA (or --cfa: a Bayer pattern, XTRANS
-    or any periodic R/G/B layout), optional vignetting, black/white levels, noise
-    at the ISO, rounding and saturation at the white level. --lens adds a real
-    lens (lensfun's distortion, lateral CA and vignetting) to the white-balanced
-    camera RGB, where 'rawsim process --lens-correction auto' corrects it.
+    EXR, HDR, BMP, WebP, and NumPy .npz spectral scenes). 8/16-bit images are
+    display-referred: the inverse tone curve and the transfer are undone. Float
+    images (EXR, HDR, float TIFF) are scene-linear. Then: sRGB → camera RGB through
+    the profile's matrix, inverse white balance. A spectral scene (an npz of
+    spectra and wavelengths, or an EXR whose channels are wavelengths: 400nm, …)
+    is instead seen through the camera's measured spectral sensitivities under
+    its illuminant or --illuminant: its exact raw camera RGB, white at G = 1; its
+    DNG gets colour matrices fitted for A and D65. Then: mosaic in the profile's
+    CFA (or --cfa: a Bayer pattern, XTRANS or any periodic R/G/B layout), optional
+    vignetting, black/white levels, noise at the ISO, rounding and saturation at
+    the white level. --lens adds a real lens (lensfun's distortion, lateral CA and
+    vignetting) to the white-balanced camera RGB, where 'rawsim process
+    --lens-correction auto' corrects it.
 
     Each file gives <stem>.dng (and <stem>.clean.dng with --clean, <stem>.npz with
     --format npz|both) and <stem>.json with every parameter used. The DNGs keep the
@@ -209,11 +223,13 @@ def command(
       rawsim unprocess photos/ renders/ -o raw/ --profile sony_a7s2 --iso 1600 --clean
       rawsim unprocess photos/ -o xtrans/ --profile fujifilm_xt3 --iso 3200
       rawsim unprocess photos/ -o xt-a7s2/ --profile sony_a7s2 --cfa XTRANS --iso 800
+      rawsim unprocess scene.npz -o raw/ --profile nikon_d850 --iso 200 --illuminant A
       rawsim unprocess photos/ -o kit/ --profile canon_eos_700d --iso 400 \\
         --lens "Canon EF-S 18-55mm f/3.5-5.6 IS STM" --focal-length 18 --aperture 3.5
     """
     from rawsim.errors import RawsimError
     from rawsim.io.images import IMAGE_EXTENSIONS
+    from rawsim.io.spectral import SPECTRAL_EXTENSIONS
     from rawsim.profiles import load_profile
 
     # Every usage error first, each with its option named, before torch and numba load.
@@ -269,8 +285,23 @@ def command(
         )
         for warning in warnings:
             click.echo(f"warning: {warning}", err=True)
+    if illuminant is not None:  # read once here: a bad name or file is a usage error
+        from rawsim.spectral.tables import illuminant as read_illuminant
+
+        try:
+            read_illuminant(illuminant)
+        except RawsimError as err:
+            raise bad_option("--illuminant", err) from None
     checked = check_inputs(
-        ctx, inputs, IMAGE_EXTENSIONS, "input images", out_dir, shard, jobs, executor, address
+        ctx,
+        inputs,
+        IMAGE_EXTENSIONS + SPECTRAL_EXTENSIONS,
+        "input images",
+        out_dir,
+        shard,
+        jobs,
+        executor,
+        address,
     )
 
     # Then the pipeline (numba; torch only where a stage needs it).
@@ -301,6 +332,7 @@ def command(
         sensor=sensor_kind,
         strip_metadata=strip_metadata,
         lens=lens_record,
+        illuminant=illuminant,
     )
     options.check_isos()
     run_files(

@@ -30,7 +30,8 @@ from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
 from rawsim.errors import ParameterError, check_choice, check_image, values_checked
 from rawsim.io.dng import DngInfo, write_dng
-from rawsim.io.images import CODE_MAX, read_image
+from rawsim.io.dng_colour import DngColour
+from rawsim.io.images import CODE_MAX, DecodedImage, read_image
 from rawsim.io.lensfun import LensParams
 from rawsim.io.metadata import PhotoMetadata, read_metadata
 from rawsim.io.outputs import atomic_outputs
@@ -38,6 +39,7 @@ from rawsim.io.pieces import open_empty
 from rawsim.io.progress import DecodeProgress
 from rawsim.io.readahead import ReadAhead
 from rawsim.io.spare import Spare
+from rawsim.io.spectral import SpectralScene, is_spectral, read_spectral
 from rawsim.io.task import Task
 from rawsim.isp.config import DEFAULT_K, SAFE_WB_THRESHOLD
 from rawsim.isp.curves import TransferSpec
@@ -152,6 +154,7 @@ def unprocess_tensor(
     clean: bool = False,
     lens: LensParams | None = None,
     out: tuple[torch.Tensor, torch.Tensor | None] | None = None,
+    camera_rgb: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Simulate the raw capture of ``image`` by ``sensor``.
 
@@ -175,6 +178,10 @@ def unprocess_tensor(
         out: float32 (B, 1, H, W) tensors to write the noisy and (with ``clean``)
             clean mosaics into (the second one None unless ``clean``), or None (new
             tensors).
+        camera_rgb: ``image`` is linear raw camera RGB (white at G = 1, a spectral
+            scene's: :mod:`rawsim.spectral.render`), not sRGB: only the exposure
+            scale and the lens act on it before the mosaic (no matrix, no inverse
+            white balance); ``display_referred`` must be False.
 
     Returns:
         ``(noisy, clean)``: float32 (B, 1, H, W) integer DN in [0, white] (a mosaic
@@ -212,6 +219,7 @@ def unprocess_tensor(
             noisy,
             clean_out,
             lens,
+            camera_rgb,
         )
     return noisy, clean_out
 
@@ -226,7 +234,18 @@ def strip_rows(sensor: ProfileSensor) -> int:
 
 
 def _run_strips(
-    sensor, image, params, noise, key, display_referred, lut, shading, noisy, clean_out, lens
+    sensor,
+    image,
+    params,
+    noise,
+    key,
+    display_referred,
+    lut,
+    shading,
+    noisy,
+    clean_out,
+    lens,
+    camera_rgb=False,
 ) -> None:
     from rawsim.isp.levels import quantize, saturate
 
@@ -241,11 +260,24 @@ def _run_strips(
         else:
             linear = strip.float()
             in_type = "rgb" if display_referred else "linear_rgb"
-        camera = sensor.unprocess(linear, in_type, params, lens)
+        if camera_rgb:
+            camera = _camera_rgb(linear, params, lens)
+        else:
+            camera = sensor.unprocess(linear, in_type, params, lens)
         dn = sensor.linrgb2raw(camera, params, None if shading is None else shading[..., rows, :])
         if clean_out is not None:
             clean_out[:, :, rows] = saturate(quantize(dn), sensor.white_level)
         noisy[:, :, rows] = sensor.simu_noise(dn, params.iso, noise, key, top_row, h)
+
+
+def _camera_rgb(camera: torch.Tensor, params: UnprocessParams, lens) -> torch.Tensor:
+    """Raw camera RGB (B, 3, H, W) as the sensor records it: the exposure scale, then
+    the ``lens`` (on the whole frame) where there is one."""
+    from rawsim.isp.lens import add_lens
+
+    scale = params.linear_scale
+    camera = camera * scale if scale != 1.0 else camera
+    return camera if lens is None else add_lens(camera, lens)
 
 
 @dataclass(frozen=True)
@@ -283,6 +315,7 @@ def engine_unprocess(
     lens: LensParams | None = None,
     out: tuple[np.ndarray, np.ndarray | None] | None = None,
     bands: Iterable[tuple[int, int]] | None = None,
+    camera_rgb: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """:func:`unprocess_tensor` for one (H, W, 3) image, by the compiled engine.
 
@@ -300,6 +333,9 @@ def engine_unprocess(
     as it comes, the same bits as the whole at once. An image that is read whole
     first (floats, whose values are checked; codes below their type's maximum; a
     lens) waits for the last band.
+
+    ``camera_rgb``: ``pixels`` are float raw camera RGB (:func:`unprocess_tensor`'s
+    ``camera_rgb``): the kernel runs with the identity matrix and unit gains.
     """
     from rawsim.engine import unprocess as kernels
     from rawsim.noise.kernels import np_key
@@ -330,6 +366,9 @@ def engine_unprocess(
     scale = params.linear_scale
     ccm_bias = np.asarray(params.ccm_bias if params.ccm_bias and not mono else (0.0,) * 3, float)
     matrix = camera_from_srgb(params.xyz_to_camera)
+    gains, safe = np.asarray(params.wb_gains, np.float64), params.safe_white_balance
+    if camera_rgb:  # each channel unchanged but for the scale, exactly
+        matrix, gains, safe, ccm_bias = np.eye(3), np.ones(3), False, np.zeros(3)
     if lens is not None:  # camera RGB through the lens, whole; then the rows as linear floats
         pixels = kernels.lens_camera(pixels, lut, scale, ccm_bias, matrix, mono, lens)
         lut, scale, ccm_bias, matrix = np.zeros(0, np.float32), 1.0, np.zeros(3), np.eye(3)
@@ -338,8 +377,8 @@ def engine_unprocess(
         scale,
         ccm_bias,
         matrix,
-        np.asarray(params.wb_gains, np.float64),
-        params.safe_white_balance,
+        gains,
+        safe,
         SAFE_WB_THRESHOLD,
         mono,
         np.zeros(period, np.int64) if mono else np.array(cfa.colors).reshape(period),
@@ -399,6 +438,10 @@ class UnprocessOptions:
         lens: the lens whose distortion, lateral chromatic aberration and
             vignetting are added (lensfun's, :mod:`rawsim.io.lensfun`), or None;
             its tags go into the DNG.
+        illuminant: the light spectral scenes are rendered under (``--illuminant``:
+            a name of :data:`rawsim.spectral.tables.ILLUMINANTS` or a file), in
+            place of the one a scene carries; None: the scene's own (D65 for a
+            reflectance that has none). Images (RGB) do not use it.
     """
 
     profile: SensorProfile
@@ -418,6 +461,7 @@ class UnprocessOptions:
     sensor: str = "rgb"
     strip_metadata: bool = False
     lens: LensParams | None = None
+    illuminant: str | None = None
 
     def __post_init__(self) -> None:
         if self.lens is not None:  # a record (LensParams.to_dict()), e.g. from a sidecar
@@ -538,6 +582,7 @@ def simulate(
     engine: bool | None = None,
     out: tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray | None] | None = None,
     bands: Iterable[tuple[int, int]] | None = None,
+    camera: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Simulation:
     """Simulate one image as the files job does, from its ``seed``.
 
@@ -559,7 +604,20 @@ def simulate(
     (1, 1, H, W) arrays. ``bands``: the rows of an
     image array still being decoded, as they are written (see
     :func:`engine_unprocess`); the torch reference waits for the last.
+
+    ``camera``: ``image`` is float raw camera RGB, a spectral scene's
+    (:mod:`rawsim.spectral.render`), and this is its (XYZ → camera matrix, (3,)
+    white-balance gains), which the params record in place of the profile's: the
+    image skips the matrix and the inverse white balance (``camera_rgb`` of
+    :func:`unprocess_tensor`). It takes neither ``options.randomize`` (which draws
+    sRGB's matrix and gains) nor the mono sensor.
     """
+    if camera is not None and (options.randomize or options.sensor == "mono"):
+        given = "--randomize" if options.randomize else "--sensor mono"
+        raise ParameterError(
+            f"{given} does not apply to a spectral scene (its colour comes from the "
+            f"camera's curves, through R, G and B filters): drop {given}"
+        )
     layout = options.layout()  # the engine's sensor where none is given
     params_gen = None  # only draws need one (and torch)
     if options.randomize or options.iso_range is not None:
@@ -578,6 +636,15 @@ def simulate(
         vignetting=options.vignetting,
         safe_white_balance=options.safe_white_balance,
     )
+    if camera is not None:
+        matrix, gains = camera
+        params = replace(
+            params,
+            xyz_to_camera=tuple(tuple(float(v) for v in row) for row in matrix),
+            wb_gains=tuple(float(g) for g in gains),
+            safe_white_balance=False,
+            ccm_bias=None,
+        )
     if options.randomize:  # drawn after the params, from the same generator
         levels = options.profile.noise.sample_levels(options.noise, params.iso, params_gen)
     else:
@@ -589,6 +656,7 @@ def simulate(
         code_max=code_max,
         clean=options.clean,
         lens=options.lens,
+        camera_rgb=camera is not None,
     )
     if use_engine(image) if engine is None else engine:
         pixels = image if isinstance(image, np.ndarray) else image[0].permute(1, 2, 0).numpy()
@@ -631,7 +699,10 @@ def read_ahead(task: Task, options: UnprocessOptions) -> None:
     """Begin decoding ``task``'s image in a thread, for the :func:`unprocess_file` call
     that follows this one's (a batch's next file): OpenImageIO decodes while the
     engine unprocesses this image and the DNG writer writes it."""
-    _reader.start(task.source, read_image, task.source, _inputs)
+    if is_spectral(task.source):
+        _reader.start(task.source, read_spectral, task.source)
+    else:
+        _reader.start(task.source, read_image, task.source, _inputs)
 
 
 def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
@@ -640,9 +711,12 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     The outputs are put in place as one set (:func:`~rawsim.io.outputs.atomic_outputs`).
     Returns the sidecar's metadata.
     """
-    decoded, sim, out = _decode_and_simulate(task, options)
+    decoded, sim, out, seen = _decode_and_simulate(task, options)
     params, levels = sim.params, sim.levels
     metadata = _metadata(task, options, decoded, params, levels)
+    if seen is not None:
+        metadata["input_kind"] = "spectral"
+        metadata["spectral"] = seen.to_dict()
     h, w = decoded.pixels.shape[:2]
     draw = _dark_draw(levels, noise_key(task.seed), h, w, options.layout().cfa)
     if draw is not None:  # where the dark-shading crop lies and the black-level offset
@@ -650,6 +724,8 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     noisy_np = Simulation.codes(sim.noisy)
     clean_np = None if sim.clean is None else Simulation.codes(sim.clean)
     info = _dng_info(options, params, levels, decoded.orientation, _photo(task, options, decoded))
+    if seen is not None:
+        info = replace(info, colour=seen.dng_colour())
     with atomic_outputs(task.outputs) as tmp:
         if "dng" in tmp:
             write_dng(tmp["dng"], noisy_np, info)
@@ -675,7 +751,8 @@ BAND_ROWS = 256
 
 def _decode_and_simulate(task: Task, options: UnprocessOptions):
     """Decode ``task``'s image and simulate its capture: (decoded image, simulation,
-    the engine's output mosaics or None).
+    the engine's output mosaics or None, the :class:`Seen` of a spectral scene or None).
+    A spectral scene (:func:`~rawsim.io.spectral.is_spectral`) goes to :func:`_see_and_simulate`.
 
     An image that was not read ahead (a single file, a batch's first) is decoded in
     a reader thread while the engine unprocesses the rows decoded so far, where
@@ -683,6 +760,8 @@ def _decode_and_simulate(task: Task, options: UnprocessOptions):
     the CPU without a lens: the decode and the compute overlap. Otherwise the
     image is decoded (or its read ahead taken) first.
     """
+    if is_spectral(task.source):
+        return _see_and_simulate(task, options)
     device = resolve_device(options.device)
     decoding = progress = None
     if _reader.pending(task.source) or str(device) != "cpu" or options.lens is not None:
@@ -712,7 +791,84 @@ def _decode_and_simulate(task: Task, options: UnprocessOptions):
     )
     if progress is not None:
         decoded = decoding.result()  # raises why, if the decode failed
-    return decoded, sim, out
+    return decoded, sim, out, None
+
+
+@dataclass(frozen=True)
+class Seen:
+    """How a spectral scene was seen: the ``scene`` as read, the camera's ``curves``
+    (:class:`~rawsim.cameras.spectra.Curves`), the ``light``
+    (:class:`~rawsim.spectral.render.Light`), the DNG's ``matrices`` (XYZ → camera
+    under A and under D65) and the camera's ``neutral`` (3,) under the light."""
+
+    scene: SpectralScene
+    curves: object
+    light: object
+    matrices: tuple[np.ndarray, np.ndarray]
+    neutral: np.ndarray
+
+    def dng_colour(self) -> DngColour:
+        """ColorMatrix1 under standard light A, ColorMatrix2 under D65."""
+        from rawsim.spectral.render import ILLUMINANT_A, ILLUMINANT_D65
+
+        a, d65 = self.matrices
+        return DngColour({1: (ILLUMINANT_A, a), 2: (ILLUMINANT_D65, d65)}, {}, None)
+
+    def to_dict(self) -> dict:
+        """The sidecar's ``spectral`` record."""
+        from rawsim.spectral.render import light_record
+
+        a, d65 = self.matrices
+        return {
+            "kind": self.scene.kind,
+            "wavelengths": [float(v) for v in self.scene.wavelengths],
+            "curves": {"camera": self.curves.label, "source": self.curves.source},
+            "illuminant": light_record(self.light),
+            "neutral": [float(v) for v in self.neutral],
+            "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},
+            "color_matrix_2": {"illuminant": "D65", "xyz_to_camera": d65.tolist()},
+        }
+
+
+def _see_and_simulate(task: Task, options: UnprocessOptions):
+    """Read ``task``'s spectral scene, see it through the profile's camera curves under
+    its light (:mod:`rawsim.spectral.render`: raw camera RGB, white at G = 1) and
+    simulate the capture from there (mosaic, levels, noise): the return of
+    :func:`_decode_and_simulate`."""
+    from rawsim.spectral import render
+
+    scene = _reader.take(task.source, read_spectral, task.source)
+    curves = render.curves_for(options.profile)
+    light, warning = render.light_of(
+        scene.illuminant, options.illuminant, scene.wavelengths, scene.kind, str(task.source)
+    )
+    pixels = render.camera_rgb(
+        scene.spectra, scene.wavelengths, curves.rgb, light.spectrum, scene.kind
+    )
+    neutral = render.neutral(curves.rgb, light.spectrum)
+    matrices = render.dng_matrices(curves)
+    decoded = DecodedImage(
+        pixels=pixels,
+        code_max=None,
+        orientation=1,
+        source_size=scene.source_size,
+        dropped_channels=scene.dropped_channels,
+        format_name=f"{scene.format_name} (spectral)",
+        warnings=(warning,) if warning else (),
+    )
+    device = resolve_device(options.device)
+    image = pixels if str(device) == "cpu" else image_tensor(pixels, device)
+    out = _mosaics(*pixels.shape[:2], options.clean) if use_engine(image) else None
+    sim = simulate(
+        None,
+        image,
+        options,
+        task.seed,
+        display_referred=False,
+        out=out,
+        camera=(matrices[1], 1.0 / neutral),
+    )
+    return decoded, sim, out, Seen(scene, curves, light, matrices, neutral)
 
 
 #: The engine's output mosaics of a batch's last file, once written, for the next

@@ -25,6 +25,7 @@ Shapes: curves (81, 3), spectra on the grid (81,), scenes (H, W, N) with N wavel
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
 
 from rawsim.cameras import spectra
@@ -85,11 +86,11 @@ def light_of(carried: np.ndarray | str | None, given: str | None, nm, kind: str,
     reflectance; a radiance without either is refused (``what`` names the file)."""
     warning = None
     if given is not None:
-        if carried is not None:
-            said = carried if isinstance(carried, str) else "a spectrum"
-            warning = f"the scene carries its illuminant ({said}); --illuminant {given} is used"
         named = str(given).upper() in tables.ILLUMINANTS
         name = str(given).upper() if named else str(given)
+        if carried is not None:
+            said = carried if isinstance(carried, str) else "a spectrum"
+            warning = f"the scene carries its illuminant ({said}); --illuminant {name} is used"
         return Light(tables.illuminant(given), name, "--illuminant", not named), warning
     if isinstance(carried, str):
         try:

@@ -1,0 +1,288 @@
+"""Spectral scenes through ``rawsim unprocess``: the raw is the exact integral of the
+camera's curves, the light and the scene; the DNG's colour tags, the sidecar, the
+refusals, LibRaw's and ``rawsim process``'s reading of the files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+import rawpy
+from click.testing import CliRunner
+
+from rawsim.cameras import spectra
+from rawsim.cfa import CFA
+from rawsim.io.spectral import read_spectral, wavelength_of
+from rawsim.profiles import load_profile
+from rawsim.spectral import fit, tables
+from rawsim_cli.main import cli
+from tests.conftest import DATA, require_tool
+
+CHART = DATA / "spectral" / "chart.npz"
+PROFILE = "nikon_d850"
+
+
+def unprocess(*args, ok=True):
+    done = CliRunner().invoke(cli, ["unprocess", *map(str, args)])
+    if ok:
+        assert done.exit_code == 0, done.output
+    return done
+
+
+def clean_raw(tmp_path, source, *options, name="out"):
+    """The clean mosaic (H, W) DN and the sidecar of ``source``, noise-free."""
+    out = tmp_path / name
+    unprocess(
+        source, "-o", out, "-p", PROFILE, "--iso", 100, "--noise", "none", "--clean", *options
+    )
+    with rawpy.imread(str(out / f"{source.stem}.clean.dng")) as raw:
+        mosaic = raw.raw_image.copy()
+    return mosaic, json.loads((out / f"{source.stem}.json").read_text())
+
+
+def expected_raw(spectra_hw, nm, light, kind="reflectance"):
+    """The clean mosaic computed here from the tables: each pixel's spectrum put on the
+    5 nm grid (np.interp, ends held), Σ curve · light · reflectance (or · radiance),
+    over Σ curve_G · light; then levels, rounding and the white level."""
+    prof = load_profile(PROFILE)
+    curves = spectra.of_camera("Nikon D850").rgb
+    h, w, n = spectra_hw.shape
+    flat = spectra_hw.reshape(-1, n).astype(np.float64)
+    grid = np.stack([np.interp(tables.WAVELENGTHS, nm, s) for s in flat])  # (HW, 81)
+    seen = grid * light if kind == "reflectance" else grid
+    rgb = (seen @ curves / (curves[:, 1] @ light)).reshape(h, w, 3)
+    colors = np.array(CFA(prof.cfa.pattern).colors).reshape(2, 2)
+    site = np.tile(colors, (h // 2, w // 2))
+    v = np.take_along_axis(rgb, site[:, :, None], axis=2)[:, :, 0]
+    dn = prof.black_level + v * (prof.white_level - prof.black_level)
+    return np.minimum(np.rint(dn), prof.white_level)
+
+
+def test_clean_raw_is_the_exact_integral(tmp_path):
+    mosaic, meta = clean_raw(tmp_path, CHART)
+    with np.load(CHART) as npz:
+        expected = expected_raw(npz["spectra"], npz["wavelengths"], tables.illuminant("D65"))
+    assert meta["params"]["wb_gains"][1] == 1 and min(meta["params"]["wb_gains"]) >= 1
+    assert np.abs(mosaic - expected).max() <= 1
+    assert (mosaic == expected).mean() > 0.99
+    # the white reflector's green is the white level; the 18 % grey's green 18 % up
+    assert mosaic[0, 1] == 16383
+    assert mosaic[0, 9] == pytest.approx(400 + 0.18 * (16383 - 400), abs=1)
+
+
+def test_reflectance_and_radiance_give_the_same_raw(tmp_path):
+    refl = tables.training_reflectances()[:, :12].T.reshape(3, 4, 81).repeat(8, 0).repeat(8, 1)
+    light = tables.illuminant("F11") * 3.5  # a radiance's units are the scene's own
+    np.savez(tmp_path / "r.npz", spectra=refl, wavelengths=tables.WAVELENGTHS, illuminant="F11")
+    np.savez(
+        tmp_path / "e.npz",
+        spectra=refl * light,
+        wavelengths=tables.WAVELENGTHS,
+        kind="radiance",
+        illuminant=light,
+    )
+    a, meta_a = clean_raw(tmp_path, tmp_path / "r.npz", name="r")
+    b, meta_b = clean_raw(tmp_path, tmp_path / "e.npz", name="e")
+    assert np.abs(a.astype(int) - b).max() <= 1
+    assert np.allclose(meta_a["spectral"]["neutral"], meta_b["spectral"]["neutral"])
+    assert meta_b["spectral"]["kind"] == "radiance"
+    assert meta_b["spectral"]["illuminant"]["name"] == "the scene's spectrum"
+    assert np.array_equal(a, expected_raw(refl, tables.WAVELENGTHS, tables.illuminant("F11")))
+
+
+def test_illuminant_from_a_file_equals_its_name(tmp_path):
+    csv = tmp_path / "a.csv"
+    csv.write_text(
+        "nm,power\n"
+        + "".join(
+            f"{n:g},{p:.17g}\n"
+            for n, p in zip(tables.WAVELENGTHS, tables.illuminant("A"), strict=True)
+        )
+    )
+    named, meta_named = clean_raw(tmp_path, CHART, "--illuminant", "a", name="named")
+    read, meta_read = clean_raw(tmp_path, CHART, "--illuminant", csv, name="file")
+    assert np.array_equal(named, read)
+    assert meta_named["spectral"]["illuminant"] == {
+        "name": "A",
+        "file": False,
+        "origin": "--illuminant",
+    }
+    assert meta_read["spectral"]["illuminant"] == {
+        "name": str(csv),
+        "file": True,
+        "origin": "--illuminant",
+    }
+    assert (
+        "the scene carries its illuminant (D65); --illuminant A is used" in meta_named["warnings"]
+    )
+    with np.load(CHART) as npz:
+        expected = expected_raw(npz["spectra"], npz["wavelengths"], tables.illuminant("A"))
+    assert np.abs(named - expected).max() <= 1
+
+
+def test_the_exr_scene_gives_the_npz_scenes_raw(tmp_path):
+    exr = DATA / "spectral" / "chart.exr"
+    a, _ = clean_raw(tmp_path, CHART, name="npz")
+    b, meta = clean_raw(tmp_path, exr, name="exr")
+    assert np.array_equal(a, b)
+    assert meta["input_format"] == "OpenEXR (spectral)"
+    assert meta["spectral"]["illuminant"]["origin"] == "scene"
+
+
+@pytest.mark.parametrize(
+    ("name", "expected"),
+    [
+        ("400nm", (400.0, None)),
+        ("w455", (455.0, None)),
+        ("550", (550.0, None)),
+        ("S0.550,000000nm", (550.0, "S0")),
+        ("T.412.5nm", (412.5, "T")),
+        ("R", None),
+        ("Y", None),
+    ],
+)
+def test_exr_channel_spellings(name, expected):
+    assert wavelength_of(name) == expected
+
+
+def test_sidecar_records_the_curves_light_kind_and_wavelengths(tmp_path):
+    _, meta = clean_raw(tmp_path, CHART)
+    seen = meta["spectral"]
+    assert meta["input_kind"] == "spectral" and meta["input_format"] == "NumPy npz (spectral)"
+    assert seen["kind"] == "reflectance"
+    assert seen["wavelengths"] == list(range(400, 701, 10))
+    assert seen["curves"] == {
+        "camera": "Nikon D850",
+        "source": spectra.of_camera("Nikon D850").source,
+    }
+    assert seen["illuminant"] == {"name": "D65", "file": False, "origin": "scene"}
+    curves = spectra.of_camera("Nikon D850").rgb
+    light = tables.illuminant("D65")
+    white = curves.T @ light
+    assert np.allclose(seen["neutral"], white / white[1])
+    assert np.allclose(meta["as_shot_neutral"], seen["neutral"])
+
+
+def test_dng_colour_tags(tmp_path):
+    exiftool = require_tool("exiftool")
+    clean_raw(tmp_path, CHART, "--illuminant", "A")
+    dng = tmp_path / "out" / "chart.clean.dng"
+    tags = json.loads(
+        subprocess.run(
+            [
+                exiftool,
+                "-j",
+                "-n",
+                "-ColorMatrix1",
+                "-ColorMatrix2",
+                "-CalibrationIlluminant1",
+                "-CalibrationIlluminant2",
+                "-AsShotNeutral",
+                str(dng),
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    )[0]
+    curves = spectra.of_camera("Nikon D850").rgb
+    matrix = lambda text: np.array(text.split(), float).reshape(3, 3)  # noqa: E731
+    assert tags["CalibrationIlluminant1"] == 17 and tags["CalibrationIlluminant2"] == 21
+    a = fit.color_matrix(curves, tables.illuminant("A")).xyz_to_camera
+    d65 = fit.color_matrix(curves, tables.illuminant("D65")).xyz_to_camera
+    assert np.allclose(matrix(tags["ColorMatrix1"]), a, atol=1e-4)
+    assert np.allclose(matrix(tags["ColorMatrix2"]), d65, atol=1e-4)
+    white = curves.T @ tables.illuminant("A")
+    assert np.allclose(np.array(tags["AsShotNeutral"].split(), float), white / white[1], atol=1e-4)
+
+
+def test_libraw_and_rawsim_process_render_grey_neutral(tmp_path):
+    clean_raw(tmp_path, CHART, "--illuminant", "F11")
+    dng = tmp_path / "out" / "chart.clean.dng"
+    with rawpy.imread(str(dng)) as raw:
+        assert raw.raw_pattern.tolist() == [[0, 1], [3, 2]]
+        rgb = raw.postprocess(use_camera_wb=True, no_auto_bright=True, gamma=(1, 1), output_bps=16)
+    grey = rgb[2:6, 10:14].reshape(-1, 3).mean(axis=0)  # the 18 % patch, away from its edges
+    assert np.ptp(grey) / grey.mean() < 0.01
+    done = CliRunner().invoke(
+        cli, ["process", str(dng), "-o", str(tmp_path / "p"), "--format", "tiff"]
+    )
+    assert done.exit_code == 0, done.output
+    import OpenImageIO as oiio
+
+    rendered = oiio.ImageBuf(str(tmp_path / "p" / "chart.clean.tif")).get_pixels(oiio.FLOAT)
+    grey = rendered[2:6, 10:14].reshape(-1, 3).mean(axis=0)
+    assert np.ptp(grey) < 0.01
+
+
+def test_same_seed_same_bytes(tmp_path):
+    for name in ("a", "b"):
+        unprocess(CHART, "-o", tmp_path / name, "-p", PROFILE, "--iso", 3200, "--seed", 7)
+    first = (tmp_path / "a" / "chart.dng").read_bytes()
+    assert first == (tmp_path / "b" / "chart.dng").read_bytes()
+    unprocess(CHART, "-o", tmp_path / "c", "-p", PROFILE, "--iso", 3200, "--seed", 8)
+    assert first != (tmp_path / "c" / "chart.dng").read_bytes()
+
+
+def _scene(tmp_path, name, **arrays):
+    path = tmp_path / f"{name}.npz"
+    np.savez(path, **arrays)
+    return path
+
+
+def test_bad_scenes_are_refused_and_the_batch_goes_on(tmp_path):
+    good = np.full((4, 4, 31), 0.5, np.float32)
+    nm = np.arange(400, 701, 10.0)
+    nan = good.copy()
+    nan[1, 2, 3] = np.nan
+    bad = {
+        "narrow": dict(spectra=good[:, :, :21], wavelengths=nm[5:26]),
+        "nan": dict(spectra=nan, wavelengths=nm),
+        "negative": dict(spectra=-good, wavelengths=nm),
+        "radiance": dict(spectra=good, wavelengths=nm, kind="radiance"),
+        "nospectra": dict(mosaic=good),
+        "mismatch": dict(spectra=good, wavelengths=nm[:-1]),
+    }
+    paths = [_scene(tmp_path, k, **v) for k, v in bad.items()]
+    ok = _scene(tmp_path, "ok", spectra=good, wavelengths=nm)
+    done = unprocess(*paths, ok, "-o", tmp_path / "out", "-p", PROFILE, "--iso", 100, ok=False)
+    assert done.exit_code == 1, done.output
+    assert (tmp_path / "out" / "ok.dng").is_file()
+    said = {line.split(".npz:")[0].rsplit("/", 1)[-1]: line for line in done.output.splitlines()}
+    assert "(450–650 nm) do not cover 400–700 nm" in said["narrow"]
+    assert "1 pixel(s) hold NaN or infinite values" in said["nan"]
+    assert "negative values" in said["negative"]
+    assert "a radiance scene needs its illuminant" in said["radiance"]
+    assert "holds no 'spectra' or 'wavelengths'" in said["nospectra"]
+    assert "do not match" in said["mismatch"]
+    assert "1 done, 0 skipped, 6 failed" in done.output
+
+
+def test_a_camera_without_curves_is_refused(tmp_path):
+    done = unprocess(CHART, "-o", tmp_path, "-p", "canon_eos_700d", "--iso", 100, ok=False)
+    assert done.exit_code == 1
+    line = next(x for x in done.output.splitlines() if "spectral sensitivities" in x)
+    assert "canon_eos_700d" in line and "Canon EOS 100D" in line and "more" in line
+    assert not list(tmp_path.glob("*.dng"))
+
+
+def test_randomize_and_mono_are_refused(tmp_path):
+    for flag in (["--randomize"], ["--sensor", "mono"]):
+        done = unprocess(CHART, "-o", tmp_path, "-p", PROFILE, "--iso", 100, *flag, ok=False)
+        assert done.exit_code == 1 and f"{flag[0]}" in done.output
+
+
+def test_a_bad_illuminant_is_a_usage_error(tmp_path):
+    done = unprocess(
+        CHART, "-o", tmp_path, "-p", PROFILE, "--iso", 100, "--illuminant", "D93", ok=False
+    )
+    assert done.exit_code == 2 and "'--illuminant'" in done.output
+
+
+def test_read_spectral_crops_to_even(tmp_path):
+    path = _scene(tmp_path, "odd", spectra=np.ones((5, 7, 3)), wavelengths=[380.0, 550, 780])
+    scene = read_spectral(path)
+    assert scene.spectra.shape == (4, 6, 3) and scene.source_size == (7, 5)
+    assert scene.kind == "reflectance" and scene.illuminant is None
