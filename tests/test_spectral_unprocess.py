@@ -286,3 +286,50 @@ def test_read_spectral_crops_to_even(tmp_path):
     scene = read_spectral(path)
     assert scene.spectra.shape == (4, 6, 3) and scene.source_size == (7, 5)
     assert scene.kind == "reflectance" and scene.illuminant is None
+
+
+def test_a_seed_configs_spectral_responses_are_used(tmp_path):
+    nm = np.arange(400, 701, 10.0)
+    bell = lambda c, w: np.exp(-0.5 * ((nm - c) / w) ** 2).tolist()  # noqa: E731
+    seed = tmp_path / "seed.json"
+    seed.write_text(
+        json.dumps(
+            {
+                "bit": 12,
+                "black_level": 256,
+                "bayer_pattern": "rggb",
+                "wavelengths": nm.tolist(),
+                "red_spectral_response": bell(600, 30),
+                "green_spectral_response": bell(530, 35),
+                "blue_spectral_response": bell(460, 25),
+            }
+        )
+    )
+    unprocess(CHART, "-o", tmp_path, "-p", seed, "--iso", 100, "--noise", "none")
+    meta = json.loads((tmp_path / "chart.json").read_text())
+    assert "red/green/blue_spectral_response" in meta["spectral"]["curves"]["source"]
+    assert not any("no colour matrix" in w for w in meta["warnings"])  # the curves give it
+    curves = tables.resample(nm, np.column_stack([bell(600, 30), bell(530, 35), bell(460, 25)]), "")
+    white = curves.T @ tables.illuminant("D65")
+    assert np.allclose(meta["spectral"]["neutral"], white / white[1])
+
+
+def test_the_torch_reference_sees_what_the_engine_sees():
+    from rawsim.pipelines.unprocess import UnprocessOptions, simulate
+    from rawsim.spectral import render
+
+    scene = read_spectral(CHART)
+    curves = spectra.of_camera("Nikon D850")
+    light = tables.illuminant("A")
+    rgb = render.camera_rgb(scene.spectra, scene.wavelengths, curves.rgb, light, "reflectance")
+    camera = (render.dng_matrices(curves)[1], 1 / render.neutral(curves.rgb, light))
+    options = UnprocessOptions(load_profile(PROFILE), iso=800, clean=True, exposure_ev=-0.5)
+    sims = [
+        simulate(None, rgb, options, 3, display_referred=False, engine=e, camera=camera)
+        for e in (True, False)
+    ]
+    clean = [s.codes(s.clean).astype(int) for s in sims]
+    assert np.abs(clean[0] - clean[1]).max() <= 1
+    noisy = [s.codes(s.noisy).astype(int) for s in sims]  # the same draws, bit for bit
+    assert np.abs(noisy[0] - noisy[1]).max() <= 1
+    assert sims[0].params.wb_gains == pytest.approx(tuple(camera[1]))

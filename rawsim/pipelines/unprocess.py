@@ -713,10 +713,7 @@ def unprocess_file(task: Task, options: UnprocessOptions) -> dict:
     """
     decoded, sim, out, seen = _decode_and_simulate(task, options)
     params, levels = sim.params, sim.levels
-    metadata = _metadata(task, options, decoded, params, levels)
-    if seen is not None:
-        metadata["input_kind"] = "spectral"
-        metadata["spectral"] = seen.to_dict()
+    metadata = _metadata(task, options, decoded, params, levels, seen)
     h, w = decoded.pixels.shape[:2]
     draw = _dark_draw(levels, noise_key(task.seed), h, w, options.layout().cfa)
     if draw is not None:  # where the dark-shading crop lies and the black-level offset
@@ -999,13 +996,19 @@ def _dng_info(
     )
 
 
-def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) -> dict:
+def _metadata(
+    task: Task, options: UnprocessOptions, decoded, params, levels, seen: Seen | None = None
+) -> dict:
+    """The sidecar. A spectral scene's (``seen``) is of input kind ``spectral``, with a
+    ``spectral`` record (:meth:`Seen.to_dict`), and no warning about the profile's
+    matrix: its colour comes from the curves."""
     profile, cfa = options.profile, options.layout().cfa
     h, w = decoded.pixels.shape[:2]
+    kind = "scene-linear" if decoded.is_float else "display-referred"
     meta = {
         "rawsim_version": __version__,
         "input": task.key,
-        "input_kind": "scene-linear" if decoded.is_float else "display-referred",
+        "input_kind": "spectral" if seen is not None else kind,
         "input_format": decoded.format_name,
         "code_max": decoded.code_max,
         "crop": decoded.crop,
@@ -1013,7 +1016,7 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
         "warnings": list(decoded.warnings)
         + (options.scene_linear_warning() if decoded.is_float else [])
         + _iso_warning(options)
-        + _colour_warning(options)
+        + (_colour_warning(options) if seen is None else [])
         + _libraw_size_warning(options, h, w),
         "orientation": decoded.orientation,
         "width": w,
@@ -1043,6 +1046,8 @@ def _metadata(task: Task, options: UnprocessOptions, decoded, params, levels) ->
     }
     if options.lens is not None:  # absent without one: outputs as before
         meta["lens"] = options.lens.to_dict()
+    if seen is not None:
+        meta["spectral"] = seen.to_dict()
     if levels.model != "none":
         span = profile.white_level - profile.black_level
         a, b = levels.affine_variance(span)
