@@ -131,6 +131,27 @@ def test_the_exr_scene_gives_the_npz_scenes_raw(tmp_path):
     assert meta["spectral"]["illuminant"]["origin"] == "scene"
 
 
+def test_a_fichet_radiance_exr_gives_the_reflectances_raw(tmp_path):
+    import OpenImageIO as oiio
+
+    refl = tables.training_reflectances()[:, 20:32].T.reshape(3, 4, 81).repeat(8, 0).repeat(8, 1)
+    light = tables.illuminant("D50")
+    np.savez(tmp_path / "r.npz", spectra=refl, wavelengths=tables.WAVELENGTHS)
+    exr = tmp_path / "e.exr"
+    spec = oiio.ImageSpec(refl.shape[1], refl.shape[0], 81, oiio.FLOAT)
+    spec.channelnames = tuple(f"S0.{nm:g},000000nm" for nm in tables.WAVELENGTHS[::-1])
+    spec.attribute("illuminant", "d50")
+    out = oiio.ImageOutput.create(str(exr))
+    assert out.open(str(exr), spec)
+    out.write_image(np.ascontiguousarray((refl * light)[:, :, ::-1], np.float32))
+    out.close()
+    a, _ = clean_raw(tmp_path, tmp_path / "r.npz", "--illuminant", "D50", name="r")
+    b, meta = clean_raw(tmp_path, exr, name="e")
+    assert np.abs(a.astype(int) - b).max() <= 1
+    assert meta["spectral"]["kind"] == "radiance"
+    assert meta["spectral"]["illuminant"] == {"name": "D50", "file": False, "origin": "scene"}
+
+
 @pytest.mark.parametrize(
     ("name", "expected"),
     [
@@ -148,7 +169,9 @@ def test_exr_channel_spellings(name, expected):
 
 
 def test_sidecar_records_the_curves_light_kind_and_wavelengths(tmp_path):
-    _, meta = clean_raw(tmp_path, CHART)
+    _, meta = clean_raw(tmp_path, CHART, "--format", "both")
+    with np.load(tmp_path / "out" / "chart.npz") as npz:
+        assert json.loads(str(npz["metadata"])) == meta
     seen = meta["spectral"]
     assert meta["input_kind"] == "spectral" and meta["input_format"] == "NumPy npz (spectral)"
     assert seen["kind"] == "reflectance"
@@ -246,6 +269,8 @@ def test_bad_scenes_are_refused_and_the_batch_goes_on(tmp_path):
         "mismatch": dict(spectra=good, wavelengths=nm[:-1]),
     }
     paths = [_scene(tmp_path, k, **v) for k, v in bad.items()]
+    paths.append(tmp_path / "text.npz")
+    paths[-1].write_text("no zip")
     ok = _scene(tmp_path, "ok", spectra=good, wavelengths=nm)
     done = unprocess(*paths, ok, "-o", tmp_path / "out", "-p", PROFILE, "--iso", 100, ok=False)
     assert done.exit_code == 1, done.output
@@ -257,7 +282,8 @@ def test_bad_scenes_are_refused_and_the_batch_goes_on(tmp_path):
     assert "a radiance scene needs its illuminant" in said["radiance"]
     assert "holds no 'spectra' or 'wavelengths'" in said["nospectra"]
     assert "do not match" in said["mismatch"]
-    assert "1 done, 0 skipped, 6 failed" in done.output
+    assert "not an npz (no zip archive)" in said["text"]
+    assert "1 done, 0 skipped, 7 failed" in done.output
 
 
 def test_a_camera_without_curves_is_refused(tmp_path):

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import re
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -99,7 +99,7 @@ def is_spectral(path: str | Path) -> bool:
             return False
         names = tuple(inp.spec().channelnames)
         inp.close()
-    return len(names) > 3 and all(wavelength_of(n) is not None for n in names)
+    return len(names) >= 2 and all(wavelength_of(n) is not None for n in names)
 
 
 def read_spectral(path: str | Path) -> SpectralScene:
@@ -116,6 +116,8 @@ def read_spectral(path: str | Path) -> SpectralScene:
 
 
 def _read_npz(path: Path) -> SpectralScene:
+    if not zipfile.is_zipfile(path):  # np.load would take it for a pickle
+        raise UnsupportedInputError(f"{path}: not an npz (no zip archive): {_NPZ_FIX}")
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
@@ -238,12 +240,4 @@ def _checked(path: Path, scene: SpectralScene) -> SpectralScene:
         raise UnsupportedInputError(
             f"{path}: its 'illuminant' must be finite and ≥ 0 at every wavelength"
         )
-    return SpectralScene(
-        spectra=spectra,
-        wavelengths=nm,
-        kind=scene.kind,
-        illuminant=light,
-        format_name=scene.format_name,
-        source_size=scene.source_size,
-        dropped_channels=scene.dropped_channels,
-    )
+    return replace(scene, spectra=spectra)

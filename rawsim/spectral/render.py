@@ -71,7 +71,9 @@ def curves_for(profile) -> spectra.Curves:
         return spectra.Curves(profile.name, profile.name, rgb, source)
     names = spectra.labels()
     more = len(names) - _NAMED
-    listed = ", ".join(names[:_NAMED]) + (f" and {more} more" if more > 0 else "")
+    listed = ", ".join(names[:_NAMED])
+    if more > 0:
+        listed += f" and {more} more: the curves column of 'rawsim profiles list'"
     raise ParameterError(
         f"profile {profile.name!r} ({profile.make} {profile.model}) has no spectral "
         f"sensitivities, so it cannot see a spectral scene: give --profile one of the "
