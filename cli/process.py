@@ -131,6 +131,13 @@ FORMAT_ALIASES = {"tif": "tiff", "jpeg": "jpg"}
     help="The DNG's BaselineExposure: apply (default, as Adobe's DNG SDK) or ignore (as LibRaw).",
 )
 @click.option(
+    "--dng-matrices",
+    type=click.Choice(["interpolate", "libraw"]),
+    help="A DNG with two colour matrices (ColorMatrix1/2): interpolate them by the white "
+    "balance used (default, as the DNG specification and Adobe's DNG SDK) or take one "
+    "(the D65 one, as LibRaw).",
+)
+@click.option(
     "--output-space",
     type=click.Choice(SPACES),
     help="Colour space of the output (default srgb), each with its own transfer and an "
@@ -238,6 +245,7 @@ def command(
     tone_white,
     exposure,
     baseline_exposure,
+    dng_matrices,
     output_space,
     transfer,
     lens_correction,
@@ -306,6 +314,7 @@ def command(
         tone_exposure=tone_exposure,
         tone_white=tone_white,
         baseline_exposure=baseline_exposure,
+        dng_matrices=dng_matrices,
         output_space=output_space,
         transfer=transfer,
         lens_correction=lens_correction,

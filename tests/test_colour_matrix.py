@@ -121,3 +121,69 @@ def test_the_dng_matrix_libraw_would_take():
     )
     assert what == "AnalogBalance · CameraCalibration2 · ColorMatrix2 (D65)"
     assert read_dng_colour(_tags(ill1=[21])) is None  # no matrix
+
+
+def _two_matrices(path=DATA / "raw" / "canon_eos60d_mlv.dng"):
+    with tifffile.TiffFile(path) as tif:
+        return read_dng_colour(tif.pages.first.tags)
+
+
+def _neutral_gains(matrix, xyz_white):
+    """The gains that make ``xyz_white`` neutral for XYZ → camera ``matrix`` (G = 1)."""
+    camera = np.asarray(matrix) @ np.asarray(xyz_white)
+    return camera[1] / camera
+
+
+def test_two_dng_matrices_are_interpolated_by_the_white_balance():
+    """The 60D's DNG (ColorMatrix1 for A, 2 for D65), as the DNG specification's
+    chapter 6 with the DNG SDK's temperatures (A 2850 K, D65 6500 K): a shot balanced
+    for A's white (2856 K) takes ColorMatrix1 all but alone, for D65's ColorMatrix2
+    alone (6504 K: above 6500, clamped), and for a white between, each in proportion
+    to inverse temperature, the white found with the matrix it gives."""
+    colour = _two_matrices()
+    cm1, cm2 = colour.composed(1), colour.composed(2)
+    a_white = np.array([1.09850, 1.0, 0.35585])  # CIE A, XYZ (Y = 1)
+    d65_white = np.array([0.95047, 1.0, 1.08883])
+
+    def weight(cct):
+        return (1 / cct - 1 / 6500) / (1 / 2850 - 1 / 6500)
+
+    m, how = colour.interpolated(_neutral_gains(cm1, a_white))
+    assert abs(how["cct"] - 2856) <= 2
+    assert abs(how["weights"]["ColorMatrix1"] - weight(2856)) < 1e-3 and np.allclose(
+        m, cm1, atol=0.01
+    )
+    m, how = colour.interpolated(_neutral_gains(cm2, d65_white))
+    assert how["weights"] == {"ColorMatrix1": 0.0, "ColorMatrix2": 1.0} and np.allclose(m, cm2)
+    # D50's white is found with the matrix it gives: a fixed point at 5003 K
+    d50_white = np.array([0.96422, 1.0, 0.82521])
+    w1 = weight(5003)
+    mixed = w1 * cm1 + (1 - w1) * cm2
+    m, how = colour.interpolated(_neutral_gains(mixed, d50_white))
+    assert abs(how["cct"] - 5003) <= 2
+    assert abs(how["weights"]["ColorMatrix1"] - w1) < 1e-3 and np.allclose(m, mixed, atol=1e-3)
+
+
+def test_process_interpolates_a_dngs_two_matrices_unless_told_to_take_libraws(tmp_path):
+    """By default the sidecar records the interpolation and the render's matrix is the
+    interpolated one's; --dng-matrices libraw renders with LibRaw's single matrix."""
+    from rawsim.color import srgb_from_camera
+    from rawsim.io.raw import read_raw
+
+    raw = DATA / "raw" / "canon_eos60d_mlv.dng"
+    sides = {}
+    for mode in ("interpolate", "libraw"):
+        out = tmp_path / mode
+        r = CliRunner().invoke(cli, ["process", str(raw), "-o", str(out), "--dng-matrices", mode])
+        assert r.exit_code == 0, r.output
+        sides[mode] = json.loads((out / "canon_eos60d_mlv.process.json").read_text())
+    how = sides["interpolate"]["dng_matrices"]
+    assert 4000 < how["cct"] < 6500 and sum(how["weights"].values()) == 1
+    w1 = how["weights"]["ColorMatrix1"]
+    colour = _two_matrices(raw)
+    want = srgb_from_camera(w1 * colour.composed(1) + (1 - w1) * colour.composed(2))
+    assert np.allclose(sides["interpolate"]["color_matrix"], want, atol=1e-5)
+    assert "dng_matrices" not in sides["libraw"]
+    libraw = srgb_from_camera(read_raw(raw).xyz_to_camera)
+    assert np.allclose(sides["libraw"]["color_matrix"], libraw, atol=1e-5)
+    assert np.abs(np.subtract(sides["interpolate"]["color_matrix"], libraw)).max() > 0.01

@@ -38,6 +38,7 @@ AS_LIBRAW = {
     "demosaic_domain": "linear",
     "highlights": "clip",
     "saturation": "white",  # as LibRaw's adjust_maximum_thr=0 below
+    "dng_matrices": "libraw",  # LibRaw takes one of a DNG's two matrices
 }
 LIBRAW_MATCHED = dict(
     use_camera_wb=True,

@@ -31,6 +31,14 @@ _ILLUMINANTS = {
     22: "D75",
     23: "D50",
 }
+#: The correlated colour temperature (K) the DNG SDK gives each CalibrationIlluminant
+#: code (dng_camera_profile.cpp, IlluminantToTemperature), for interpolating two
+#: matrices; codes without one (0, other) are not interpolated.
+_TEMPERATURES = {
+    1: 5500, 2: 4150, 3: 2850, 4: 5500, 9: 5500, 10: 6500, 11: 7500, 12: 6430, 13: 5000,
+    14: 4150, 15: 3450, 17: 2850, 18: 5500, 19: 6500, 20: 5500, 21: 6500, 22: 7500,
+    23: 5000, 24: 3200,
+}  # fmt: skip
 #: Illuminants LibRaw takes for a DNG's colour when neither matrix is for D65 (its
 #: identify.cpp, "Other daylight-type ill"): daylight, flash, D55, D75, D50.
 _DAYLIGHT_LIKE = (1, 4, 20, 22, 23)
@@ -67,16 +75,52 @@ class DngColour:
                 if hit:
                     pick = hit[0]
                     break
-        code, matrix = self.matrices[pick]
+        code = self.matrices[pick][0]
         name = _ILLUMINANTS.get(code, f"illuminant {code}")
         what = [f"ColorMatrix{pick} ({name})"]
         if pick in self.calibration and not np.allclose(self.calibration[pick], np.eye(3)):
-            matrix = self.calibration[pick] @ matrix
             what.insert(0, f"CameraCalibration{pick}")
         if self.analog_balance is not None and not np.allclose(self.analog_balance, 1):
-            matrix = np.diag(self.analog_balance) @ matrix
             what.insert(0, "AnalogBalance")
-        return matrix, " · ".join(what)
+        return self.composed(pick), " · ".join(what)
+
+    def composed(self, i: int) -> np.ndarray:
+        """AnalogBalance · CameraCalibration``i`` · ColorMatrix``i``, (3, 3)."""
+        m = self.matrices[i][1]
+        if i in self.calibration:
+            m = self.calibration[i] @ m
+        return m if self.analog_balance is None else np.diag(self.analog_balance) @ m
+
+    def interpolated(self, gains) -> tuple[np.ndarray, dict] | None:
+        """The XYZ → camera matrix for a shot white-balanced by ``gains`` (R, G, B), as
+        the DNG specification (1.6, chapter 6) finds it from two matrices: the white's
+        xy and the matrix are solved together, starting from D50 — the matrix is the two
+        composed matrices (:meth:`composed`) weighted linearly in inverse temperature
+        between their illuminants' (clamped to the nearer outside them), the white is
+        that matrix's inverse applied to the camera neutral (1 / gains). Temperatures
+        are McCamy's (1992) from xy. Returns (matrix, {"cct", "weights"}); None
+        without two matrices whose illuminants have temperatures (:data:`_TEMPERATURES`)
+        that differ."""
+        temps = {i: _TEMPERATURES.get(self.matrices[i][0]) for i in self.matrices}
+        if len(temps) != 2 or None in temps.values() or len(set(temps.values())) != 2:
+            return None
+        (lo, t_lo), (hi, t_hi) = sorted(temps.items(), key=lambda kv: kv[1])
+        neutral = 1.0 / np.asarray(gains, dtype=np.float64)
+        cct, w = 5003.0, 0.5
+        for _ in range(30):
+            w = float(np.clip((1 / cct - 1 / t_hi) / (1 / t_lo - 1 / t_hi), 0.0, 1.0))
+            matrix = w * self.composed(lo) + (1 - w) * self.composed(hi)
+            xyz = np.linalg.solve(matrix, neutral)
+            if not (xyz > 0).all():
+                return None
+            x, y = xyz[:2] / xyz.sum()
+            n = (x - 0.3320) / (0.1858 - y)
+            new = float(np.clip(449 * n**3 + 3525 * n**2 + 6823.3 * n + 5520.33, 1000, 50000))
+            if abs(new - cct) < 0.5:
+                break
+            cct = new
+        weights = {f"ColorMatrix{lo}": round(w, 6), f"ColorMatrix{hi}": round(1 - w, 6)}
+        return matrix, {"cct": round(new), "weights": weights}
 
 
 def read_dng_colour(tags) -> DngColour | None:

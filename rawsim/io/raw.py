@@ -77,6 +77,8 @@ class RawImage:
             ``auto``, or ``daylight`` (when only the blue multiplier is missing).
         camera_wb_note: the camera's multipliers as the file gives them, for messages.
         matrix_source: where ``xyz_to_camera`` / ``camera_to_srgb`` come from.
+        dng_colour: a DNG's own colour tags (both matrices, for the DNG
+            specification's interpolation by white balance), or None.
         baseline_exposure: the DNG BaselineExposure tag (stops), 0 if absent.
     """
 
@@ -98,6 +100,7 @@ class RawImage:
     camera_wb_fallback: str = "auto"
     camera_wb_note: str = ""
     matrix_source: str = ""
+    dng_colour: DngColour | None = None
 
 
 #: LibRaw's smallest multiplier taken as set.
@@ -661,6 +664,7 @@ def read_raw(path: str | Path, spare: Spare | None = None) -> RawImage:
         camera_wb_fallback=fallback,
         camera_wb_note=str(np.round(np.asarray(camera_wb, np.float64)[:4], 4).tolist()),
         matrix_source=source,
+        dng_colour=None if mono else tiff.colour,
         baseline_exposure=_baseline_exposure(path),
     )
 

@@ -667,23 +667,36 @@ class ColorMatrixStage(Stage):
         "srgb, display-p3, adobe-rgb, rec2020, prophoto (linear primaries), xyz (CIE XYZ, "
         "D65), or camera RGB",
     )
+    dng_matrices: str = _param(
+        "interpolate",
+        _choice(("interpolate", "libraw")),
+        "a DNG with two colour matrices: interpolate them by the white balance used, as "
+        "the DNG specification does, or take LibRaw's one",
+    )
 
-    def matrix(self, raw: RawImage) -> np.ndarray:
+    def matrix(self, raw: RawImage, xyz_to_camera: np.ndarray | None = None) -> np.ndarray:
         """(3, 3) float64 camera (white-balanced) → output-space matrix for ``raw``: to
-        linear sRGB as LibRaw does, then :func:`rawsim.colorspaces.space_from_srgb`
-        (through XYZ; Bradford-adapted to D50 for ProPhoto)."""
+        linear sRGB as LibRaw does (from ``xyz_to_camera`` where given), then
+        :func:`rawsim.colorspaces.space_from_srgb` (through XYZ; Bradford-adapted to D50
+        for ProPhoto)."""
         if self.output_space == "camera":
             return np.eye(3)
-        to_srgb = camera_to_srgb(raw)
+        if xyz_to_camera is None:
+            to_srgb = camera_to_srgb(raw)
+        else:
+            to_srgb = srgb_from_camera(xyz_to_camera)
         if self.output_space == "srgb":
             return to_srgb
         return space_from_srgb(self.output_space) @ to_srgb
 
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
-        """``info["color_matrix"]``: :meth:`matrix` as nested lists; into an ACES space,
-        where the raw's camera has measured spectral sensitivities, the spectral input
-        transform instead (:func:`rawsim.spectral.fit.aces_from_camera`, for the white
-        balance used). ``info["aces_idt"]`` says which and from what."""
+        """``info["color_matrix"]``: :meth:`matrix` as nested lists, for a DNG with two
+        colour matrices (``dng_matrices = "interpolate"``) from their interpolation by
+        the white balance used (:meth:`rawsim.io.dng_colour.DngColour.interpolated`;
+        ``info["dng_matrices"]`` records it); into an ACES space, where the raw's
+        camera has measured spectral sensitivities, the spectral input transform
+        instead (:func:`rawsim.spectral.fit.aces_from_camera`, for the white balance
+        used). ``info["aces_idt"]`` says which and from what."""
         if self.output_space.startswith("aces"):
             curves = spectra.of_make_model(raw.make, raw.model)
             if curves is not None and "white_balance" in info:
@@ -711,7 +724,17 @@ class ColorMatrixStage(Stage):
                     else "no white balance was applied"
                 ),
             }
-        info["color_matrix"] = self.matrix(raw).tolist()
+        xyz = None
+        if self.dng_matrices == "interpolate" and raw.dng_colour and "white_balance" in info:
+            found = raw.dng_colour.interpolated(info["white_balance"])
+            if found is not None:
+                xyz, how = found
+                info["dng_matrices"] = {
+                    "interpolated": "the DNG's two colour matrices, weighted in inverse "
+                    "temperature by the white balance used (DNG specification, chapter 6)",
+                    **how,
+                }
+        info["color_matrix"] = self.matrix(raw, xyz).tolist()
 
 
 def camera_to_srgb(raw: RawImage) -> np.ndarray:
@@ -865,6 +888,7 @@ _FLAGS: dict[str, tuple[type[Stage], str]] = {
     "denoise_strength": (RawDenoiseStage, "strength"),
     "noise_profile": (RawDenoiseStage, "noise_profile"),
     "output_space": (ColorMatrixStage, "output_space"),
+    "dng_matrices": (ColorMatrixStage, "dng_matrices"),
     "transfer": (TransferStage, "function"),
     "lens": (LensCorrectionStage, "lens"),
     "focal_length": (LensCorrectionStage, "focal_length"),
@@ -966,7 +990,8 @@ class IspConfig:
         """The config with the CLI's flags applied (``wb``, ``white_level``, ``saturation``,
         ``demosaic``,
         ``demosaic_domain``, ``highlights``, ``tone``, ``tone_exposure``, ``tone_white``,
-        ``exposure``, ``baseline_exposure``, ``output_space``, ``transfer``, ``lens``,
+        ``exposure``, ``baseline_exposure``, ``output_space``, ``dng_matrices``,
+        ``transfer``, ``lens``,
         ``focal_length``, ``aperture``, ``lens_correction``); None leaves a value as it is.
         A flag enables its stage (adding it, if missing, where the default order has it);
         ``highlights blend`` moves the stage to just after demosaic, ``reconstruct`` and
