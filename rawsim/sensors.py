@@ -189,7 +189,12 @@ class RGBSensor(ProfileSensor):
     def response_curve(self, spectral: torch.Tensor) -> torch.Tensor:
         """Spectral image (B, Nλ, H, W) → (B, 3, H, W) through the channel responses.
 
-        All responses are normalised by the sum of the green response.
+        The seed's form, on the profile's own samples (``wavelengths`` and
+        ``*_spectral_response``), differentiable; all responses are normalised by
+        the sum of the green response. Spectral scene files (``rawsim unprocess``)
+        are seen by :mod:`rawsim.spectral.render` instead, on the 5 nm grid and
+        under a light, through :func:`~rawsim.spectral.render.curves_for`: the
+        camera's measured curves, else these responses.
         """
         spec = self.profile.spectral
         if spec is None:
