@@ -52,8 +52,10 @@ from rawsim.profiles import SensorProfile
 if TYPE_CHECKING:
     import torch
 
+    from rawsim.cameras.spectra import Curves
     from rawsim.cfa import CFA
     from rawsim.sensors import ProfileSensor
+    from rawsim.spectral.render import Light
 
 STRIP_ROWS = 128
 #: ``planes`` of an npz whose mosaic is kept whole, (1, H, W): a CFA that is not Bayer.
@@ -799,8 +801,8 @@ class Seen:
     under A and under D65) and the camera's ``neutral`` (3,) under the light."""
 
     scene: SpectralScene
-    curves: object
-    light: object
+    curves: Curves
+    light: Light
     matrices: tuple[np.ndarray, np.ndarray]
     neutral: np.ndarray
 
