@@ -307,6 +307,14 @@ def test_a_bad_illuminant_is_a_usage_error(tmp_path):
     assert done.exit_code == 2 and "'--illuminant'" in done.output
 
 
+def test_an_illuminant_for_an_rgb_image_says_it_is_not_used(tmp_path):
+    photo = DATA / "srgb" / "chelsea.png"
+    done = unprocess(photo, "-o", tmp_path, "-p", PROFILE, "--iso", 100, "--illuminant", "A")
+    assert "--illuminant A lights spectral scenes only" in done.output
+    side = json.loads((tmp_path / "chelsea.json").read_text())
+    assert any("--illuminant A" in w for w in side["warnings"])
+
+
 def test_read_spectral_crops_to_even(tmp_path):
     path = _scene(tmp_path, "odd", spectra=np.ones((5, 7, 3)), wavelengths=[380.0, 550, 780])
     scene = read_spectral(path)

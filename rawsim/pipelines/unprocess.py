@@ -903,6 +903,16 @@ def _colour_warning(options: UnprocessOptions) -> list[str]:
     return [warning] if warning and options.sensor != "mono" else []
 
 
+def _illuminant_warning(options: UnprocessOptions) -> list[str]:
+    """``--illuminant`` given for an RGB image, which it cannot act on."""
+    if options.illuminant is None:
+        return []
+    return [
+        f"--illuminant {options.illuminant} lights spectral scenes only: this image is "
+        "RGB (its light is in its white balance), so it is not used"
+    ]
+
+
 #: The smallest X-Trans image LibRaw demosaics with its default interpolation, rows
 #: and columns alike. Measured with rawpy 0.28 / LibRaw 0.22.2 (tests/test_startup.py
 #: checks it): 510 × 900 and 900 × 510 DNGs fail with an I/O error in
@@ -1018,7 +1028,7 @@ def _metadata(
         "warnings": list(decoded.warnings)
         + (options.scene_linear_warning() if decoded.is_float else [])
         + _iso_warning(options)
-        + (_colour_warning(options) if seen is None else [])
+        + (_colour_warning(options) + _illuminant_warning(options) if seen is None else [])
         + _libraw_size_warning(options, h, w),
         "orientation": decoded.orientation,
         "width": w,
