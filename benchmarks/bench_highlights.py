@@ -90,6 +90,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import describe  # noqa: E402
 from photos import save_strip  # noqa: E402
 
+from rawsim.color import SRGB_TO_XYZ, XYZ_D65, delta_e_2000, xyz_to_lab  # noqa: E402
+
 HERE = Path(__file__).resolve().parents[1]
 EVS = (1, 2, 3)
 TRUTH_EV = -3
@@ -101,66 +103,11 @@ LIBRAW_MODES = (0, 1, 2, 5)
 #: Rows of the table, in order.
 ROWS = (*(f"rawsim {m}" for m in MODES), *(f"libraw -H {h}" for h in LIBRAW_MODES), "darktable")
 
+
 # ------------------------------------------------------------------ colour
-_SRGB_TO_XYZ = np.array(
-    [
-        [0.4124564, 0.3575761, 0.1804375],
-        [0.2126729, 0.7151522, 0.0721750],
-        [0.0193339, 0.1191920, 0.9503041],
-    ]
-)
-_D65 = np.array([0.95047, 1.0, 1.08883])
-
-
 def lab(rgb: np.ndarray, white_y: float) -> np.ndarray:
     """CIELAB (N, 3) of linear sRGB (N, 3), Y = ``white_y`` being L = 100."""
-    xyz = rgb @ _SRGB_TO_XYZ.T / white_y / _D65
-    d = 6 / 29
-    f = np.where(xyz > d**3, np.cbrt(np.maximum(xyz, 0)), xyz / (3 * d * d) + 4 / 29)
-    return np.stack([116 * f[:, 1] - 16, 500 * (f[:, 0] - f[:, 1]), 200 * (f[:, 1] - f[:, 2])], 1)
-
-
-def ciede2000(lab1: np.ndarray, lab2: np.ndarray) -> np.ndarray:
-    """CIEDE2000 colour difference of (N, 3) CIELAB pairs (Sharma et al. 2005)."""
-    l1, a1, b1 = lab1.T
-    l2, a2, b2 = lab2.T
-    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
-    cm = (c1 + c2) / 2
-    g = 0.5 * (1 - np.sqrt(cm**7 / (cm**7 + 25.0**7)))
-    a1p, a2p = (1 + g) * a1, (1 + g) * a2
-    c1p, c2p = np.hypot(a1p, b1), np.hypot(a2p, b2)
-    h1p = np.degrees(np.arctan2(b1, a1p)) % 360
-    h2p = np.degrees(np.arctan2(b2, a2p)) % 360
-    dl, dc = l2 - l1, c2p - c1p
-    dh = h2p - h1p
-    dh = np.where(dh > 180, dh - 360, np.where(dh < -180, dh + 360, dh))
-    dh = np.where(c1p * c2p == 0, 0, dh)
-    dhh = 2 * np.sqrt(c1p * c2p) * np.sin(np.radians(dh / 2))
-    lm, cmp_ = (l1 + l2) / 2, (c1p + c2p) / 2
-    hs = h1p + h2p
-    hm = np.where(
-        c1p * c2p == 0,
-        hs,
-        np.where(
-            np.abs(h1p - h2p) <= 180, hs / 2, np.where(hs < 360, (hs + 360) / 2, (hs - 360) / 2)
-        ),
-    )
-    t = (
-        1
-        - 0.17 * np.cos(np.radians(hm - 30))
-        + 0.24 * np.cos(np.radians(2 * hm))
-        + 0.32 * np.cos(np.radians(3 * hm + 6))
-        - 0.20 * np.cos(np.radians(4 * hm - 63))
-    )
-    sl = 1 + 0.015 * (lm - 50) ** 2 / np.sqrt(20 + (lm - 50) ** 2)
-    sc = 1 + 0.045 * cmp_
-    sh = 1 + 0.015 * cmp_ * t
-    rt = (
-        -2
-        * np.sqrt(cmp_**7 / (cmp_**7 + 25.0**7))
-        * np.sin(np.radians(60 * np.exp(-(((hm - 275) / 25) ** 2))))
-    )
-    return np.sqrt((dl / sl) ** 2 + (dc / sc) ** 2 + (dhh / sh) ** 2 + rt * (dc / sc) * (dhh / sh))
+    return xyz_to_lab(rgb @ SRGB_TO_XYZ.T / white_y, XYZ_D65)
 
 
 def _magenta(lab_: np.ndarray, margin: float = 0.0) -> np.ndarray:
@@ -288,19 +235,19 @@ def score(render: np.ndarray, truth: np.ndarray, region: np.ndarray) -> dict:
     to ``truth`` by one gain on the pixels far from any clip."""
     from scipy.ndimage import binary_dilation
 
-    y_r = render @ _SRGB_TO_XYZ[1]
-    y_t = truth @ _SRGB_TO_XYZ[1]
+    y_r = render @ SRGB_TO_XYZ[1]
+    y_t = truth @ SRGB_TO_XYZ[1]
     far = ~binary_dilation(region, iterations=8)
     lit = far & (y_t > 0.05 * y_t[far].max()) & (y_r > 0)
     gain = float(np.median(y_t[lit] / y_r[lit]))
     rgb_r, rgb_t = render[region] * gain, truth[region]
-    white = float((rgb_t @ _SRGB_TO_XYZ[1]).max())
+    white = float((rgb_t @ SRGB_TO_XYZ[1]).max())
     lab_r, lab_t = lab(rgb_r, white), lab(rgb_t, white)
-    y1 = np.maximum(rgb_r @ _SRGB_TO_XYZ[1], 1e-6 * white)
-    y0 = np.maximum(rgb_t @ _SRGB_TO_XYZ[1], 1e-6 * white)
+    y1 = np.maximum(rgb_r @ SRGB_TO_XYZ[1], 1e-6 * white)
+    y0 = np.maximum(rgb_t @ SRGB_TO_XYZ[1], 1e-6 * white)
     magenta = _magenta(lab_r) & ~_magenta(lab_t, margin=30.0) & (y0 >= 0.05 * white)
     return {
-        "de": ciede2000(lab_r, lab_t),
+        "de": delta_e_2000(lab_r, lab_t),
         "loglum": np.abs(np.log2(y1 / y0)),
         "magenta": magenta,
         "gain": gain,
@@ -434,7 +381,7 @@ def crops(scored: dict, truths: dict, region: np.ndarray, path: Path) -> None:
     y0, x0 = min(max(cy - ch // 2, 0), h - ch), min(max(cx - cw // 2, 0), w - cw)
     window = (slice(y0, y0 + ch), slice(x0, x0 + cw))
 
-    bright = float(np.percentile(truths["rawsim"][window] @ _SRGB_TO_XYZ[1], 99.9))
+    bright = float(np.percentile(truths["rawsim"][window] @ SRGB_TO_XYZ[1], 99.9))
 
     def shown(rgb: np.ndarray) -> np.ndarray:
         return SRGB_CURVE.encode(np.clip(rgb[window] / bright, 0, 1))
