@@ -527,7 +527,7 @@ def dng_out(images: Path, profiles: list[str], isos: list[int]) -> None:
     are left out), LibRaw's render (rawpy, :func:`libraw_dng_render`) of the denoised
     DNG against its render of the clean DNG, beside its render of the noisy DNG
     against the same: how much closer the DNG is (target ≥ 3 dB)."""
-    from rawsim.profiles import load_profile
+    from rawsim.cameras.profiles import load_profile
 
     print("--format dng through LibRaw: render PSNR gain over the noisy DNG (dB), mean (worst)")
     for profile in profiles:

@@ -434,10 +434,10 @@ def make_xtrans_dng(path: Path) -> None:
     white balance, 90 % of full scale) and beside it ``truth.npy``, the photo as 8-bit
     sRGB levels. Run in a child process: a process forked later inherits its
     parent's peak memory in its own figure."""
+    from rawsim.cameras.profiles import load_profile
     from rawsim.cfa import CFA
     from rawsim.color import camera_from_srgb
     from rawsim.io.dng import DngInfo, write_dng
-    from rawsim.profiles import load_profile
 
     xt = CFA("XTRANS")
     xyz = np.asarray(load_profile("sony_a7s2").xyz_to_camera)

@@ -35,8 +35,8 @@ import colour  # noqa: E402
 from machine import describe  # noqa: E402
 
 from rawsim.cameras import spectra  # noqa: E402
+from rawsim.cameras.profiles import load_profile  # noqa: E402
 from rawsim.color import delta_e_2000, xyz_to_lab  # noqa: E402
-from rawsim.profiles import load_profile  # noqa: E402
 from rawsim.spectral import fit, tables  # noqa: E402
 
 

@@ -57,12 +57,12 @@ import torch
 from machine import describe
 
 import rawsim
+from rawsim.cameras.profiles import load_profile
 from rawsim.io.images import read_pixels
 from rawsim.io.task import Task
 from rawsim.noise.dark_shading import write_maps
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import UnprocessOptions, engine_unprocess, simulate, unprocess_file
-from rawsim.profiles import load_profile
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "srgb"
 

@@ -125,7 +125,7 @@ def command(
                 ctx,
             )
 
-    from rawsim.calibrate import (
+    from rawsim.cameras.calibrate import (
         CalibrationRefused,
         build_profile,
         calibrate_iso,
@@ -133,11 +133,16 @@ def command(
         frame_stats,
         same_camera,
     )
-    from rawsim.dark_calibration import PatternRemoval, accumulate, add_to_profile, count_problems
+    from rawsim.cameras.dark_calibration import (
+        PatternRemoval,
+        accumulate,
+        add_to_profile,
+        count_problems,
+    )
+    from rawsim.cameras.profiles import profile_from_dict
     from rawsim.errors import ParameterError
     from rawsim.io.atomic import atomic_output
     from rawsim.io.raw import read_raw
-    from rawsim.profiles import profile_from_dict
 
     out = Path(output)
     if out.exists() and not overwrite:  # the same policy as every command: skip

@@ -323,7 +323,7 @@ def command(
         aperture=aperture,
     )
     if noise_profile:  # a profile that does not load is a usage error, before any file
-        from rawsim.profiles import load_profile
+        from rawsim.cameras.profiles import load_profile
 
         load_profile(noise_profile)
     if lens:  # a name lensfun does not know is a usage error, before any file

@@ -60,7 +60,7 @@ def list_cmd(text, as_json):
       rawsim profiles list --json > cameras.json
     """
     from rawsim import cameras
-    from rawsim.profiles import list_profiles, load_profile, profile_from_dict
+    from rawsim.cameras.profiles import list_profiles, load_profile, profile_from_dict
 
     found = cameras.cameras() if text is None else cameras.search(text)
     aliases = {c.bundled: c.data["aliases"] for c in cameras.cameras() if c.bundled}
@@ -170,8 +170,8 @@ def show_cmd(profile, iso, as_json, plot):
       rawsim profiles show nikon_d850 --iso 6400 --json
       rawsim profiles show sony_a7s2 --plot noise.png
     """
+    from rawsim.cameras.profiles import load_profile
     from rawsim.errors import RawsimError
-    from rawsim.profiles import load_profile
 
     try:
         p = load_profile(profile)
@@ -248,6 +248,36 @@ def show_cmd(profile, iso, as_json, plot):
         click.echo(f"  unreliable: {why}")
 
 
+@command.command("path")
+@output_options
+@click.argument("profile", metavar="NAME")
+@usage_errors
+def path_cmd(profile):
+    """Print where a bundled profile's JSON file is (to copy one and edit it).
+
+    \b
+    Example:
+      cp "$(rawsim profiles path nikon_d850)" mycam.json
+    """
+    from pathlib import Path
+
+    from rawsim.cameras.profiles import load_profile
+    from rawsim.errors import RawsimError
+
+    try:
+        p = load_profile(profile)
+    except RawsimError as err:
+        raise bad_option("NAME", err) from None
+    if p.path is None or not Path(p.path).is_file():
+        raise bad_option(
+            "NAME",
+            f"{p.make} {p.model} is a camera of the database, which has no file of its "
+            "own: give a bundled profile ('rawsim profiles list' lists them first), or "
+            "make a file with 'rawsim profiles from-raw' on one of its raws",
+        )
+    click.echo(p.path)
+
+
 @command.command("from-raw")
 @output_options
 @click.argument("raw", metavar="FILE", type=PathType("file", exists=True))
@@ -280,9 +310,9 @@ def from_raw_cmd(raw, output, overwrite):
         return
 
     from rawsim.cameras.from_raw import noise_summary, profile_from_raw
+    from rawsim.cameras.profiles import profile_from_dict
     from rawsim.errors import ProfileError, UnsupportedInputError, shown
     from rawsim.io.atomic import atomic_output
-    from rawsim.profiles import profile_from_dict
 
     try:
         profile = profile_from_raw(raw)
@@ -331,8 +361,8 @@ def matrices_cmd(profile, lights, as_json):
       rawsim profiles matrices "Canon EOS R6" --illuminant F2 --json
     """
     from rawsim.cameras import spectra
+    from rawsim.cameras.profiles import load_profile
     from rawsim.errors import RawsimError
-    from rawsim.profiles import load_profile
     from rawsim.spectral import fit, tables
 
     try:

@@ -227,10 +227,10 @@ def command(
       rawsim unprocess photos/ -o kit/ --profile canon_eos_700d --iso 400 \\
         --lens "Canon EF-S 18-55mm f/3.5-5.6 IS STM" --focal-length 18 --aperture 3.5
     """
+    from rawsim.cameras.profiles import load_profile
     from rawsim.errors import RawsimError
     from rawsim.io.images import IMAGE_EXTENSIONS
     from rawsim.io.spectral import SPECTRAL_EXTENSIONS
-    from rawsim.profiles import load_profile
 
     # Every usage error first, each with its option named, before torch and numba load.
     if iso is not None and iso_range:

@@ -12,8 +12,8 @@ import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
+from rawsim.cameras.profiles import SensorProfile
 from rawsim.errors import ParameterError
-from rawsim.profiles import SensorProfile
 
 if TYPE_CHECKING:
     import torch

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rawsim.cameras.profiles import SensorProfile
 from rawsim.io.atomic import atomic_output
-from rawsim.profiles import SensorProfile
 
 
 def _figure():

@@ -33,12 +33,12 @@ from pathlib import PurePosixPath
 import numpy as np
 
 from rawsim.api import capture_metadata
+from rawsim.cameras.profiles import SensorProfile, load_profile
 from rawsim.errors import ParameterError
 from rawsim.io.images import even_rgb
 from rawsim.io.lensfun import LensParams
 from rawsim.noise.seeds import derive_seed
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
-from rawsim.profiles import SensorProfile, load_profile
 
 #: Full-scale codes of integer images; float images are scene-linear.
 _CODE_MAX = {np.dtype(np.uint8): 255, np.dtype(np.uint16): 65535}

@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from rawsim.cameras.profiles import SensorProfile, load_profile, profile_from_dict
 from rawsim.cfa import CFA
 from rawsim.color import camera_from_srgb
 from rawsim.errors import ParameterError, check_choice, check_image
@@ -30,7 +31,6 @@ from rawsim.isp.transfer import TransferSpec, gamma_decode, gamma_encode, invert
 from rawsim.isp.white_balance import invert_white_balance, safe_invert_white_balance
 from rawsim.noise.models import NoiseLevels, add_noise
 from rawsim.params import UnprocessParams, sample_params
-from rawsim.profiles import SensorProfile, load_profile, profile_from_dict
 
 IN_TYPES = ("rgb", "linear_rgb")
 
@@ -87,7 +87,7 @@ class Sensor(nn.Module):
 
 
 class ProfileSensor(Sensor):
-    """A sensor described by a :class:`~rawsim.profiles.SensorProfile`: levels and noise."""
+    """A sensor described by a :class:`~rawsim.cameras.profiles.SensorProfile`: levels and noise."""
 
     def __init__(self, profile: SensorProfile) -> None:
         super().__init__(
@@ -171,12 +171,12 @@ class ProfileSensor(Sensor):
 
 
 class RGBSensor(ProfileSensor):
-    """A colour sensor described by a :class:`~rawsim.profiles.SensorProfile`.
+    """A colour sensor described by a :class:`~rawsim.cameras.profiles.SensorProfile`.
 
     Its mosaic follows the profile's CFA, or ``cfa`` when given: a :class:`CFA`
     or its string (``"RGGB"``, ``"XTRANS"``, rows such as ``"GRG/BGB/GRG"``), which
     replaces the profile's layout and keeps its levels, colour and noise
-    (:meth:`~rawsim.profiles.SensorProfile.with_cfa`).
+    (:meth:`~rawsim.cameras.profiles.SensorProfile.with_cfa`).
     """
 
     def __init__(self, profile: SensorProfile, cfa: CFA | str | None = None) -> None:

@@ -9,14 +9,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from rawsim.calibrate import dark_stats, fit_lambda, frame_stats, same_camera
+from rawsim.cameras.calibrate import dark_stats, fit_lambda, frame_stats, same_camera
+from rawsim.cameras.profiles import list_profiles, load_profile
 from rawsim.errors import ParameterError
 from rawsim.io.dng import DngInfo, write_dng
 from rawsim.io.images import read_image
 from rawsim.io.png import write_png
 from rawsim.io.raw import read_raw
 from rawsim.noise.models import sample_tukey_lambda
-from rawsim.profiles import list_profiles, load_profile
 from rawsim.sensors import RGBSensor
 from rawsim_cli.main import cli
 from tests.conftest import DATA
@@ -218,7 +218,7 @@ def test_lambda_fit_finds_the_shape(lam):
 def test_lambda_fit_is_the_grid_point_of_largest_probability_plot_correlation():
     """The one-pass correlation picks the λ that the textbook one (both sides
     standardised in numpy, then their mean product) picks, on DN-like samples."""
-    from rawsim.calibrate import LAMBDA_GRID
+    from rawsim.cameras.calibrate import LAMBDA_GRID
     from rawsim.noise.models import tukey_lambda_quantile
 
     rng = np.random.default_rng(3)

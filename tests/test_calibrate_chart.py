@@ -30,7 +30,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from rawsim.calibrate import calibrate_iso, frame_stats, planes_of
+from rawsim.cameras.calibrate import calibrate_iso, frame_stats, planes_of
 from rawsim.io.raw import RawImage, read_raw
 from rawsim.sensors import RGBSensor
 from tests.conftest import DATA, simulated_raw

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from rawsim.api import unprocess
-from rawsim.calibrate import calibrate_iso, frame_stats
+from rawsim.cameras.calibrate import calibrate_iso, frame_stats
 from rawsim.io.images import read_image
 from rawsim.io.raw import RawImage
 from rawsim.sensors import RGBSensor

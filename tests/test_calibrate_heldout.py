@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from rawsim.api import unprocess
-from rawsim.calibrate import calibrate_iso, frame_stats
+from rawsim.cameras.calibrate import calibrate_iso, frame_stats
 from tests.test_calibrate_coverage import SENSOR, _camera_photo, _raw
 
 #: Coverage over many fits of unprocessed photos: an acceptance test, in the slow tier.

@@ -12,9 +12,9 @@ import rawpy
 from click.testing import CliRunner
 
 from rawsim import cameras
-from rawsim.cameras import estimate
+from rawsim.cameras import database, estimate
+from rawsim.cameras.profiles import SOURCED_KEYS, list_profiles, load_profile, profile_dir
 from rawsim.errors import ProfileError
-from rawsim.profiles import SOURCED_KEYS, list_profiles, load_profile, profile_dir
 from rawsim_cli.main import cli
 
 #: The five cameras ELD (Wei et al., CVPR 2020) calibrated, bundled with their figures.
@@ -106,12 +106,12 @@ def test_every_camera_is_found_by_the_names_libraw_and_its_files_give():
     owners = defaultdict(set)
     for cam in cameras.cameras():
         for make, model in cam.data["exif"]:
-            owners[(cameras._fold(make), cameras._fold(model))].add(cam.name)
+            owners[(database._fold(make), database._fold(model))].add(cam.name)
     assert len(owners) > len(cameras.cameras())
     for cam in cameras.cameras():
         assert cameras.find(cam.data["libraw"]) == cam, cam.data["libraw"]
         for make, model in cam.data["exif"]:
-            both = owners[(cameras._fold(make), cameras._fold(model))]
+            both = owners[(database._fold(make), database._fold(model))]
             if len(both) == 1:
                 assert cameras.find(f"{make} {model}") == cam, (make, model)
                 assert cameras.find_camera(make, model) == cam, (make, model)

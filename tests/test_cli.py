@@ -14,7 +14,7 @@ import pytest
 import rawpy
 from click.testing import CliRunner
 
-from rawsim.profiles import load_profile
+from rawsim.cameras.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA, ROOT
 
@@ -179,7 +179,7 @@ def test_usage_errors_exit_2(photos, tmp_path):
     r = run("unprocess", photos, "-o", out, "-p", "no_such_camera", "--iso", 100)
     assert r.exit_code == 2 and "bundled:" in r.output
     bad = tmp_path / "bad.json"
-    profile = json.loads((ROOT / "sensor_profiles" / "sony_a7s2.json").read_text())
+    profile = json.loads((ROOT / "rawsim/cameras/sensor_profiles/sony_a7s2.json").read_text())
     profile["white_level"] = "lots"
     bad.write_text(json.dumps(profile))
     r = run("unprocess", photos, "-o", out, "-p", bad, "--iso", 100)

@@ -14,8 +14,8 @@ import numpy as np
 import tifffile
 from click.testing import CliRunner
 
+from rawsim.cameras.profiles import NO_MATRIX, load_profile, profile_from_dict
 from rawsim.io.dng_colour import read_dng_colour
-from rawsim.profiles import NO_MATRIX, load_profile, profile_from_dict
 from rawsim_cli.main import cli
 from tests.conftest import DATA
 from tests.test_profiles_from_raw import UNLISTED, edited_dng

@@ -11,14 +11,14 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from rawsim.dark_calibration import accumulate, frames_needed
+from rawsim.cameras.dark_calibration import accumulate, frames_needed
+from rawsim.cameras.profiles import load_profile
 from rawsim.errors import ParameterError, ProfileError
 from rawsim.io.raw import read_raw
 from rawsim.io.task import Task
 from rawsim.noise.dark_shading import write_maps
 from rawsim.noise.models import dark_draw
 from rawsim.pipelines.unprocess import UnprocessOptions, noise_key, unprocess_file
-from rawsim.profiles import load_profile
 from rawsim.sensors import RGBSensor
 from rawsim_cli.main import cli
 from tests.test_calibrate import _write

@@ -15,6 +15,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.cfa import CFA
 from rawsim.denoise.noise_model import dng_noise_profile, noise_model_for
 from rawsim.denoise.profiled import forward_vst, inverse_vst, profiled_denoise
@@ -25,7 +26,6 @@ from rawsim.io.task import Task
 from rawsim.isp.config import DenoiseStage, IspConfig, RawDenoiseStage
 from rawsim.isp.filters import denoise as filter_denoise
 from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
-from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr
 
@@ -190,7 +190,7 @@ def test_real_noise_is_removed_and_nothing_else():
     bins of the denoised level), and it holds no image structure: its correlation with
     the output's 4th-order detail (calibrate's high-pass, which scene texture reaches)
     is below 0.05."""
-    from rawsim.calibrate import high_pass
+    from rawsim.cameras.calibrate import high_pass
 
     raw = read_raw(MLV)
     model = noise_model_for(raw)

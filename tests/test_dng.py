@@ -8,9 +8,9 @@ import pytest
 import rawpy
 import tifffile
 
+from rawsim.cameras.profiles import load_profile, profile_dir
 from rawsim.io.task import Task
 from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
-from rawsim.profiles import load_profile, profile_dir
 from tests.conftest import DATA, require_tool
 
 

@@ -5,7 +5,7 @@
 * Every ```` ```sh ````, ```` ```bash ````, ```` ```console ```` and ```` ```python ````
   block in README.md and docs/**/*.md is a test, named ``file:line``. The blocks of a
   page run in order in one workspace (a temporary folder with the repository's
-  ``examples/``, ``tests/data/`` and ``sensor_profiles/`` linked in), as a reader
+  ``examples/`` and ``tests/data/`` linked in), as a reader
   following the page would run them; running one block alone first runs the
   page's earlier blocks. Shell blocks run under ``bash -euo pipefail`` with this
   interpreter's ``bin`` first on PATH (so ``rawsim`` and ``python`` are the ones
@@ -113,7 +113,7 @@ def workspaces(tmp_path_factory):
             path = tmp_path_factory.mktemp(page.stem)
             (path / "tests").mkdir()
             (path / "tests" / "data").symlink_to(REPO / "tests" / "data")
-            for name in ("examples", "sensor_profiles", "constraints.txt"):
+            for name in ("examples", "constraints.txt"):
                 (path / name).symlink_to(REPO / name)
             made[page] = Workspace(path)
         return made[page]

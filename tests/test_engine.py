@@ -12,6 +12,7 @@ import torch
 from numba import njit
 from scipy import stats
 
+from rawsim.cameras.profiles import load_profile, profile_from_dict
 from rawsim.cfa import CFA
 from rawsim.engine.unprocess import (
     MODEL_CODES,
@@ -35,7 +36,6 @@ from rawsim.noise.poisson_table import (
     poisson_weights,
 )
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, code_table, simulate
-from rawsim.profiles import load_profile, profile_from_dict
 from rawsim.sensors import MonoSensor, RGBSensor, display_to_linear
 from tests.conftest import DATA, installed_command_imports, numba_threads, thread_counts
 from tests.test_dark_shading import dark_profile

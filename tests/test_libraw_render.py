@@ -12,11 +12,11 @@ import pytest
 import rawpy
 import torch
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.color import camera_from_srgb
 from rawsim.io.task import Task
 from rawsim.isp.transfer import srgb_decode, srgb_encode
 from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
-from rawsim.profiles import load_profile
 from tests.conftest import DATA, psnr
 
 PHOTOS = [

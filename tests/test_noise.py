@@ -3,6 +3,7 @@ import math
 import pytest
 import torch
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.errors import ParameterError
 from rawsim.isp.levels import quantize
 from rawsim.noise.models import (
@@ -17,7 +18,6 @@ from rawsim.noise.models import (
     tukey_lambda_quantile,
     tukey_lambda_variance,
 )
-from rawsim.profiles import load_profile
 
 
 def _measure(levels, signal_dn, black=512.0, n=400_000, seed=0):

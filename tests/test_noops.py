@@ -10,12 +10,12 @@ import torch
 from click.testing import CliRunner
 
 import rawsim
+from rawsim.cameras.profiles import load_profile
 from rawsim.errors import ParameterError, RawsimWarning
 from rawsim.io.raw import read_raw
 from rawsim.isp.config import IspConfig, resolve
 from rawsim.pipelines.process import ProcessOptions
 from rawsim.pipelines.unprocess import UnprocessOptions
-from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA
 

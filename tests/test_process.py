@@ -10,6 +10,7 @@ import rawpy
 import torch
 from click.testing import CliRunner
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.errors import ParameterError, UnsupportedInputError
 from rawsim.io.raw import read_raw
 from rawsim.io.spare import Spare
@@ -27,7 +28,6 @@ from rawsim.isp.config import (
 )
 from rawsim.pipelines.process import render
 from rawsim.pipelines.unprocess import UnprocessOptions, unprocess_file
-from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr
 

@@ -14,9 +14,9 @@ import pytest
 import torch
 from PIL import Image
 
+from rawsim.cameras.profiles import load_profile, profile_from_dict
 from rawsim.errors import ProfileError
 from rawsim.noise.models import add_noise
-from rawsim.profiles import load_profile, profile_from_dict
 from tests.conftest import DATA
 from tests.test_cli import run
 

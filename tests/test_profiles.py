@@ -3,8 +3,14 @@ import json
 import numpy as np
 import pytest
 
+from rawsim.cameras.profiles import (
+    PHYSICS_KEYS,
+    SOURCED_KEYS,
+    list_profiles,
+    load_profile,
+    profile_dir,
+)
 from rawsim.errors import ParameterError, ProfileError
-from rawsim.profiles import PHYSICS_KEYS, SOURCED_KEYS, list_profiles, load_profile, profile_dir
 
 
 def test_bundled_profiles_load_with_sources():

@@ -22,9 +22,9 @@ from click.testing import CliRunner
 
 from rawsim import cameras
 from rawsim.cameras import from_raw
+from rawsim.cameras.profiles import load_profile
 from rawsim.color import daylight_gains, srgb_from_camera
 from rawsim.io.raw import read_raw
-from rawsim.profiles import load_profile
 from rawsim_cli.main import cli
 from tests.conftest import DATA, psnr, require_tool
 from tests.test_startup import HEAVY, error_line, rawsim

@@ -137,8 +137,8 @@ def test_an_image_unprocessed_while_it_is_decoded_gives_the_same_files(tmp_path)
     nothing and says why."""
     import OpenImageIO as oiio
 
+    from rawsim.cameras.profiles import load_profile
     from rawsim.pipelines.unprocess import UnprocessOptions, read_ahead, unprocess_file
-    from rawsim.profiles import load_profile
     from tests.conftest import DATA
 
     image = tmp_path / "even.jpg"

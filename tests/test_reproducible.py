@@ -6,8 +6,8 @@ import time
 
 import pytest
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.noise.models import NoiseLevels
-from rawsim.profiles import load_profile
 from tests.conftest import DATA
 from tests.test_cli import digest, run
 

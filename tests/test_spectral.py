@@ -12,9 +12,9 @@ import pytest
 from click.testing import CliRunner
 
 from rawsim.cameras import spectra
+from rawsim.cameras.profiles import load_profile
 from rawsim.color import CAT02, chromatic_adaptation, delta_e_2000, xyz_to_lab
 from rawsim.errors import ParameterError
-from rawsim.profiles import load_profile
 from rawsim.spectral import fit, tables
 from rawsim_cli.main import cli
 from tests.conftest import DATA

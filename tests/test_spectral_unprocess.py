@@ -13,9 +13,9 @@ import rawpy
 from click.testing import CliRunner
 
 from rawsim.cameras import spectra
+from rawsim.cameras.profiles import load_profile
 from rawsim.cfa import CFA
 from rawsim.io.spectral import read_spectral, wavelength_of
-from rawsim.profiles import load_profile
 from rawsim.spectral import fit, tables
 from rawsim_cli.main import cli
 from tests.conftest import DATA, require_tool

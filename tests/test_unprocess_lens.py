@@ -23,11 +23,11 @@ from click.testing import CliRunner
 from PIL import Image
 
 from rawsim import api
+from rawsim.cameras.profiles import load_profile
 from rawsim.io.images import read_image
 from rawsim.io.lensfun import LensParams, lens_params
 from rawsim.pipelines import unprocess as pipeline
 from rawsim.pipelines.unprocess import Simulation, UnprocessOptions, simulate
-from rawsim.profiles import load_profile
 from rawsim.sensors import MonoSensor, RGBSensor
 from rawsim_cli.main import cli
 from tests.conftest import DATA, numba_threads, psnr, thread_counts

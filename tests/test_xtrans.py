@@ -199,8 +199,8 @@ def camera_dng(tmp_path_factory):
     """An X-Trans DNG of a vendored photo as a camera records it: the A7S II's colour
     matrix, an as-shot white balance, black 512, white 16383, 90 % of full scale;
     (path, the photo as linear sRGB)."""
+    from rawsim.cameras.profiles import load_profile
     from rawsim.color import camera_from_srgb
-    from rawsim.profiles import load_profile
 
     xyz_to_camera = np.asarray(load_profile("sony_a7s2").xyz_to_camera)
     photo = _photo()

@@ -17,6 +17,7 @@ from click.testing import CliRunner
 from scipy.ndimage import uniform_filter
 
 from rawsim.api import process, unprocess
+from rawsim.cameras.profiles import SOURCED_KEYS, load_profile, profile_from_dict
 from rawsim.cfa import CFA, XTRANS
 from rawsim.color import camera_from_srgb
 from rawsim.dataset import UnprocessDataset
@@ -44,7 +45,6 @@ from rawsim.pipelines.unprocess import (
     strip_rows,
     unprocess_file,
 )
-from rawsim.profiles import SOURCED_KEYS, load_profile, profile_from_dict
 from rawsim.ray_data import RawPairs
 from rawsim.sensors import MonoSensor, RGBSensor
 from rawsim_cli.main import cli

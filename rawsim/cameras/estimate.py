@@ -60,7 +60,7 @@ def noise_spec(
 
 
 def calibrated_camera(profile, isos) -> dict:
-    """A calibrated :class:`~rawsim.profiles.SensorProfile` as :func:`fit` takes it: its
+    """A calibrated :class:`~rawsim.cameras.profiles.SensorProfile` as :func:`fit` takes it: its
     name, span (white − black, DN), pixel area (µm²) and (ISO, K, read σ) at ``isos``."""
     points = []
     for iso in isos:

@@ -39,7 +39,7 @@ FROM_RAW = "estimated from the raw"
 
 
 def profile_from_raw(path: str | Path) -> dict:
-    """The profile (rawsim's JSON format, as :func:`rawsim.profiles.profile_from_dict`
+    """The profile (rawsim's JSON format, as :func:`rawsim.cameras.profiles.profile_from_dict`
     reads it) of the camera that took the raw at ``path``; see the module's doc.
 
     Raises :class:`~rawsim.errors.UnsupportedInputError` for a raw that LibRaw cannot
@@ -173,7 +173,7 @@ def _bundled_noise(cam, bits: int) -> dict:
     """The noise of the bundled profile that holds the camera's calibration."""
     import json
 
-    from rawsim.profiles import load_profile
+    from rawsim.cameras.profiles import load_profile
 
     p = load_profile(cam.bundled)
     data = json.loads(Path(p.path).read_text(encoding="utf-8"))

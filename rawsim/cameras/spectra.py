@@ -75,7 +75,7 @@ def of_make_model(make: str, model: str) -> Curves | None:
 
 
 def of_profile(profile) -> Curves | None:
-    """The curves of a :class:`~rawsim.profiles.SensorProfile`'s camera: a database
+    """The curves of a :class:`~rawsim.cameras.profiles.SensorProfile`'s camera: a database
     camera's by its name, a bundled or user profile's by its make and model; None
     where the camera has none."""
     found = cameras.find(profile.name) if "_" in profile.name else None

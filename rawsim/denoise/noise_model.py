@@ -104,7 +104,7 @@ def camera_profile(raw: RawImage) -> str | None:
 @functools.cache
 def _bundled_cameras() -> dict[str, str]:
     """Each bundled profile's camera (:func:`_folded`) → its name, read once a process."""
-    from rawsim.profiles import list_profiles, load_profile
+    from rawsim.cameras.profiles import list_profiles, load_profile
 
     cameras = {}
     for name in list_profiles():
@@ -120,7 +120,7 @@ def _folded(make: str, model: str) -> str:
 
 
 def _from_profile(raw: RawImage, name: str, source: str) -> NoiseModel:
-    from rawsim.profiles import load_profile
+    from rawsim.cameras.profiles import load_profile
 
     p = load_profile(name)
     warnings = []
@@ -189,7 +189,7 @@ def _central(raw: RawImage) -> RawImage:
 
 def estimate(raw: RawImage) -> NoiseModel:
     """A fit of the raw's own flattest blocks (``rawsim calibrate``'s patch method)."""
-    from rawsim.calibrate import CalibrationRefused, calibrate_iso, frame_stats
+    from rawsim.cameras.calibrate import CalibrationRefused, calibrate_iso, frame_stats
 
     if raw.cfa is None:
         raise ParameterError(f"{raw.path}: no CFA mosaic, so no noise to estimate on it")
@@ -207,7 +207,7 @@ def estimate(raw: RawImage) -> NoiseModel:
             f"fit to the raw's flattest blocks: K {fit.K:.4g} DN/e-, read σ {fit.read_sigma:.4g} DN"
         )
         return NoiseModel((fit.K,) * 3, (b,) * 3, "estimate", detail, warnings)
-    from rawsim.calibrate import pure_noise_quantile
+    from rawsim.cameras.calibrate import pure_noise_quantile
 
     valid = stats.valid
     var = np.asarray(stats.var, dtype=np.float64)[valid]

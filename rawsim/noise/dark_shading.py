@@ -13,7 +13,7 @@ terms that ELD's model (Wei et al., CVPR 2020) leaves out:
 A profile carries them under ``noise.dark_shading`` (the map file and its gain
 ranges) and ``noise.black_level_error`` (σ per ISO). The maps live in a file beside
 the profile JSON (:func:`write_maps`, :data:`FORMAT`), read on first use and
-cached (:meth:`DarkShading.maps`). Torch-free. :mod:`rawsim.dark_calibration`
+cached (:meth:`DarkShading.maps`). Torch-free. :mod:`rawsim.cameras.dark_calibration`
 measures them from dark frames.
 
 Map file (``.npz``, :data:`FORMAT`): ``iso_ranges`` float64 (n, 2), each gain

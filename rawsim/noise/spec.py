@@ -2,7 +2,7 @@
 versus ISO or gain), :class:`NoiseSpec` and the :class:`NoiseLevels` at one ISO.
 
 Split from :mod:`rawsim.noise.models` (which re-exports every name) so that
-loading a profile (:mod:`rawsim.profiles`) and the command line's checks of
+loading a profile (:mod:`rawsim.cameras.profiles`) and the command line's checks of
 one need no torch; torch is imported only to draw random levels
 (:meth:`NoiseSpec.sample_levels`, given a ``torch.Generator``) and for
 :meth:`NoiseLevels.variance` of a tensor.

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from rawsim._version import __version__
+from rawsim.cameras.profiles import SensorProfile
 from rawsim.cfa import PACKED_PLANES
 from rawsim.color import camera_from_srgb
 from rawsim.device import resolve_device
@@ -47,7 +48,6 @@ from rawsim.noise.dark_shading import check_fits
 from rawsim.noise.seeds import derive_seed
 from rawsim.noise.spec import NOISE_MODELS, NoiseLevels, bias_tile
 from rawsim.params import UnprocessParams, sample_params
-from rawsim.profiles import SensorProfile
 
 if TYPE_CHECKING:
     import torch
@@ -433,7 +433,7 @@ class UnprocessOptions:
         device: ``cpu``, ``cuda`` or ``auto``.
         seed: the run's seed (recorded in the sidecar).
         sensor: ``rgb`` (the profile's CFA: Bayer, X-Trans or any periodic layout;
-            :meth:`~rawsim.profiles.SensorProfile.with_cfa` gives a profile another)
+            :meth:`~rawsim.cameras.profiles.SensorProfile.with_cfa` gives a profile another)
             or ``mono`` (no filter, the profile's levels and noise).
         strip_metadata: write none of the input's metadata (EXIF, GPS, XMP) into
             the DNGs; they keep only what the simulation sets (camera, ISO, lens).

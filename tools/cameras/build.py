@@ -67,7 +67,7 @@ from upstream import (  # noqa: E402
 )
 
 from rawsim.cameras import estimate  # noqa: E402
-from rawsim.profiles import list_profiles, load_profile  # noqa: E402
+from rawsim.cameras.profiles import list_profiles, load_profile  # noqa: E402
 
 OUT = Path(__file__).resolve().parents[2] / "rawsim" / "cameras" / "cameras.json"
 #: Bundled profiles whose noise is a published calibration, and the study that made it.

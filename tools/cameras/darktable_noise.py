@@ -128,7 +128,7 @@ def _ratio_range(rows: list[tuple[float, float, float]]) -> tuple[float, float] 
 
 def compare(doc: dict, factor: float) -> list[str]:
     """Comparison table lines (and a summary per camera) against the bundled profiles."""
-    from rawsim.profiles import load_profile
+    from rawsim.cameras.profiles import load_profile
 
     lines: list[str] = []
     verdicts: list[bool] = []

@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rawsim.cameras.profiles import load_profile
 from rawsim.cfa import CFA
 from rawsim.denoise.learned import RefineNet, network_input
 from rawsim.engine.denoise import denoise_mosaic
-from rawsim.profiles import load_profile
 
 ROOT = Path(__file__).resolve().parents[3]
 #: The Bayer profiles of the mix (the D800E's single ISO and the X-T3's X-Trans left out).

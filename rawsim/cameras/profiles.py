@@ -242,7 +242,7 @@ def _curve_dict(curve) -> dict:
 
 def profile_dir() -> Path:
     """The folder of bundled profiles."""
-    return Path(str(resources.files("rawsim") / "sensor_profiles"))
+    return Path(str(resources.files("rawsim.cameras") / "sensor_profiles"))
 
 
 def list_profiles() -> list[str]:

@@ -16,7 +16,7 @@ How many frames: the mean of n frames is the pattern plus noise of variance v/n
 (:func:`frames_needed`), and at least :data:`MIN_FRAMES`. A line k·ISO + b needs
 two ISOs or more in each gain range. Fewer are refused, with the figures.
 
-The pattern also inflates what :mod:`rawsim.calibrate` measures: a dark frame's
+The pattern also inflates what :mod:`rawsim.cameras.calibrate` measures: a dark frame's
 variance and a flat tile's. :class:`PatternRemoval` takes it out first (a
 second pass over the frames).
 """
@@ -244,7 +244,7 @@ def _site_means(x: np.ndarray, period: tuple[int, int]) -> np.ndarray:
 
 class PatternRemoval:
     """The dark pattern measured by a :class:`DarkAccumulator`, taken out of frames
-    before :mod:`rawsim.calibrate` reduces them, so the read σ and the flat tiles'
+    before :mod:`rawsim.cameras.calibrate` reduces them, so the read σ and the flat tiles'
     variance are the noise's, not the pattern's.
 
     With M the per-pixel mean of the n dark frames at the frame's ISO and M̄ its
@@ -291,14 +291,14 @@ def add_to_profile(
     forced: bool = False,
 ) -> DarkShadingFit:
     """Fit the maps and the black-level error and add them to ``profile`` (a profile
-    dict from :func:`rawsim.calibrate.build_profile`, written to ``output``): the maps
+    dict from :func:`rawsim.cameras.calibrate.build_profile`, written to ``output``): the maps
     go to ``<output stem>.dark.npz`` beside it. The pattern is measured from the
     profile's black level plus its channel bias (what the noise model adds).
 
-    Raises :class:`rawsim.calibrate.CalibrationRefused` with the fit's problems
+    Raises :class:`rawsim.cameras.calibrate.CalibrationRefused` with the fit's problems
     unless ``forced`` (then they are listed under ``unreliable``).
     """
-    from rawsim.calibrate import CalibrationRefused
+    from rawsim.cameras.calibrate import CalibrationRefused
     from rawsim.cfa import CFA
     from rawsim.noise.models import NoiseLevels, site_bias
 

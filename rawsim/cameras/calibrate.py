@@ -48,10 +48,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rawsim.cameras.profiles import NO_MATRIX
 from rawsim.errors import ParameterError, RawsimError
 from rawsim.io.raw import RawImage, xyz_to_camera_of
 from rawsim.noise.spec import QUANTIZATION_VARIANCE, tukey_lambda_variance
-from rawsim.profiles import NO_MATRIX
 
 METHODS = ("flat", "patches")
 #: The channels of a profile's ``noise.channel_bias`` (a Bayer CFA's; see :func:`_bias`).
