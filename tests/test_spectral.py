@@ -205,3 +205,49 @@ def test_aces_output_of_a_camera_with_curves_uses_the_spectral_idt(space, tmp_pa
         )
     assert np.abs(np.array(side["color_matrix"]) - want).max() < 1e-4
     assert np.allclose(np.array(side["color_matrix"]).sum(axis=1), 1, atol=1e-3)
+
+
+@pytest.mark.slow  # 98 fits by colour-science: 7 s
+def test_the_idt_equals_colour_sciences_for_every_camera_under_d65_and_a():
+    """The issue's anchor: within 1e-3 per coefficient for every camera with curves."""
+    worst = 0.0
+    for name in spectra.names():
+        curves = spectra.of_camera(name)
+        for light in ("D65", "A"):
+            spd = tables.illuminant(light)
+            ours, _ = fit.aces_idt(curves.rgb, spd)
+            theirs, _ = colour.matrix_idt(_colour_sensitivities(curves), _colour_sd(spd))
+            worst = max(worst, float(np.abs(ours - theirs).max()))
+    assert worst < 1e-3, worst
+
+
+def _grey(rgb: np.ndarray) -> np.ndarray:
+    """(3,) the mean of the test chart's 18 % grey patch (its second 8 × 8 tile)."""
+    return rgb[2:6, 10:14].reshape(-1, 3).mean(axis=0)  # its middle, away from edges
+
+
+@pytest.mark.parametrize("tool", ["dcraw", "dcraw_emu"])
+def test_a_dual_illuminant_dng_renders_in_dcraw_and_libraw(tool, tmp_path):
+    """unprocess's spectral DNG under standard light A (ColorMatrix1 for A, 2 for D65,
+    the light's neutral) opens in dcraw and LibRaw's dcraw_emu, each rendering the
+    chart's grey patch grey (with the camera's white balance)."""
+    import subprocess
+
+    import tifffile
+
+    from tests.conftest import require_tool
+
+    exe = require_tool(tool)
+    chart = DATA / "spectral" / "chart.npz"
+    r = CliRunner().invoke(
+        cli,
+        ["unprocess", str(chart), "-o", str(tmp_path), "-p", "Canon EOS R6", "--iso", "100",
+         "--noise", "none", "--illuminant", "A"],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    dng = tmp_path / "chart.dng"
+    subprocess.run([exe, "-w", "-T", "-4", str(dng)], check=True, capture_output=True)
+    (tiff,) = tmp_path.glob("chart*.tiff")  # dcraw's chart.tiff, dcraw_emu's chart.dng.tiff
+    rgb = tifffile.imread(tiff).astype(np.float64)
+    grey = _grey(rgb)
+    assert grey.min() > 0 and grey.max() / grey.min() < 1.03, grey
