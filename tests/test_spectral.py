@@ -251,3 +251,20 @@ def test_a_dual_illuminant_dng_renders_in_dcraw_and_libraw(tool, tmp_path):
     rgb = tifffile.imread(tiff).astype(np.float64)
     grey = _grey(rgb)
     assert grey.min() > 0 and grey.max() / grey.min() < 1.03, grey
+
+
+def test_the_aces_container_reads_back_in_openimageio(tmp_path):
+    """The ST 2065-4 attributes of the ACES2065-1 EXR, as OpenImageIO reads them."""
+    import OpenImageIO as oiio
+
+    r = CliRunner().invoke(
+        cli, ["process", str(R5_DNG), "-o", str(tmp_path), "--output-space", "aces2065-1"]
+    )
+    assert r.exit_code == 0, r.output
+    spec = oiio.ImageInput.open(str(tmp_path / "synthetic_colorchecker_bggr.exr")).spec()
+    chroma = spec.getattribute("chromaticities")
+    want = (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.077, 0.32168, 0.33767)
+    assert np.allclose(chroma, want, atol=1e-6)
+    assert spec.getattribute("acesImageContainerFlag") == 1
+    assert np.allclose(spec.getattribute("adoptedNeutral"), (0.32168, 0.33767), atol=1e-6)
+    assert spec.format == oiio.HALF and spec.get_string_attribute("compression") == "none"
