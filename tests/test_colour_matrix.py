@@ -187,3 +187,13 @@ def test_process_interpolates_a_dngs_two_matrices_unless_told_to_take_libraws(tm
     libraw = srgb_from_camera(read_raw(raw).xyz_to_camera)
     assert np.allclose(sides["libraw"]["color_matrix"], libraw, atol=1e-5)
     assert np.abs(np.subtract(sides["interpolate"]["color_matrix"], libraw)).max() > 0.01
+
+
+def test_info_says_how_a_dngs_two_matrices_are_weighted():
+    r = CliRunner().invoke(cli, ["info", str(DATA / "raw" / "canon_eos60d_mlv.dng"), "--json"])
+    assert r.exit_code == 0, r.output
+    (record,) = (
+        json.loads(r.output) if r.output.lstrip().startswith("[") else [json.loads(r.output)]
+    )
+    assert record["dng_matrices"]["cct"] == 6016
+    assert set(record["dng_matrices"]["weights"]) == {"ColorMatrix1", "ColorMatrix2"}

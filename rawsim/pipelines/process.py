@@ -810,6 +810,8 @@ def describe(raw: RawImage | RawFacts, config: IspConfig | list[dict]) -> dict:
         if "color_matrix" in info:
             out["color_matrix"] = np.round(resolved.color_matrix, 6).tolist()
             out["matrix_source"] = raw.matrix_source
+            if "dng_matrices" in info:
+                out["dng_matrices"] = info["dng_matrices"]
     if raw.cfa is not None:
         out["noise_model"] = info.get("noise_model") or _noise_model_record(raw)
         out["unprocess_profile"] = _camera_profile(raw)
