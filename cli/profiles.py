@@ -47,9 +47,10 @@ def list_cmd(text, as_json):
     Each row says whether the camera's noise is measured (a published
     calibration) or estimated from its sensor's physics, which of its
     values are assumed (no public table gives them; 'profiles show' says how
-    each was chosen), or "-" where none is, and whether its measured spectral
-    sensitivities are published ("curves": 'profiles matrices' fits colour
-    matrices from them; unprocess renders spectral scenes through them).
+    each was chosen), or "-" where none is, and its spectral sensitivities
+    ("curves"): measured (published), estimated from its colour matrix, or
+    "-" for none ('profiles matrices' fits colour matrices from them;
+    unprocess renders spectral scenes through them).
     --json prints each profile whole (levels, matrix, noise, sources,
     "assumed", the keys assumed, and its spectral sensitivities' source), as
     'profiles show --json'.
@@ -101,7 +102,7 @@ def list_cmd(text, as_json):
             "noise": p.noise_kind or "unstated",
             "iso": _iso_range(*p.iso_range),
             "assumed": ",".join(_SHORT.get(k, k) for k in p.assumed) or "-",
-            "curves": "yes" if p.curves else "-",
+            "curves": c.kind if (c := p.curves) else "-",
         }
         for p in profiles
     ]
@@ -170,6 +171,7 @@ def show_cmd(profile, iso, as_json, plot):
       rawsim profiles show nikon_d850 --iso 6400 --json
       rawsim profiles show sony_a7s2 --plot noise.png
     """
+    from rawsim.cameras import spectra
     from rawsim.cameras.profiles import load_profile
     from rawsim.errors import RawsimError
 
@@ -235,11 +237,19 @@ def show_cmd(profile, iso, as_json, plot):
                     f"{k} {v:.4g}" for k, v in values.items() if isinstance(v, float) and k != "iso"
                 )
             )
-    if p.curves:
-        click.echo(f"  spectral sensitivities: measured ({p.curves.source})")
+    if c := p.curves:
+        # an estimate's source says "estimated …" itself (it is all a sidecar keeps)
+        what = c.source if c.source.startswith(c.kind) else f"{c.kind} ({c.source})"
+        click.echo(f"  spectral sensitivities: {what}")
+    elif (far := spectra.not_estimated(p)) is not None:
+        click.echo(
+            "  spectral sensitivities: none published, and none estimated: no curves "
+            "like the measured cameras' reproduce its colour matrix (the best renders "
+            f"the training patches {far[0]:.1f} ΔE00 off)"
+        )
     else:
         click.echo(
-            "  spectral sensitivities: none published for this camera "
+            "  spectral sensitivities: none published or estimated for this camera "
             "('rawsim profiles list' marks the cameras that have them)"
         )
     for key, src in p.source.items():
@@ -346,14 +356,16 @@ def from_raw_cmd(raw, output, overwrite):
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @usage_errors
 def matrices_cmd(profile, lights, as_json):
-    """Fit a camera's colour matrices from its measured spectral sensitivities.
+    """Fit a camera's colour matrices from its spectral sensitivities.
 
     For each light: the XYZ→camera matrix (a DNG ColorMatrix, the light's
     white mapping to a largest camera value of 1) that minimises the CIEDE2000
     ΔE of rawtoaces' 190 training reflectances lit by it, the camera's white
     kept exactly. Each fit prints its mean and worst ΔE00 on those patches; under
     D65 the profile's own matrix (usually Adobe's) is measured on the same
-    patches beside it. Only cameras with curves ('profiles list' marks them).
+    patches beside it. Only cameras with curves ('profiles list' marks them);
+    for estimated curves, which were fitted to that matrix, the fits say what
+    such a camera's curves would give.
 
     \b
     Example:
@@ -374,8 +386,9 @@ def matrices_cmd(profile, lights, as_json):
         have = spectra.labels()
         raise bad_option(
             "NAME|PATH",
-            f"no spectral sensitivities are published for {p.make} {p.model}; the "
-            f"{len(have)} cameras that have them: {', '.join(have)}",
+            f"no spectral sensitivities are published or estimated for {p.make} "
+            f"{p.model}; the {len(have)} cameras with measured ones: {', '.join(have)} "
+            "('rawsim profiles list' marks the estimated ones)",
         )
     fits = []
     for light in lights or ("D65", "A"):
@@ -401,7 +414,12 @@ def matrices_cmd(profile, lights, as_json):
         fits.append(entry)
     patches = tables.source("training_190")
     if as_json:
-        out = {"camera": curves.label, "curves": curves.source, "patches": patches}
+        out = {
+            "camera": curves.label,
+            "curves_kind": curves.kind,
+            "curves": curves.source,
+            "patches": patches,
+        }
         click.echo(json.dumps({**out, "fits": fits}, indent=2, ensure_ascii=False))
         return
     click.echo(f"{curves.label}: curves {curves.source}")

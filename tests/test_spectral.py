@@ -92,12 +92,15 @@ def test_lab_delta_e_and_cat02_equal_colour_sciences():
 
 def test_the_bundled_cameras_and_the_database_have_curves():
     """The four bundled profiles the issue names, and cameras of the database, have
-    curves with their source; a camera without is None."""
+    measured curves with their source; a database camera without them has estimated
+    ones; a camera outside the database (a phone) has none."""
     for name in (*BUNDLED_WITH_CURVES, "Canon EOS R6", "sony a7 iv", "Nikon Z f"):
         c = load_profile(name).curves
         assert c is not None and c.rgb.shape == (81, 3), name
         assert "rawtoaces-data v1.1.0" in c.source and "Apache-2.0" in c.source
-    assert load_profile("pentax_k_1").curves is None
+        assert c.kind == "measured"
+    assert load_profile("pentax_k_1").curves.kind == "estimated"
+    assert load_profile("oppo_reno10x").curves is None
     assert len(spectra.labels()) == 49
 
 
@@ -166,19 +169,20 @@ def test_profiles_matrices_prints_both_lights_and_refuses_a_camera_without_curve
     want = fit.color_matrix(curves.rgb, tables.illuminant("A")).xyz_to_camera
     assert np.allclose(fits["A"]["xyz_to_camera"], want, atol=1e-6)
     assert "Adobe" in fits["D65"]["profile_matrix_delta_e00"]["source"]
-    r = CliRunner().invoke(cli, ["profiles", "matrices", "pentax_k_1"])
+    r = CliRunner().invoke(cli, ["profiles", "matrices", "oppo_reno10x"])
     assert r.exit_code == 2
-    assert "no spectral sensitivities are published for Pentax K-1" in r.output
+    assert "no spectral sensitivities are published or estimated for OPPO" in r.output
     assert "Nikon D850" in r.output
 
 
 def test_profiles_list_and_show_name_the_curves():
     r = CliRunner().invoke(cli, ["profiles", "list", "--search", "d850"])
     assert r.exit_code == 0 and "curves" in r.output.splitlines()[0]
-    assert r.output.splitlines()[1].rstrip().endswith("yes")
+    assert r.output.splitlines()[1].rstrip().endswith("measured")
     r = CliRunner().invoke(cli, ["profiles", "show", "Canon EOS R6", "--json"])
     side = json.loads(r.output)["spectral_sensitivities"]
     assert side["camera"] == "Canon EOS R6" and "Canon_EOS_R6" in side["source"]
+    assert side["kind"] == "measured"
 
 
 @pytest.mark.parametrize("space", ["aces2065-1", "acescg"])

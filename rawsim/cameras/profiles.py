@@ -131,8 +131,9 @@ class SensorProfile:
 
     @property
     def curves(self) -> spectra.Curves | None:
-        """The camera's measured spectral sensitivities (:mod:`rawsim.cameras.spectra`),
-        None where none are published for it."""
+        """The camera's spectral sensitivities (:mod:`rawsim.cameras.spectra`): measured
+        where they are published, else estimated from its database matrix (``kind``
+        says which); None where it has neither."""
         return spectra.of_profile(self)
 
     @property
@@ -205,7 +206,7 @@ class SensorProfile:
             "noise_kind": self.noise_kind,
             "spectral_sensitivities": None
             if (c := self.curves) is None
-            else {"camera": c.label, "source": c.source},
+            else {"camera": c.label, "kind": c.kind, "source": c.source},
         }
 
 

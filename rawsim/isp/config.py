@@ -699,7 +699,9 @@ class ColorMatrixStage(Stage):
         used). ``info["aces_idt"]`` says which and from what."""
         if self.output_space.startswith("aces"):
             curves = spectra.of_make_model(raw.make, raw.model)
-            if curves is not None and "white_balance" in info:
+            # rawtoaces' transform wants a camera's measured curves; estimated ones come
+            # from the colour matrix, which the matrix transform already uses
+            if curves is not None and curves.kind == "measured" and "white_balance" in info:
                 matrix, used = aces_from_camera(
                     curves.rgb, info["white_balance"], self.output_space
                 )
@@ -720,7 +722,7 @@ class ColorMatrixStage(Stage):
                 "Bradford's adaptation to the ACES white; "
                 + (
                     "no spectral sensitivities are published for this camera"
-                    if curves is None
+                    if curves is None or curves.kind != "measured"
                     else "no white balance was applied"
                 ),
             }
