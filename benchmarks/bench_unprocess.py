@@ -26,12 +26,20 @@ Measures, on this machine:
      outputs) and DeepLens's ``RGBSensor`` (unprocess + mosaic + noise, torch) on
      the same tensor, interleaved; DeepLens from a checkout of singer-yang/DeepLens
      given by ``--deeplens PATH`` (its ``deeplens/sensor`` package is all it loads),
-     skipped without one.
+     skipped without one;
+  6. spectral scenes (``--spectral`` runs only this): ``rawsim unprocess`` of a 4 MP
+     (2448×1632), 31-band (400–700 nm, 10 nm) reflectance scene, as an uncompressed
+     npz, a compressed npz and a ZIP EXR, beside the same image as RGB (its sRGB
+     rendering as a 16-bit PNG and as a JPEG), whole command, fresh processes,
+     interleaved rounds, the same options (-p nikon_d850 --iso 800 --jobs 1), each
+     command's peak resident memory (its own, and the pages of files it maps);
+     then the spectral path's stages in one process.
 Inputs are made by resizing the real photos in tests/data/srgb.
 Targets (issue 13, 2-core machine): (1) ≤ 2.0× the I/O floor, (2) engine ≥ 6×
 the torch reference and physics ≤ 1.5× gaussian, (3) ≥ 50 images/s with --jobs 2.
 Issue 28: (1) ≤ 1.3× the I/O floor; (5) the API ≤ 1.2× the kernel alone and ≥ 10×
-DeepLens. Issue 30: (2) dark shading ≤ 1.2× the physics model without.
+DeepLens. Issue 30: (2) dark shading ≤ 1.2× the physics model without. Issue 63:
+(6) the 31-band scene (uncompressed npz) ≤ 2× the same image as RGB (16-bit PNG).
 """
 
 from __future__ import annotations
@@ -422,12 +430,170 @@ def api_24mp(photo: Path, repeat: int, deeplens: Path | None) -> None:
         print("   DeepLens: skipped (give --deeplens PATH, a checkout of singer-yang/DeepLens)")
 
 
+#: The spectral scene's size and bands (section 6).
+SPECTRAL_W, SPECTRAL_H = 2448, 1632
+SPECTRAL_NM = np.arange(400, 701, 10.0)
+
+
+def spectral_scene(tmp: Path) -> dict[str, Path]:
+    """The 4 MP, 31-band reflectance scene of section 6 and the same image as RGB:
+    astronaut.png resized, its linear sRGB spread over three smooth bells (red, green
+    and blue reflectances, clipped to 0–1); the RGB files are the resized sRGB itself.
+    Returns label → file."""
+    from rawsim.io.images import write_image
+
+    roi = oiio.ROI(0, SPECTRAL_W, 0, SPECTRAL_H, 0, 1, 0, 3)
+    buf = oiio.ImageBufAlgo.resize(oiio.ImageBuf(str(DATA / "astronaut.png")), roi=roi)
+    srgb = buf.get_pixels(oiio.FLOAT)[:, :, :3]
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    bell = lambda centre, width: np.exp(-0.5 * ((SPECTRAL_NM - centre) / width) ** 2)  # noqa: E731
+    basis = np.stack([bell(610, 45), bell(540, 40), bell(455, 35)])  # (3, 31)
+    flat = np.clip(linear.reshape(-1, 3) @ basis, 0, 1).astype(np.float32)
+    spectra = flat.reshape(SPECTRAL_H, SPECTRAL_W, len(SPECTRAL_NM))
+    folder = tmp / "spectral"
+    folder.mkdir()
+    files = {
+        "npz": folder / "scene.npz",
+        "npz compressed": folder / "compressed.npz",
+        "exr": folder / "scene.exr",
+        "rgb png16": folder / "scene.png",
+        "rgb jpeg": folder / "scene.jpg",
+    }
+    np.savez(files["npz"], spectra=spectra, wavelengths=SPECTRAL_NM)
+    np.savez_compressed(files["npz compressed"], spectra=spectra, wavelengths=SPECTRAL_NM)
+    spec = oiio.ImageSpec(SPECTRAL_W, SPECTRAL_H, len(SPECTRAL_NM), oiio.FLOAT)
+    spec.channelnames = tuple(f"{v:g}nm" for v in SPECTRAL_NM)
+    spec.attribute("compression", "zip")
+    out = oiio.ImageOutput.create(str(files["exr"]))
+    assert out.open(str(files["exr"]), spec) and out.write_image(spectra), oiio.geterror()
+    out.close()
+    write_image(files["rgb png16"], np.round(srgb * 65535).astype(np.uint16), "png")
+    write_image(files["rgb jpeg"], np.round(srgb * 255).astype(np.uint8), "jpg")
+    return files
+
+
+def _command_seconds_and_memory(cmd: list[str]) -> tuple[float, float, float]:
+    """(wall seconds, peak anonymous and peak file-backed resident MiB) of one fresh
+    process running ``cmd``, its /proc status read every 5 ms (the kernel's own
+    ru_maxrss of a child counts the pages of the process that forked it, this one,
+    and does not tell a mapped file's pages, which the page cache keeps, from the
+    process's own)."""
+    start = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    peak = {"RssAnon": 0, "RssFile": 0}
+    status = Path(f"/proc/{proc.pid}/status")
+    while proc.poll() is None:
+        try:
+            for line in status.read_text().splitlines():
+                key, _, value = line.partition(":")
+                if key in peak:
+                    peak[key] = max(peak[key], int(value.split()[0]))
+        except (OSError, ValueError, IndexError):
+            pass
+        time.sleep(0.005)
+    seconds = time.perf_counter() - start
+    if proc.returncode:
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr.read()}")
+    proc.stderr.close()
+    return seconds, peak["RssAnon"] / 1024, peak["RssFile"] / 1024
+
+
+def spectral_4mp(tmp: Path, rounds: int) -> None:
+    """Section 6: the whole command on each of :func:`spectral_scene`'s files,
+    ``rounds`` interleaved rounds (a first, untimed, loads every kernel and the
+    files into the page cache), then :func:`spectral_stages`."""
+    files = spectral_scene(tmp)
+    out = tmp / "spectral_out"
+    options = ["-p", "nikon_d850", "--iso", "800", "--jobs", "1"]
+    runs = {
+        name: ["rawsim", "-q", "unprocess", str(path), "-o", str(out), *options]
+        for name, path in files.items()
+    }
+
+    def fresh(cmd: list[str]) -> tuple[float, float, float]:
+        shutil.rmtree(out, ignore_errors=True)  # new files, as a batch writes (section 1)
+        return _command_seconds_and_memory(cmd)
+
+    for cmd in runs.values():
+        fresh(cmd)
+    times: dict[str, list[float]] = {name: [] for name in runs}
+    memory: dict[str, tuple[float, float]] = {}
+    for _ in range(rounds):
+        for name, cmd in runs.items():
+            seconds, anon, mapped = fresh(cmd)
+            times[name].append(seconds)
+            before = memory.get(name, (0.0, 0.0))
+            memory[name] = (max(before[0], anon), max(before[1], mapped))
+    shutil.rmtree(out, ignore_errors=True)
+    mib = {name: path.stat().st_size / 2**20 for name, path in files.items()}
+    print(
+        f"6. spectral: {SPECTRAL_W}×{SPECTRAL_H}, {len(SPECTRAL_NM)} bands, whole command "
+        f"(rawsim unprocess {' '.join(options)}), {rounds} rounds"
+    )
+    print("   (peak resident MiB: the process's own memory, and pages of files it maps)")
+    for name, t in times.items():
+        print(
+            f"   {name:<16} {mib[name]:5.0f} MiB file   median {statistics.median(t):6.3f} s"
+            f"   best {min(t):6.3f} s   peak own {memory[name][0]:5.0f}, files "
+            f"{memory[name][1]:4.0f} MiB"
+        )
+    rgb = statistics.median(times["rgb png16"])
+    for name in ("npz", "npz compressed", "exr"):
+        target = " (issue 63: ≤ 2×)" if name == "npz" else ""
+        print(
+            f"   {name} / rgb png16: median {statistics.median(times[name]) / rgb:.2f}×, "
+            f"best {min(times[name]) / min(times['rgb png16']):.2f}×{target}"
+        )
+    spectral_stages(files["npz"], files["exr"], tmp, max(rounds, 3))
+
+
+def spectral_stages(npz: Path, exr: Path, tmp: Path, repeat: int) -> None:
+    """The spectral path's stages in this process, best of ``repeat``: reading the
+    scene (the npz mapped and its values checked; the EXR decoded), the integral
+    (the compiled kernel, and numpy's float64 matmul it replaced), the colour
+    matrices' fit (once per camera and process) and the whole file."""
+    from rawsim.cameras import spectra
+    from rawsim.io.spectral import read_spectral
+    from rawsim.spectral import render, tables
+
+    scene = read_spectral(npz)
+    curves = spectra.of_profile(load_profile("nikon_d850"))
+    light = tables.illuminant("D65")
+    weights = render.band_weights(scene.wavelengths, curves.rgb, light, scene.kind)
+    render.camera_rgb(scene.spectra, scene.wavelengths, curves.rgb, light, scene.kind)
+
+    def numpy_matmul() -> None:
+        h, w, n = scene.spectra.shape
+        (scene.spectra.reshape(-1, n).astype(np.float64) @ weights).astype(np.float32)
+
+    options = UnprocessOptions(profile=load_profile("nikon_d850"), iso=800)
+    task = Task(npz, "scene.npz", {"dng": tmp / "s.dng", "json": tmp / "s.json"}, 7)
+    unprocess_file(task, options)
+    stages = {
+        "read npz (mapped, values checked)": lambda: read_spectral(npz),
+        "read EXR (OpenImageIO, ZIP)": lambda: read_spectral(exr),
+        "integral, compiled kernel": lambda: render.camera_rgb(
+            scene.spectra, scene.wavelengths, curves.rgb, light, scene.kind, engine=True
+        ),
+        "integral, numpy float64 matmul (before)": numpy_matmul,
+        "colour matrices' fit (first file)": lambda: (
+            render._fits.clear(),
+            render.dng_matrices(curves),
+        ),
+        "whole file (unprocess_file)": lambda: unprocess_file(task, options),
+    }
+    print(f"   stages in one process, best of {repeat}:")
+    for name, fn in stages.items():
+        print(f"     {name:<42} {best(fn, repeat):6.3f} s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer repeats and files")
     ap.add_argument(
-        "--only", type=int, action="append", choices=range(1, 6), help="run only these sections"
+        "--only", type=int, action="append", choices=range(1, 7), help="run only these sections"
     )
+    ap.add_argument("--spectral", action="store_true", help="run only section 6 (spectral)")
     ap.add_argument(
         "--deeplens",
         type=Path,
@@ -436,10 +602,11 @@ def main() -> None:
     )
     args = ap.parse_args()
     print("\n".join(describe()), flush=True)
-    run = set(args.only or range(1, 6))
+    run = {6} if args.spectral else set(args.only or range(1, 7))
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        photo = resized(DATA / "astronaut.png", tmp / "photo24.jpg", 6000, 4000)
+        if run & {1, 2, 5}:
+            photo = resized(DATA / "astronaut.png", tmp / "photo24.jpg", 6000, 4000)
         if 1 in run:
             file_24mp(tmp, 7 if args.quick else 15)
             batch_24mp(tmp, 3 if args.quick else 5)
@@ -451,6 +618,8 @@ def main() -> None:
             help_latency()
         if 5 in run:
             api_24mp(photo, 5 if args.quick else 11, args.deeplens)
+        if 6 in run:
+            spectral_4mp(tmp, 3 if args.quick else 7)
     sys.stdout.flush()
     if 5 in run and not any(k in os.environ for k in KEEP_HEAP):
         settings = " ".join(f"{k}={v}" for k, v in KEEP_HEAP.items())

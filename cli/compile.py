@@ -102,6 +102,11 @@ TASKS: tuple[tuple[str, tuple[str, ...], str], ...] = (
         (LINEAR, RENDER),
         "process {out}/linear/linear.dng -o {out}/unclip --highlights unclip",
     ),
+    (  # the integral's kernel; then the linear EXR's unprocess kernel, from the cache
+        "unprocess: spectral scenes",
+        (LINEAR,),
+        "unprocess {in}/spectral -o {out}/spectral -p nikon_d850 --iso 800",
+    ),
     (
         "unprocess: monochrome sensor",
         (BAYER,),
@@ -251,9 +256,10 @@ def _run(args: str, folders: dict[str, Path]) -> tuple[float, list[str]]:
 
 
 def _inputs(folder: Path) -> None:
-    """The tiny inputs: a 96 × 144 8-bit and 16-bit photo, a linear EXR of it, and
-    three frames for events. Smooth gradients with a little texture: every code path
-    (highlights, darks) is reached."""
+    """The tiny inputs: a 96 × 144 8-bit and 16-bit photo, a linear EXR of it, three
+    frames for events, and two spectral scenes (npz; the second of odd size, cropped
+    to even in place: the integral's kernel reads it with strides). Smooth gradients
+    with a little texture: every code path (highlights, darks) is reached."""
     import numpy as np
 
     from rawsim.io.images import write_image
@@ -269,3 +275,9 @@ def _inputs(folder: Path) -> None:
     for i in range(3):
         frame = np.clip(photo * (0.6 + 0.2 * i), 0, 1)
         write_image(folder / "frames" / f"{i}.png", np.round(frame * 255).astype(np.uint8), "png")
+    (folder / "spectral").mkdir()
+    nm = np.arange(400, 701, 10.0)
+    bells = np.exp(-0.5 * ((nm - np.array([[610.0], [540.0], [455.0]])) / 40) ** 2)  # (3, 31)
+    scene = np.minimum(photo**2.2 @ bells, 1).astype(np.float32)  # reflectances, 0–1
+    np.savez(folder / "spectral" / "scene.npz", spectra=scene, wavelengths=nm)
+    np.savez(folder / "spectral" / "odd.npz", spectra=scene[:95, :143], wavelengths=nm)

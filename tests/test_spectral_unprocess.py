@@ -350,21 +350,169 @@ def test_a_seed_configs_spectral_responses_are_used(tmp_path):
 
 
 def test_the_torch_reference_sees_what_the_engine_sees():
+    """The whole spectral path twice: the compiled integral then the engine, and the
+    torch reference's integral (a float64 einsum) then the torch reference."""
     from rawsim.pipelines.unprocess import UnprocessOptions, simulate
     from rawsim.spectral import render
 
     scene = read_spectral(CHART)
     curves = spectra.of_camera("Nikon D850")
     light = tables.illuminant("A")
-    rgb = render.camera_rgb(scene.spectra, scene.wavelengths, curves.rgb, light, "reflectance")
     camera = (render.dng_matrices(curves)[1], 1 / render.neutral(curves.rgb, light))
     options = UnprocessOptions(load_profile(PROFILE), iso=800, clean=True, exposure_ev=-0.5)
-    sims = [
-        simulate(None, rgb, options, 3, display_referred=False, engine=e, camera=camera)
-        for e in (True, False)
-    ]
+    sims = []
+    for engine in (True, False):
+        rgb = render.camera_rgb(
+            scene.spectra, scene.wavelengths, curves.rgb, light, "reflectance", engine=engine
+        )
+        sims.append(
+            simulate(None, rgb, options, 3, display_referred=False, engine=engine, camera=camera)
+        )
     clean = [s.codes(s.clean).astype(int) for s in sims]
     assert np.abs(clean[0] - clean[1]).max() <= 1
     noisy = [s.codes(s.noisy).astype(int) for s in sims]  # the same draws, bit for bit
     assert np.abs(noisy[0] - noisy[1]).max() <= 1
     assert sims[0].params.wb_gains == pytest.approx(tuple(camera[1]))
+
+
+def _within_an_ulp(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool((np.abs(a - b) <= np.spacing(np.maximum(np.abs(a), np.abs(b)))).all())
+
+
+@pytest.mark.parametrize(
+    "shape, crop",
+    [((6, 200, 31), None), ((7, 131, 5), (slice(0, 6), slice(1, 130))), ((4, 64, 81), None)],
+    ids=["31 bands", "5 bands, a cropped view", "81 bands, one block"],
+)
+def test_the_integral_kernel_equals_the_torch_reference(shape, crop):
+    """:func:`rawsim.engine.spectral.integral_kernel` against
+    :func:`rawsim.spectral.render.integrate` and numpy's float64 matmul: the same float64
+    sums to rounding, so within one float32 ulp (almost always the same bits); any
+    strides, a width that is no whole number of blocks; the same bits on any threads."""
+    from rawsim.engine.spectral import camera_rgb
+    from rawsim.spectral.render import integrate
+    from tests.conftest import numba_threads, thread_counts
+
+    rng = np.random.default_rng(4)
+    scene = rng.random(shape, dtype=np.float32)
+    if crop is not None:
+        scene = scene[crop]
+        assert not scene.flags.c_contiguous
+    weights = rng.normal(size=(shape[2], 3))
+    ours = camera_rgb(scene, weights)
+    assert ours.shape == (*scene.shape[:2], 3) and ours.dtype == np.float32
+    reference = integrate(scene, weights).numpy()
+    n = scene.shape[2]
+    by_hand = (scene.reshape(-1, n).astype(np.float64) @ weights).astype(np.float32)
+    assert _within_an_ulp(ours, reference)
+    assert _within_an_ulp(ours, by_hand.reshape(ours.shape))
+    assert np.mean(ours != reference) < 0.01
+    for threads in thread_counts():
+        with numba_threads(threads):
+            assert np.array_equal(camera_rgb(scene, weights), ours)
+
+
+def _mapping(array: np.ndarray) -> np.memmap | None:
+    """The memory map ``array`` is a view of, or None."""
+    while array is not None and not isinstance(array, np.memmap):
+        array = array.base if isinstance(array.base, np.ndarray) else None
+    return array
+
+
+def test_an_uncompressed_npz_is_mapped_and_read_as_np_load_reads_it(tmp_path):
+    """``np.savez``'s scene is mapped from the file (read-only, no copy; cropped to even
+    in place), any order; a compressed one, a float64 one and a Fortran-ordered one
+    read the same values."""
+    rng = np.random.default_rng(1)
+    data = rng.random((9, 13, 31), dtype=np.float32)
+    nm = np.arange(400, 701, 10.0)
+    stored = _scene(tmp_path, "stored", spectra=data, wavelengths=nm, kind="reflectance")
+    scene = read_spectral(stored)
+    assert _mapping(scene.spectra) is not None and not scene.spectra.flags.writeable
+    assert scene.spectra.dtype == np.float32 and scene.spectra.shape == (8, 12, 31)
+    assert np.array_equal(scene.spectra, data[:8, :12])
+    assert scene.source_size == (13, 9) and scene.kind == "reflectance"
+    compressed = tmp_path / "compressed.npz"
+    np.savez_compressed(compressed, spectra=data, wavelengths=nm)
+    fortran = _scene(tmp_path, "fortran", spectra=np.asfortranarray(data), wavelengths=nm)
+    wide = _scene(tmp_path, "float64", spectra=data.astype(np.float64), wavelengths=nm)
+    for path in (compressed, fortran, wide):
+        other = read_spectral(path)
+        assert other.spectra.dtype == np.float32 and not other.spectra.flags.writeable
+        assert np.array_equal(other.spectra, scene.spectra), path.name
+    assert _mapping(read_spectral(fortran).spectra) is not None
+
+
+def test_a_truncated_npz_member_is_refused(tmp_path):
+    """A stored member whose bytes end before its header says: one line, no crash."""
+    import io
+    import zipfile
+
+    def npy(array: np.ndarray) -> bytes:
+        buffer = io.BytesIO()
+        np.lib.format.write_array(buffer, array)
+        return buffer.getvalue()
+
+    short = tmp_path / "bad.npz"
+    with zipfile.ZipFile(short, "w") as archive:  # stored, as np.savez writes
+        archive.writestr("spectra.npy", npy(np.full((4, 4, 31), 0.5, np.float32))[:-100])
+        archive.writestr("wavelengths.npy", npy(np.arange(400, 701, 10.0)))
+    done = unprocess(short, "-o", tmp_path / "out", "-p", PROFILE, "--iso", 100, ok=False)
+    assert done.exit_code != 0
+    assert "bad.npz" in done.output and "truncated" in done.output
+
+
+def test_a_truncated_exr_is_refused(tmp_path):
+    """An EXR cut short (its strips read one after another): one line, no crash."""
+    from rawsim.errors import UnsupportedInputError
+
+    data = CHART.with_suffix(".exr").read_bytes()
+    short = tmp_path / "short.exr"
+    short.write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(UnsupportedInputError, match="short.exr: cannot decode pixels"):
+        read_spectral(short)
+
+
+def test_one_spectral_file_imports_no_torch(tmp_path):
+    """The installed command sees a spectral scene on the engine (the integral's kernel,
+    then the unprocess kernel) without importing torch."""
+    from tests.conftest import installed_command_imports
+
+    args = ("-q", "unprocess", CHART, "-o", tmp_path / "out", "-p", PROFILE, "--iso", "400")
+    imported = installed_command_imports(*args)
+    assert "rawsim.engine.spectral" in imported and "rawsim.engine.unprocess" in imported
+    assert "torch" not in imported
+    assert (tmp_path / "out" / "chart.dng").is_file()
+
+
+@pytest.mark.slow
+def test_rawsim_compile_builds_what_a_spectral_scene_needs(tmp_path, monkeypatch):
+    """After ``rawsim compile``'s tasks for spectral scenes (and the linear EXR's, which
+    they wait for) in an empty cache, unprocessing an npz, a compressed npz, an EXR and
+    a scene of odd size (read with strides) compiles no kernel."""
+    from rawsim_cli import compile as rc
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    folders = {"in": tmp_path / "in", "out": tmp_path / "out"}
+    rc._inputs(folders["in"])
+    tasks = {name: args for name, _, args in rc.TASKS}
+    assert rc.LINEAR in dict((n, needs) for n, needs, _ in rc.TASKS)["unprocess: spectral scenes"]
+    rc._run(tasks[rc.LINEAR], folders)
+    _, kernels = rc._run(tasks["unprocess: spectral scenes"], folders)
+    assert "engine.spectral.integral_kernel" in kernels
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    with np.load(CHART) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    np.savez_compressed(scenes / "compressed.npz", **arrays)
+    arrays["spectra"] = arrays["spectra"][:47, :63]
+    np.savez(scenes / "odd.npz", **arrays)
+    for source in (CHART, CHART.with_suffix(".exr"), scenes):
+        run = subprocess.run(
+            ["rawsim", "unprocess", source, "-o", tmp_path / "seen", "-p", PROFILE, "--iso", "400"]
+            + ["--overwrite"],
+            capture_output=True,
+            text=True,
+        )
+        assert run.returncode == 0, run.stderr
+        assert "compiling" not in run.stderr, run.stderr

@@ -18,11 +18,16 @@ Values must be finite and ≥ 0 and the wavelengths must cover 400–700 nm (whe
 camera sees); each refusal is one line naming the file, the reason and the fix
 (:class:`~rawsim.errors.UnsupportedInputError`). An odd height or width is cropped to
 even, as images are.
+
+An uncompressed npz (``np.savez``) is the quickest to read: its ``spectra`` are mapped
+from the file, not copied into memory; a compressed one (``np.savez_compressed``) is
+decompressed whole first.
 """
 
 from __future__ import annotations
 
 import re
+import struct
 import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -52,7 +57,9 @@ class SpectralScene:
 
     Attributes:
         spectra: (H, W, N) float32, H and W even, finite and ≥ 0: reflectance (0–1)
-            or radiance (any unit; see :mod:`rawsim.spectral.render`).
+            or radiance (any unit; see :mod:`rawsim.spectral.render`). Read-only, any
+            strides: an uncompressed npz's is mapped from the file, as it lies
+            (cropped to even in place).
         wavelengths: (N,) float64 nm, increasing, spanning 400–700.
         kind: ``"reflectance"`` or ``"radiance"``.
         illuminant: the light the scene carries: an (N,) spectrum on ``wavelengths``,
@@ -120,7 +127,10 @@ def _read_npz(path: Path) -> SpectralScene:
         raise UnsupportedInputError(f"{path}: not an npz (no zip archive): {_NPZ_FIX}")
     try:
         with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
+            mapped = _mapped(path, npz.zip, "spectra.npy")
+            arrays = {k: npz[k] for k in npz.files if not (k == "spectra" and mapped is not None)}
+        if mapped is not None:
+            arrays["spectra"] = mapped
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
         raise UnsupportedInputError(f"{path}: not a readable npz ({err}): {_NPZ_FIX}") from None
     missing = [k for k in ("spectra", "wavelengths") if k not in arrays]
@@ -162,6 +172,67 @@ def _read_npz(path: Path) -> SpectralScene:
     )
 
 
+def _mapped(path: Path, archive: zipfile.ZipFile, member: str) -> np.ndarray | None:
+    """The array ``member`` of the npz ``archive`` (at ``path``) mapped read-only from
+    the file where it lies, or None where it is compressed, encrypted or absent, or is
+    not a plain array (np.load then reads it). An uncompressed member (``np.savez``)
+    is the ``.npy`` bytes as they are: mapped, the scene is read where the kernel
+    needs it, with no copy in memory (np.load's read is one, plus the zip's CRC).
+    Raises ValueError where the member's header or size do not fit the file."""
+    from numpy.lib import format as npy
+
+    try:
+        info = archive.getinfo(member)
+    except KeyError:
+        return None
+    if info.compress_type != zipfile.ZIP_STORED or info.flag_bits & 0x1:
+        return None
+    with open(path, "rb") as fh:
+        fh.seek(info.header_offset)  # the local header: its own name and extra lengths
+        local = fh.read(30)
+        if len(local) < 30 or local[:4] != b"PK\x03\x04":
+            raise ValueError(f"{member}: no local file header")
+        name_size, extra_size = struct.unpack("<HH", local[26:30])
+        start = info.header_offset + 30 + name_size + extra_size
+        fh.seek(start)
+        version = npy.read_magic(fh)
+        if version not in ((1, 0), (2, 0)):
+            return None
+        read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+        shape, fortran, dtype = read_header(fh)
+        offset = fh.tell()
+    if dtype.hasobject or not shape:
+        return None
+    if offset - start + int(np.prod(shape)) * dtype.itemsize > info.file_size:
+        raise ValueError(f"{member}: truncated")
+    return np.memmap(path, dtype, "r", offset, shape, "F" if fortran else "C")
+
+
+#: Rows of an EXR decoded at a time (:func:`_read_bands`): whole compressed blocks
+#: (ZIP's 16 rows, PIZ's and B44's 32), which OpenEXR decodes on its threads.
+EXR_STRIP_ROWS = 32
+
+
+def _read_bands(inp, spec) -> np.ndarray | None:
+    """The open EXR's every channel as (H, W, N) float32, or None if a read failed;
+    by strips of :data:`EXR_STRIP_ROWS` rows into one array (``read_image`` decodes
+    into its own buffer first, then copies: twice the scene's memory), a tiled file
+    in one read."""
+    import OpenImageIO as oiio
+
+    if spec.tile_width:
+        return inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+    pixels = np.empty((spec.height, spec.width, spec.nchannels), np.float32)
+    top, bottom = spec.y, spec.y + spec.height
+    for y in range(top, bottom, EXR_STRIP_ROWS):
+        end = min(y + EXR_STRIP_ROWS, bottom)
+        strip = inp.read_scanlines(0, 0, y, end, 0, 0, spec.nchannels, oiio.FLOAT)
+        if strip is None:
+            return None
+        pixels[y - top : end - top] = strip.reshape(end - y, spec.width, spec.nchannels)
+    return pixels
+
+
 def _read_exr(path: Path) -> SpectralScene:
     import OpenImageIO as oiio
 
@@ -173,7 +244,7 @@ def _read_exr(path: Path) -> SpectralScene:
             raise UnsupportedInputError(f"{path}: not a readable EXR ({reason})")
         try:
             spec = inp.spec()
-            pixels = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+            pixels = _read_bands(inp, spec)
             error = inp.geterror().strip()
         finally:
             inp.close()
@@ -191,7 +262,9 @@ def _read_exr(path: Path) -> SpectralScene:
     kind = {"S0": "radiance", "T": "reflectance"}.get(layer) or said_kind or "reflectance"
     nm = np.array([p[0] for p in parsed])
     order = np.argsort(nm)
-    pixels = np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)[:, :, order]
+    pixels = np.asarray(pixels).reshape(spec.height, spec.width, spec.nchannels)
+    if (np.diff(order) != 1).any():  # bands out of order in the file: a copy, sorted
+        pixels = pixels[:, :, order]
     light = str(spec.getattribute("illuminant") or "").strip() or None
     return SpectralScene(
         spectra=pixels,
@@ -222,14 +295,20 @@ def _checked(path: Path, scene: SpectralScene) -> SpectralScene:
     w, h = scene.source_size
     if h < 2 or w < 2:
         raise UnsupportedInputError(f"{path}: image is too small ({w}×{h})")
-    spectra = np.ascontiguousarray(scene.spectra[: h - h % 2, : w - w % 2], dtype=np.float32)
-    if not np.isfinite(spectra.sum(dtype=np.float64)):
+    spectra = scene.spectra[: h - h % 2, : w - w % 2]  # a view: no copy
+    if spectra.dtype != np.float32:
+        spectra = spectra.astype(np.float32)
+    spectra = spectra.view(np.ndarray)  # a memory map's data as a plain array
+    spectra.flags.writeable = False
+    # Two reductions at memory speed, no temporary: min is NaN where any value is.
+    low, high = spectra.min(), spectra.max()
+    if not (np.isfinite(low) and np.isfinite(high)):
         bad = int((~np.isfinite(spectra)).any(axis=2).sum())
         raise UnsupportedInputError(
             f"{path}: {bad} pixel(s) hold NaN or infinite values: fill or mask them before "
             "unprocessing"
         )
-    if (spectra < 0).any():
+    if low < 0:
         bad = int((spectra < 0).any(axis=2).sum())
         raise UnsupportedInputError(
             f"{path}: {bad} pixel(s) hold negative values (a {scene.kind} is ≥ 0): clip "

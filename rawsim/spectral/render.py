@@ -13,7 +13,9 @@ inverse white balance, and R, B the camera's neutral (:func:`neutral`, the DNG's
 AsShotNeutral). The scene is put on the grid by linear interpolation, its end values
 held beyond its ends (:func:`rawsim.spectral.tables.resample`); as interpolation is
 linear, the sum is taken through the (N, 3) weights it gives the scene's own bands
-(:func:`band_weights`), the same numbers with no (81, H, W) copy of the scene.
+(:func:`band_weights`), the same numbers with no (81, H, W) copy of the scene. The
+sum is the compiled engine's (:mod:`rawsim.engine.spectral`), which reads the scene
+where it lies, with :func:`integrate` its torch reference.
 
 A named light is the CIE's (or ISO's) table scaled to 100 at 560 nm
 (:func:`rawsim.spectral.tables.illuminant`), as is a light read from a file; a light a
@@ -25,12 +27,16 @@ Shapes: curves (81, 3), spectra on the grid (81,), scenes (H, W, N) with N wavel
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rawsim.cameras import spectra
 from rawsim.errors import ParameterError
 from rawsim.spectral import fit, tables
+
+if TYPE_CHECKING:
+    import torch
 
 #: How many cameras a refusal names before "… and N more".
 _NAMED = 12
@@ -125,13 +131,48 @@ def band_weights(nm, curves: np.ndarray, light: np.ndarray, kind: str) -> np.nda
     return onto_grid.T @ seen / white
 
 
-def camera_rgb(scene: np.ndarray, nm, curves: np.ndarray, light: np.ndarray, kind: str):
-    """(H, W, 3) float32 raw camera RGB of ``scene`` (H, W, N) at wavelengths ``nm``:
-    linear, white (reflectance 1) at G = 1; summed in float64."""
+def camera_rgb(
+    scene: np.ndarray, nm, curves: np.ndarray, light: np.ndarray, kind: str, *, engine=None
+) -> np.ndarray:
+    """(H, W, 3) float32 raw camera RGB of ``scene`` (H, W, N), float32 of any strides,
+    at wavelengths ``nm``: linear, white (reflectance 1) at G = 1; summed in float64
+    through the :func:`band_weights`. ``engine``: by the compiled kernel
+    (:func:`rawsim.engine.spectral.integral_kernel`, which reads the scene in place)
+    or by the torch reference (:func:`integrate`); None: the kernel where numba is
+    installed."""
     weights = band_weights(nm, curves, light, kind)
+    if engine is None:
+        from rawsim import engine as compiled
+
+        engine = compiled.available()
+    if engine:
+        from rawsim.engine.spectral import camera_rgb as compiled_rgb
+
+        return compiled_rgb(np.asarray(scene, np.float32), weights)
+    return integrate(scene, weights).numpy()
+
+
+#: Rows of a scene :func:`integrate` takes at a time: its float64 copy of them is
+#: 8 · W · N bytes a row (40 MB for 64 rows of a 2448-wide, 31-band scene).
+REFERENCE_ROWS = 64
+
+
+def integrate(scene: np.ndarray, weights: np.ndarray, device="cpu") -> torch.Tensor:
+    """The torch reference of :func:`rawsim.engine.spectral.integral_kernel`: (H, W, 3)
+    float32 on ``device``, ``scene`` (H, W, N) times ``weights`` (N, 3), a float64
+    einsum over :data:`REFERENCE_ROWS` rows at a time (each copied to ``device``)."""
+    import torch
+
     h, w, n = scene.shape
-    rgb = scene.reshape(-1, n).astype(np.float64) @ weights
-    return rgb.reshape(h, w, 3).astype(np.float32)
+    if weights.shape != (n, 3):
+        raise ParameterError(f"scene {scene.shape} and weights {weights.shape} do not match")
+    by = torch.as_tensor(weights, dtype=torch.float64, device=device)
+    out = torch.empty((h, w, 3), dtype=torch.float32, device=device)
+    for top in range(0, h, REFERENCE_ROWS):
+        rows = slice(top, top + REFERENCE_ROWS)
+        strip = torch.tensor(scene[rows], dtype=torch.float64, device=device)
+        out[rows] = torch.einsum("hwn,nc->hwc", strip, by).float()
+    return out
 
 
 def neutral(curves: np.ndarray, light: np.ndarray) -> np.ndarray:
