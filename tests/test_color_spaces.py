@@ -539,7 +539,7 @@ def test_aces_output_is_openexr_and_the_container(space, tmp_path):
     assert np.allclose(header["adoptedNeutral"], (0.32168, 0.33767), atol=1e-7)
     side = json.loads((tmp_path / "canon_eos60d_mlv.process.json").read_text())
     assert side["format"] == "exr" and side["bits"] == 16
-    assert side["aces"]["idt"]["kind"] == "matrix"  # no curves for the 60D
+    assert side["aces"]["idt"]["kind"] == "matrix"  # no measured curves for the 60D
     assert side["aces"]["idt"]["how"].startswith("from the colour matrix")
     if space == "aces2065-1":
         assert header["acesImageContainerFlag"] == 1

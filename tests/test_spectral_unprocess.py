@@ -178,6 +178,7 @@ def test_sidecar_records_the_curves_light_kind_and_wavelengths(tmp_path):
     assert seen["wavelengths"] == list(range(400, 701, 10))
     assert seen["curves"] == {
         "camera": "Nikon D850",
+        "kind": "measured",
         "source": spectra.of_camera("Nikon D850").source,
     }
     assert seen["illuminant"] == {"name": "D65", "file": False, "origin": "scene"}

@@ -821,7 +821,11 @@ class Seen:
         return {
             "kind": self.scene.kind,
             "wavelengths": [float(v) for v in self.scene.wavelengths],
-            "curves": {"camera": self.curves.label, "source": self.curves.source},
+            "curves": {
+                "camera": self.curves.label,
+                "kind": self.curves.kind,
+                "source": self.curves.source,
+            },
             "illuminant": light_record(self.light),
             "neutral": [float(v) for v in self.neutral],
             "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},

@@ -58,13 +58,14 @@ class Light:
 
 
 def curves_for(profile) -> spectra.Curves:
-    """The spectral sensitivities a profile's camera is simulated with: the measured
-    ones (:mod:`rawsim.cameras.spectra`), else a seed config's ``wavelengths`` and
-    ``*_spectral_response`` put on the grid. Raises :class:`ParameterError` naming the
-    cameras that have curves where it has neither."""
-    measured = spectra.of_profile(profile)
-    if measured is not None:
-        return measured
+    """The spectral sensitivities a profile's camera is simulated with: its measured or
+    estimated ones (:mod:`rawsim.cameras.spectra`), else a seed config's
+    ``wavelengths`` and ``*_spectral_response`` put on the grid. Raises
+    :class:`ParameterError` naming the cameras that have measured curves where it has
+    none of these."""
+    known = spectra.of_profile(profile)
+    if known is not None:
+        return known
     seed = profile.spectral
     if seed is not None:
         where = f"profile {profile.name!r} ({profile.path or 'config'})"
@@ -79,11 +80,12 @@ def curves_for(profile) -> spectra.Curves:
     more = len(names) - _NAMED
     listed = ", ".join(names[:_NAMED])
     if more > 0:
-        listed += f" and {more} more: the curves column of 'rawsim profiles list'"
+        listed += f" and {more} more"
     raise ParameterError(
         f"profile {profile.name!r} ({profile.make} {profile.model}) has no spectral "
-        f"sensitivities, so it cannot see a spectral scene: give --profile one of the "
-        f"cameras that have them ({listed})"
+        f"sensitivities, so it cannot see a spectral scene: give --profile a camera of "
+        f"the database (measured curves: {listed}; the curves column of 'rawsim profiles "
+        "list' marks the estimated ones)"
     )
 
 
