@@ -55,6 +55,9 @@ from scipy.optimize import minimize
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from build import git_json, sig  # noqa: E402
 
 from rawsim import cameras  # noqa: E402
 from rawsim.cameras import spectra  # noqa: E402
@@ -70,10 +73,6 @@ RIDGE = 0.3
 LIMIT = 2.0
 #: Added to a patch's Y before weighting it by 1/√(Y + WEIGHT_FLOOR).
 WEIGHT_FLOOR = 0.02
-
-
-def sig(x: float) -> float:
-    return float(f"{x:.6g}")
 
 
 def measured_curves(repo: Path) -> tuple[dict[str, np.ndarray], dict]:
@@ -92,14 +91,7 @@ def measured_curves(repo: Path) -> tuple[dict[str, np.ndarray], dict]:
     for path in files:
         if path in used:
             continue
-        d = json.loads(
-            subprocess.run(
-                ["git", f"--git-dir={repo}", "show", f"HEAD:{path}"],
-                check=True,
-                capture_output=True,
-                text=True,
-            ).stdout
-        )
+        d = git_json(repo, path)
         h, main = d["header"], d["spectral_data"]["data"]["main"]
         if h.get("license") != "Apache-2.0":
             sys.exit(f"{path}: licence {h.get('license')!r}, not Apache-2.0: stopped")
