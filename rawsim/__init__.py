@@ -9,7 +9,8 @@ Public API (shapes are (B, C, H, W); see each docstring for units and domains):
 * noise: :class:`NoiseLevels`, :func:`add_noise`
 * batches for training: :func:`unprocess` (B, 3, H, W) → (noisy, clean,
   metadata) with per-sample seeds and ISOs, bit-identical to ``rawsim
-  unprocess``; :func:`process` back to RGB; :func:`file_seed`;
+  unprocess``; :func:`unprocess_spectral` for a spectral scene, as the CLI sees
+  an ``.npz``; :func:`process` back to RGB; :func:`file_seed`;
   :class:`UnprocessDataset` (random crops, on the fly, deterministic per index
   and epoch)
 * events: :class:`EventSensor` (count maps, torch), :class:`EventStream` (events,
@@ -32,6 +33,7 @@ _EXPORTS = {
     "file_seed": "rawsim.api",
     "process": "rawsim.api",
     "unprocess": "rawsim.api",
+    "unprocess_spectral": "rawsim.api",
     "CFA": "rawsim.cfa",
     "UnprocessDataset": "rawsim.dataset",
     "ParameterError": "rawsim.errors",
@@ -80,6 +82,7 @@ __all__ = [
     "process",
     "sample_params",
     "unprocess",
+    "unprocess_spectral",
     "unprocess_tensor",
 ]
 

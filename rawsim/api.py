@@ -1,7 +1,8 @@
 """Batch unprocessing and processing for training pipelines.
 
 :func:`unprocess` simulates a batch of captures, each from its own seed, exactly
-as ``rawsim unprocess`` simulates a file; :func:`process` renders the mosaics
+as ``rawsim unprocess`` simulates a file (:func:`unprocess_spectral` one spectral
+scene); :func:`process` renders the mosaics
 back to RGB through the ISP. Both are differentiable where the maths allows.
 Shapes: images (B, 3, H, W) with H, W even; mosaics (B, 1, H, W) in DN.
 """
@@ -151,6 +152,93 @@ def unprocess(
     if grad:
         return torch.cat(noisy), torch.cat(clean), metadata
     return noisy, clean, metadata
+
+
+def unprocess_spectral(
+    spectra: np.ndarray,
+    wavelengths: Sequence[float],
+    sensor: ProfileSensor,
+    seed: int,
+    *,
+    kind: str = "reflectance",
+    illuminant: str | np.ndarray | None = None,
+    iso: float | None = None,
+    iso_range: tuple[float, float] | None = None,
+    noise: str = "poisson-gaussian",
+    exposure_ev: float = 0.0,
+    vignetting: float = 0.0,
+) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Simulate the raw capture of one spectral scene, exactly as ``rawsim unprocess``
+    does for a spectral ``.npz`` whose seed is ``seed``: returns ``(noisy, clean,
+    metadata)``.
+
+    Args:
+        spectra: (H, W, N) float32 (any strides; H and W even): reflectance, or
+            radiance with ``kind="radiance"``.
+        wavelengths: (N,) nm, increasing, spanning 400–700.
+        sensor: an :class:`~rawsim.sensors.RGBSensor` whose profile's camera has
+            spectral sensitivities (measured or estimated: :mod:`rawsim.cameras.spectra`).
+        seed: the capture's seed (:func:`file_seed` of the run's seed and a key).
+        kind: ``"reflectance"`` or ``"radiance"``.
+        illuminant: the light, as ``--illuminant`` takes it (a name of
+            :data:`rawsim.spectral.tables.ILLUMINANTS` or a file) or an (N,) spectrum
+            on ``wavelengths``; None: D65 for a reflectance (a radiance needs one).
+        iso, iso_range, noise, exposure_ev, vignetting: as :func:`unprocess`.
+
+    Returns:
+        ``noisy`` and ``clean``: float32 (1, 1, H, W) DN; ``metadata``: as
+        :func:`unprocess`'s, with ``spectral``: the curves, the light, the camera's
+        neutral and the XYZ → camera matrices fitted for A and D65 (a DNG's
+        ColorMatrix1 and 2), as the sidecar's.
+    """
+    from rawsim.spectral import render
+
+    scene = np.asarray(spectra)
+    if scene.ndim != 3 or scene.dtype != np.float32:
+        raise ParameterError(f"spectra must be float32 (H, W, N), got {scene.dtype} {scene.shape}")
+    nm = np.asarray(wavelengths, dtype=np.float64)
+    if nm.shape != (scene.shape[2],):
+        raise ParameterError(f"need one wavelength per band: {nm.shape[0]} for {scene.shape[2]}")
+    if kind not in ("reflectance", "radiance"):
+        raise ParameterError(f"kind must be reflectance or radiance, got {kind!r}")
+    carried = illuminant if isinstance(illuminant, np.ndarray) else None
+    given = None if carried is not None else illuminant
+    curves = render.curves_for(sensor.profile)
+    light, _ = render.light_of(carried, given, nm, kind, "the scene")
+    pixels = render.camera_rgb(scene, nm, curves.rgb, light.spectrum, kind)
+    neutral = render.neutral(curves.rgb, light.spectrum)
+    matrices = render.dng_matrices(curves)
+    options = UnprocessOptions(
+        profile=sensor.profile,
+        iso=iso,
+        iso_range=iso_range,
+        clean=True,
+        noise=noise,
+        exposure_ev=exposure_ev,
+        vignetting=vignetting,
+    )
+    image = torch.from_numpy(pixels).permute(2, 0, 1)[None]  # channels-last, no copy
+    noisy, clean = _outputs(None, (1, 1, *pixels.shape[:2]), image.device)
+    sim = simulate(
+        sensor,
+        image,
+        options,
+        int(seed),
+        display_referred=False,
+        out=(noisy, clean),
+        camera=(matrices[1], 1.0 / neutral),
+    )
+    a, d65 = matrices
+    spectral = {
+        "kind": kind,
+        "wavelengths": [float(v) for v in nm],
+        "curves": {"camera": curves.label, "kind": curves.kind, "source": curves.source},
+        "illuminant": render.light_record(light),
+        "neutral": [float(v) for v in neutral],
+        "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},
+        "color_matrix_2": {"illuminant": "D65", "xyz_to_camera": d65.tolist()},
+    }
+    return noisy, clean, capture_metadata(sensor, options, int(seed), sim) | {"spectral": spectral}
 
 
 def _outputs(out, shape: tuple[int, ...], device: torch.device) -> tuple[torch.Tensor, ...]:
