@@ -183,7 +183,11 @@ def unprocess_spectral(
         illuminant: the light, as ``--illuminant`` takes it (a name of
             :data:`rawsim.spectral.tables.ILLUMINANTS` or a file) or an (N,) spectrum
             on ``wavelengths``; None: D65 for a reflectance (a radiance needs one).
-        iso, iso_range, noise, exposure_ev, vignetting: as :func:`unprocess`.
+        iso: the ISO, as :func:`unprocess` takes one (None with ``iso_range``).
+        iso_range: as :func:`unprocess`.
+        noise: as :func:`unprocess`.
+        exposure_ev: as :func:`unprocess`.
+        vignetting: as :func:`unprocess`.
 
     Returns:
         ``noisy`` and ``clean``: float32 (1, 1, H, W) DN; ``metadata``: as
