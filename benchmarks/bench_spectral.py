@@ -73,14 +73,6 @@ def colorchecker() -> np.ndarray:
     return np.array([[sd[w] for w in tables.WAVELENGTHS] for sd in sds]).T
 
 
-def rendered_lab(curves, light, xyz_to_camera, refl) -> np.ndarray:
-    """CIELAB (relative to the camera white's XYZ) a DNG-style converter renders."""
-    to_xyz = np.linalg.inv(xyz_to_camera)
-    white = to_xyz @ (curves.T @ light)
-    seen = fit.camera_responses(curves, light, refl) @ to_xyz.T / white[1]
-    return xyz_to_lab(seen, white / white[1])
-
-
 def matrices() -> None:
     refl = colorchecker()
     d65, a = tables.illuminant("D65"), tables.illuminant("A")
@@ -94,7 +86,8 @@ def matrices() -> None:
         fitted = fit.color_matrix(curves, d65).xyz_to_camera
         adobe = np.asarray(p.xyz_to_camera)
         vs = delta_e_2000(
-            rendered_lab(curves, d65, fitted, refl), rendered_lab(curves, d65, adobe, refl)
+            xyz_to_lab(*fit.converter_xyz(curves, d65, fitted, refl)),
+            xyz_to_lab(*fit.converter_xyz(curves, d65, adobe, refl)),
         )
         fit_obs = fit.delta_e(curves, d65, fitted, refl)
         adobe_obs = fit.delta_e(curves, d65, adobe, refl)
@@ -203,16 +196,6 @@ def round_trip(work: Path) -> None:
 METAMERISM_CAMERAS = ("Canon EOS R6", "Fujifilm X-T3")
 
 
-def converter_xyz(curves, light, xyz_to_camera, refl) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 3) XYZ a DNG-style raw converter makes of the camera's responses with
-    ``xyz_to_camera``, adapted (Bradford) from the camera white's XYZ to D65, Y = 1 at
-    white; and the (3,) D65 white."""
-    to_xyz = np.linalg.inv(xyz_to_camera)
-    white = to_xyz @ (curves.T @ light)
-    seen = fit.camera_responses(curves, light, refl) @ to_xyz.T / white[1]
-    return seen @ chromatic_adaptation(white / white[1], XYZ_D65).T, XYZ_D65
-
-
 def metamerism(png: Path) -> None:
     """Two cameras, two lights: the spectral renders against the matrix-only one."""
     import matplotlib
@@ -233,7 +216,8 @@ def metamerism(png: Path) -> None:
         labs = [xyz_to_lab(observer, XYZ_D65)]
         row = [("matrix-only (either camera)", observer)]
         for p in cams:
-            seen, _ = converter_xyz(p.curves.rgb, light, np.asarray(p.xyz_to_camera), refl)
+            seen, seen_white = fit.converter_xyz(p.curves.rgb, light, p.xyz_to_camera, refl)
+            seen = seen @ chromatic_adaptation(seen_white, XYZ_D65).T  # as the converter adapts
             labs.append(xyz_to_lab(seen, XYZ_D65))
             row.append((p.curves.label, seen))
         apart = delta_e_2000(labs[1], labs[2])

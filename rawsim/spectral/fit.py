@@ -80,18 +80,27 @@ def color_matrix(curves: np.ndarray, light: np.ndarray) -> MatrixFit:
     return MatrixFit(to_camera, white, float(errors.mean()), float(errors.max()))
 
 
+def converter_xyz(curves: np.ndarray, light: np.ndarray, xyz_to_camera, reflectances):
+    """What a raw converter makes of the camera's responses to ``reflectances`` (81, N)
+    under ``light`` with ``xyz_to_camera`` (any scale), as the DNG specification
+    renders: camera → XYZ by the matrix's inverse, the camera's white (its response to
+    the light) taken as the white. Returns ((N, 3) XYZ, (3,) the white's XYZ), Y = 1 at
+    that white."""
+    to_xyz = np.linalg.inv(np.asarray(xyz_to_camera, dtype=np.float64))
+    white = to_xyz @ (curves.T @ light)
+    seen = camera_responses(curves, light, reflectances) @ to_xyz.T / white[1]
+    return seen, white / white[1]
+
+
 def delta_e(curves: np.ndarray, light: np.ndarray, xyz_to_camera, reflectances=None):
     """(N,) CIEDE2000 ΔE of ``reflectances`` (81, N; the training patches unless given)
     under ``light`` between what the observer sees and what a raw converter makes of
-    the camera's responses with ``xyz_to_camera`` (any scale), as the DNG specification
-    renders: camera → XYZ by its inverse, the camera's white (its response to the
-    light) taken as the white, so each side is CIELAB relative to its own white."""
+    the camera's responses with ``xyz_to_camera`` (:func:`converter_xyz`), each side
+    CIELAB relative to its own white."""
     refl = tables.training_reflectances() if reflectances is None else reflectances
-    to_xyz = np.linalg.inv(np.asarray(xyz_to_camera, dtype=np.float64))
-    seen_white = to_xyz @ (curves.T @ light)
-    seen = camera_responses(curves, light, refl) @ to_xyz.T / seen_white[1]
     xyz, white = observer_xyz(light, refl)
-    return delta_e_2000(xyz_to_lab(seen, seen_white / seen_white[1]), xyz_to_lab(xyz, white))
+    seen = xyz_to_lab(*converter_xyz(curves, light, xyz_to_camera, refl))
+    return delta_e_2000(seen, xyz_to_lab(xyz, white))
 
 
 def white_balance(curves: np.ndarray, light: np.ndarray) -> np.ndarray:
