@@ -38,15 +38,29 @@ GRID = list(range(380, 781, 5))
 RELEASE = "v1.1.0"
 
 
+def git(repo: Path, *args: str) -> str:
+    """The output of ``git args`` in the git directory ``repo``."""
+    run = subprocess.run(["git", f"--git-dir={repo}", *args], check=True, capture_output=True)
+    return run.stdout.decode()
+
+
 def git_json(repo: Path, path: str) -> dict:
-    return json.loads(
-        subprocess.run(
-            ["git", f"--git-dir={repo}", "show", f"HEAD:{path}"],
-            check=True,
-            capture_output=True,
-            text=True,
-        ).stdout
-    )
+    return json.loads(git(repo, "show", f"HEAD:{path}"))
+
+
+def camera_files(repo: Path) -> list[str]:
+    """The paths of the repository's camera files (``data/camera/*.json``)."""
+    return git(repo, "ls-tree", "--name-only", "HEAD", "data/camera/").split()
+
+
+def camera_file(repo: Path, path: str) -> dict:
+    """A camera file of the repository, read; the build stops on any licence but
+    Apache-2.0."""
+    d = git_json(repo, path)
+    licence = d["header"].get("license")
+    if licence != "Apache-2.0":
+        sys.exit(f"{path}: licence {licence!r}, not Apache-2.0: stopped")
+    return d
 
 
 def sig(x: float) -> float:
@@ -64,18 +78,8 @@ def main() -> None:
     ap.add_argument("--rawtoaces-data", type=Path, required=True)
     a = ap.parse_args()
     repo = a.rawtoaces_data
-    commit = subprocess.run(
-        ["git", f"--git-dir={repo}", "rev-parse", "HEAD"],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.strip()
-    files = subprocess.run(
-        ["git", f"--git-dir={repo}", "ls-tree", "--name-only", "HEAD", "data/camera/"],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.split()
+    commit = git(repo, "rev-parse", "HEAD").strip()
+    files = camera_files(repo)
     aliases = git_json(repo, "data/aliases.json")["data"]["camera"]["model"]
     # the repository's own model → its other names ("EOS R5m2" → "EOS R5 Mark II")
     other = {}
@@ -84,10 +88,8 @@ def main() -> None:
             other.setdefault((to["make"], to["model"]), []).append(name)
     out, unmatched = {}, []
     for path in files:
-        d = git_json(repo, path)
+        d = camera_file(repo, path)
         h = d["header"]
-        if h.get("license") != "Apache-2.0":
-            sys.exit(f"{path}: licence {h.get('license')!r}, not Apache-2.0: stopped")
         make, model = h["manufacturer"], h["model"]
         cam = None
         for name in (model, *other.get((make, model), ())):

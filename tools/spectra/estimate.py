@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -57,7 +56,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from build import git_json, sig  # noqa: E402
+from build import camera_file, camera_files, sig  # noqa: E402
 
 from rawsim import cameras  # noqa: E402
 from rawsim.cameras import spectra  # noqa: E402
@@ -81,20 +80,13 @@ def measured_curves(repo: Path) -> tuple[dict[str, np.ndarray], dict]:
     (file, licence, curves), so that the basis can be rebuilt from the package."""
     out = {n: spectra.of_camera(n).rgb for n in spectra.names()}
     others = {}
-    files = subprocess.run(
-        ["git", f"--git-dir={repo}", "ls-tree", "--name-only", "HEAD", "data/camera/"],
-        check=True,
-        capture_output=True,
-        text=True,
-    ).stdout.split()
+    files = camera_files(repo)
     used = {e["file"] for e in spectra._data()["cameras"].values()}
     for path in files:
         if path in used:
             continue
-        d = git_json(repo, path)
+        d = camera_file(repo, path)
         h, main = d["header"], d["spectral_data"]["data"]["main"]
-        if h.get("license") != "Apache-2.0":
-            sys.exit(f"{path}: licence {h.get('license')!r}, not Apache-2.0: stopped")
         rgb = [[sig(main[str(int(w))][c]) for w in tables.WAVELENGTHS] for c in range(3)]
         name = f"{h['manufacturer']} {h['model']}"
         out[name] = np.array(rgb, dtype=np.float64).T
@@ -181,10 +173,8 @@ def colorchecker() -> np.ndarray:
 def rendered(curves: np.ndarray, light: np.ndarray, refl: np.ndarray) -> np.ndarray:
     """(N, 3) CIELAB of ``refl`` seen through ``curves`` under ``light``, rendered with
     the matrix fitted for the curves under that light, relative to its own white."""
-    to_xyz = np.linalg.inv(fit.color_matrix(curves, light).xyz_to_camera)
-    white = to_xyz @ (curves.T @ light)
-    seen = fit.camera_responses(curves, light, refl) @ to_xyz.T / white[1]
-    return xyz_to_lab(seen, white / white[1])
+    matrix = fit.color_matrix(curves, light).xyz_to_camera
+    return xyz_to_lab(*fit.converter_xyz(curves, light, matrix, refl))
 
 
 def leave_one_out(measured: dict[str, np.ndarray]) -> dict:
