@@ -232,16 +232,7 @@ def unprocess_spectral(
         out=(noisy, clean),
         camera=(matrices[1], 1.0 / neutral),
     )
-    a, d65 = matrices
-    spectral = {
-        "kind": kind,
-        "wavelengths": [float(v) for v in nm],
-        "curves": {"camera": curves.label, "kind": curves.kind, "source": curves.source},
-        "illuminant": render.light_record(light),
-        "neutral": [float(v) for v in neutral],
-        "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},
-        "color_matrix_2": {"illuminant": "D65", "xyz_to_camera": d65.tolist()},
-    }
+    spectral = render.record(kind, nm, curves, light, neutral, matrices)
     return noisy, clean, capture_metadata(sensor, options, int(seed), sim) | {"spectral": spectral}
 
 

@@ -814,23 +814,11 @@ class Seen:
         return DngColour({1: (ILLUMINANT_A, a), 2: (ILLUMINANT_D65, d65)}, {}, None)
 
     def to_dict(self) -> dict:
-        """The sidecar's ``spectral`` record."""
-        from rawsim.spectral.render import light_record
+        """The sidecar's ``spectral`` record (:func:`rawsim.spectral.render.record`)."""
+        from rawsim.spectral.render import record
 
-        a, d65 = self.matrices
-        return {
-            "kind": self.scene.kind,
-            "wavelengths": [float(v) for v in self.scene.wavelengths],
-            "curves": {
-                "camera": self.curves.label,
-                "kind": self.curves.kind,
-                "source": self.curves.source,
-            },
-            "illuminant": light_record(self.light),
-            "neutral": [float(v) for v in self.neutral],
-            "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},
-            "color_matrix_2": {"illuminant": "D65", "xyz_to_camera": d65.tolist()},
-        }
+        s = self.scene
+        return record(s.kind, s.wavelengths, self.curves, self.light, self.neutral, self.matrices)
 
 
 def _see_and_simulate(task: Task, options: UnprocessOptions):

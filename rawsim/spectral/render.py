@@ -198,6 +198,23 @@ def dng_matrices(curves: spectra.Curves) -> tuple[np.ndarray, np.ndarray]:
     return _fits[key]
 
 
+def record(kind: str, wavelengths, curves: spectra.Curves, light: Light, neutral, matrices):
+    """The sidecar's ``spectral`` record of a scene seen: its ``kind``, ``wavelengths``
+    (nm), the ``curves`` (camera, kind, source), the ``light`` (:func:`light_record`),
+    the camera's ``neutral`` and the DNG's ``matrices`` (XYZ → camera under A and
+    D65)."""
+    a, d65 = matrices
+    return {
+        "kind": kind,
+        "wavelengths": [float(v) for v in wavelengths],
+        "curves": {"camera": curves.label, "kind": curves.kind, "source": curves.source},
+        "illuminant": light_record(light),
+        "neutral": [float(v) for v in neutral],
+        "color_matrix_1": {"illuminant": "A", "xyz_to_camera": a.tolist()},
+        "color_matrix_2": {"illuminant": "D65", "xyz_to_camera": d65.tolist()},
+    }
+
+
 def light_record(light: Light) -> dict:
     """The sidecar's record of a :class:`Light`: its name (or file), whether it was read
     from a file, and where it came from (the scene, ``--illuminant``, the default)."""
