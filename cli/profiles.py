@@ -399,7 +399,7 @@ def matrices_cmd(profile, lights, as_json):
             raise bad_option("--illuminant", err) from None
         entry = {
             "illuminant": str(light),
-            "calibration_illuminant": _LIGHT_SOURCE.get(str(light).upper()),
+            "calibration_illuminant": tables.LIGHT_SOURCES.get(str(light).upper()),
             "xyz_to_camera": np.round(f.xyz_to_camera, 6).tolist(),
             "white_xyz": np.round(f.white_xyz, 6).tolist(),
             "delta_e00": {"mean": round(f.mean_delta_e, 3), "max": round(f.max_delta_e, 3)},
@@ -438,7 +438,3 @@ def matrices_cmd(profile, lights, as_json):
                 f"    the profile's own matrix there: mean {own['mean']:.2f}, "
                 f"worst {own['max']:.2f} ({own['source']})"
             )
-
-
-#: EXIF LightSource codes (DNG CalibrationIlluminant) of the lights known by name.
-_LIGHT_SOURCE = {"D50": 23, "D55": 20, "D65": 21, "D75": 22, "A": 17, "F2": 14, "ISO7589": 24}

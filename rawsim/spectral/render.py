@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 #: How many cameras a refusal names before "… and N more".
 _NAMED = 12
 #: DNG CalibrationIlluminant codes (EXIF LightSource) of the two matrices written.
-ILLUMINANT_A, ILLUMINANT_D65 = 17, 21
+ILLUMINANT_A, ILLUMINANT_D65 = tables.LIGHT_SOURCES["A"], tables.LIGHT_SOURCES["D65"]
 
 
 @dataclass(frozen=True)

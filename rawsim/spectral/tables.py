@@ -29,12 +29,18 @@ from pathlib import Path
 
 import numpy as np
 
+from rawsim.color import ILLUMINANT_D65
 from rawsim.errors import ParameterError
 
 #: The grid of every spectrum, nm: 380, 385, …, 780 (81 samples).
 WAVELENGTHS = np.arange(380, 781, 5, dtype=np.float64)
 #: The illuminants known by name (:func:`illuminant`).
 ILLUMINANTS = ("D50", "D55", "D65", "D75", "A", "F2", "F11", "ISO7589")
+#: Their EXIF LightSource codes (a DNG's CalibrationIlluminant), where EXIF has one
+#: (F11 has none).
+LIGHT_SOURCES = {
+    "D50": 23, "D55": 20, "D65": ILLUMINANT_D65, "D75": 22, "A": 17, "F2": 14, "ISO7589": 24,
+}  # fmt: skip
 _DAYLIGHT_CCT = {"D50": 5000, "D55": 5500, "D65": 6500, "D75": 7500}
 #: c2 of Planck's law (m·K): the value the CIE's illuminant A is defined with, and the
 #: CODATA one that the daylight series' nominal temperatures were rescaled to.
