@@ -157,10 +157,11 @@ def aces_from_camera(curves: np.ndarray, gains, space: str) -> tuple[np.ndarray,
 
 def rawtoaces_illuminants() -> dict[str, np.ndarray]:
     """rawtoaces' candidate lights for a shot: CIE daylights at 4000–25000 K in 500 K
-    steps (nominal, rescaled by 1.4388/1.4380 as the CIE's tables are), blackbodies at
-    1000–3500 K and the ISO 7589 studio tungsten, by name ("D65", "3000K", "ISO7589")."""
+    steps (nominal, :func:`~rawsim.spectral.tables.rescaled` as the CIE's tables are),
+    blackbodies at 1000–3500 K and the ISO 7589 studio tungsten, by name ("D65",
+    "3000K", "ISO7589")."""
     lights = {
-        f"D{int(k * 1.4388 / 1.4380 / 100)}": tables.daylight(k * 1.4388 / 1.4380)
+        f"D{int(tables.rescaled(k) / 100)}": tables.daylight(tables.rescaled(k))
         for k in range(4000, 25001, 500)
     }
     lights |= {f"{k}K": tables.blackbody(k) for k in range(1000, 3501, 500)}

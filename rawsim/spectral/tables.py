@@ -47,6 +47,12 @@ _DAYLIGHT_CCT = {"D50": 5000, "D55": 5500, "D65": 6500, "D75": 7500}
 _C2_A, _C2 = 1.435e-2, 1.4388e-2
 
 
+def rescaled(nominal: float) -> float:
+    """A daylight's correlated colour temperature from its nominal one (K), rescaled to
+    today's c2 as the CIE's tables are: 6500 → 6504 K for D65."""
+    return nominal * 1.4388 / 1.4380
+
+
 @cache
 def _tables() -> dict:
     return json.loads((resources.files("rawsim.spectral") / "tables.json").read_text())
@@ -78,7 +84,7 @@ def daylight(cct: float) -> np.ndarray:
     """(81,) the CIE daylight illuminant of correlated colour temperature ``cct`` (K,
     4000–25000, and the 25014 K that 25000 K becomes rescaled as the CIE's tables are):
     its chromaticity by CIE 15:2004 (3.3)–(3.4), then S0 + M1·S1 + M2·S2."""
-    if not 4000 <= cct <= 25000 * 1.4388 / 1.4380:
+    if not 4000 <= cct <= rescaled(25000):
         raise ParameterError(f"a daylight's CCT must be 4000–25000 K, got {cct:g}")
     t = 1e3 / cct
     if cct <= 7000:
@@ -106,7 +112,7 @@ def illuminant(name: str | Path) -> np.ndarray:
     from a file (see the module's notes)."""
     key = str(name).upper()
     if key in _DAYLIGHT_CCT:
-        return daylight(_DAYLIGHT_CCT[key] * 1.4388 / 1.4380)
+        return daylight(rescaled(_DAYLIGHT_CCT[key]))
     if key == "A":
         return blackbody(2848.0, _C2_A)
     if key in ("F2", "F11"):
