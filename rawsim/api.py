@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from rawsim import memory
-from rawsim.errors import ParameterError, RawsimWarning
+from rawsim.errors import ParameterError, RawsimWarning, check_choice
 from rawsim.io.lensfun import LensParams
 from rawsim.io.raw import RawImage
 from rawsim.isp.config import IspConfig
@@ -195,6 +195,7 @@ def unprocess_spectral(
         neutral and the XYZ → camera matrices fitted for A and D65 (a DNG's
         ColorMatrix1 and 2), as the sidecar's.
     """
+    from rawsim.io.spectral import KINDS
     from rawsim.spectral import render
 
     scene = np.asarray(spectra)
@@ -203,8 +204,7 @@ def unprocess_spectral(
     nm = np.asarray(wavelengths, dtype=np.float64)
     if nm.shape != (scene.shape[2],):
         raise ParameterError(f"need one wavelength per band: {nm.shape[0]} for {scene.shape[2]}")
-    if kind not in ("reflectance", "radiance"):
-        raise ParameterError(f"kind must be reflectance or radiance, got {kind!r}")
+    check_choice("kind", kind, KINDS)
     carried = illuminant if isinstance(illuminant, np.ndarray) else None
     given = None if carried is not None else illuminant
     curves = render.curves_for(sensor.profile)
