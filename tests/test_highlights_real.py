@@ -27,11 +27,6 @@ from tests.conftest import DATA
 
 CROPS = sorted((DATA / "highlights").glob("*.dng"))
 RAWS = [*CROPS, *(DATA / "raw" / n for n in ("canon_eos6d_linear_raw_no_cfa.dng",))]
-#: The modes that leave more magenta than the bound, as measured: GoPro's codec spreads
-#: the HERO6's saturated green and blue ±150 DN around their levels, and ``unclip``
-#: raises only the sites above 99 % of a colour's level, so a block's saturated sites
-#: below it stay (0.4 % of the crop's white pixels magenta).
-SHORT = {"gopro_hero6_sky": ("unclip",)}
 MAGENTA_SHARE = 1e-3
 CHROMA = 5.0
 
@@ -78,16 +73,8 @@ def renders():
     return out
 
 
-def _cases():
-    for path in RAWS:
-        for mode in HIGHLIGHT_MODES:
-            marks = []
-            if mode in SHORT.get(path.stem, ()):
-                marks = [pytest.mark.xfail(strict=True, reason="a codec-spread clip (GoPro)")]
-            yield pytest.param(path.stem, mode, marks=marks, id=f"{path.stem}-{mode}")
-
-
-@pytest.mark.parametrize("name, mode", list(_cases()))
+@pytest.mark.parametrize("mode", HIGHLIGHT_MODES)
+@pytest.mark.parametrize("name", [p.stem for p in RAWS])
 def test_no_magenta_where_libraw_renders_white(renders, name, mode):
     white, _, ours = renders[name]
     rgb = ours[mode]

@@ -16,6 +16,7 @@ from rawsim.cfa import CFA
 from rawsim.errors import ParameterError
 from rawsim.isp.config import (
     HIGHLIGHT_TRANSFORM,
+    HIGHLIGHT_UNCLIP_CLIPPED,
     DemosaicStage,
     HighlightsStage,
     IspConfig,
@@ -445,15 +446,16 @@ def test_block_side_per_cfa():
 
 def test_unclip_keeps_values_above_white():
     """RGB (a pixel is the block): values above white pass; a colour that reached its
-    level (0.99 of it) is only a lower bound, raised to the largest value of the
-    colours that did not (to the largest of all where all three did: neutral)."""
+    level (``HIGHLIGHT_UNCLIP_CLIPPED``, 0.95 of it) is only a lower bound, raised to the
+    largest value of the colours that did not (to the largest of all where all three
+    did: neutral)."""
     levels = (2.0, 1.0, 1.5)
     x = torch.tensor(
         [
             [2.4, 1.0, 1.49],  # all three reached their levels: neutral at 2.4
-            [1.985, 0.995, 1.6],  # within 1 %: neutral at the largest value, 1.985
+            [1.985, 0.995, 1.6],  # within 5 %: neutral at the largest value, 1.985
             [1.7, 0.995, 1.2],  # green alone: raised to red's 1.7 (never magenta)
-            [2.4, 0.98, 1.6],  # red and blue: green measured less, nothing is raised
+            [2.4, 0.93, 1.6],  # red and blue: green measured less, nothing is raised
             [1.0, 0.995, 1.6],  # green and blue: green raised to red's 1.0, blue kept
             [0.5, 0.4, 0.3],
         ]
@@ -462,7 +464,7 @@ def test_unclip_keeps_values_above_white():
     assert torch.equal(out[0, :, 0, 0], torch.full((3,), 2.4))
     assert torch.equal(out[0, :, 0, 1], torch.full((3,), 1.985))
     assert torch.equal(out[0, :, 0, 2], torch.tensor([1.7, 1.7, 1.2]))
-    assert torch.equal(out[0, :, 0, 3], torch.tensor([2.4, 0.98, 1.6]))
+    assert torch.equal(out[0, :, 0, 3], torch.tensor([2.4, 0.93, 1.6]))
     assert torch.equal(out[0, :, 0, 4], torch.tensor([1.0, 1.0, 1.6]))
     assert torch.equal(out[..., 5], x[..., 5])
     assert torch.equal(Highlights("unclip", levels)(x), out)
@@ -471,7 +473,7 @@ def test_unclip_keeps_values_above_white():
 
 
 def test_unclip_on_the_mosaic_by_hand():
-    """RGGB, levels 2, 1, 1.5 (thresholds 1.98, 0.99, 1.485), 5 × 5: a ragged last row
+    """RGGB, levels 2, 1, 1.5 (thresholds 1.9, 0.95, 1.425), 5 × 5: a ragged last row
     and column, which take the last whole block's decision."""
     cfa = CFA("RGGB")
     x = torch.tensor(
@@ -502,12 +504,14 @@ def _unclip_by_hand(m, cmap, levels, b):
     h, w = m.shape
     hb, wb = h // b, w // b
     out = m.copy()
-    threshold = 0.99 * np.asarray(levels)[cmap]
+    threshold = HIGHLIGHT_UNCLIP_CLIPPED * np.asarray(levels)[cmap]
     for i in range(hb):
         for j in range(wb):
             block = (slice(i * b, i * b + b), slice(j * b, j * b + b))
             v, c = m[block], cmap[block]
-            clipped = {k for k in range(3) if (v[c == k] >= 0.99 * levels[k]).any()}
+            clipped = {
+                k for k in range(3) if (v[c == k] >= HIGHLIGHT_UNCLIP_CLIPPED * levels[k]).any()
+            }
             if not clipped:
                 continue
             free = [k for k in range(3) if k not in clipped] or [0, 1, 2]
@@ -548,7 +552,8 @@ def test_unclip_gradcheck_float64(pattern):
     levels = (2.0, 1.0, 1.5)
     gen = torch.Generator().manual_seed(2)
     x = torch.rand(1, 1, 12, 14, generator=gen, dtype=torch.float64) * 2.2
-    threshold = 0.99 * torch.tensor(levels, dtype=torch.float64)[colour_map(cfa, 12, 14, "cpu")]
+    level = torch.tensor(levels, dtype=torch.float64)[colour_map(cfa, 12, 14, "cpu")]
+    threshold = HIGHLIGHT_UNCLIP_CLIPPED * level
     x = torch.where((x - threshold).abs() < 0.02, x * 0.9, x).requires_grad_()
     assert torch.autograd.gradcheck(lambda v: handle_highlights(v, "unclip", levels, cfa), (x,))
     rgb = (torch.rand(1, 3, 4, 5, generator=gen, dtype=torch.float64) * 2.2).requires_grad_()

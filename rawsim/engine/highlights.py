@@ -54,6 +54,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_RATIO_FLOOR,
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
+    HIGHLIGHT_UNCLIP_CLIPPED,
     HIGHLIGHT_WHITE_MARGIN,
     highlight_block,
 )
@@ -683,20 +684,21 @@ def _slots(cfa: CFA) -> np.ndarray:
     return np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
 
 
-def _clip_codes(data, cfa: CFA, ops, opf, g):
-    """What tells a clipped site in the uint16 mosaic ``data``: (cmap, slots, table,
-    level, lines) (:func:`_clip_lines`), or None where no site reaches its clip code."""
+def _clip_codes(data, cfa: CFA, ops, opf, g, clipped: float = HIGHLIGHT_CLIPPED):
+    """What tells a clipped site (at ``clipped`` × its colour's level or above) in the
+    uint16 mosaic ``data``: (cmap, slots, table, level, lines) (:func:`_clip_lines`),
+    or None where no site reaches its clip code."""
     ph, pw = cfa.period
     cmap = np.array(cfa.colors, dtype=np.int64).reshape(ph, pw)
     slots = _slots(cfa)
-    level = np.float32(HIGHLIGHT_CLIPPED) * g
-    # A site clips at black + 0.99 × its colour's saturation share of the span (its
-    # level over its white-balance gain): below the lowest such code, none can (a
+    level = np.float32(clipped) * g
+    # A site clips at black + ``clipped`` × its colour's saturation share of the span
+    # (its level over its white-balance gain): below the lowest such code, none can (a
     # margin for float32 rounding), and one max over the codes is all the work.
     applied = opf[1, :3] if len(ops) > 1 else np.ones(3)
     share = float(np.min(np.asarray(g, np.float64) / applied))
     used = np.unique(slots)
-    lowest = float(np.min(opf[0, used] + (HIGHLIGHT_CLIPPED * share - 1e-3) * opf[0, 4 + used]))
+    lowest = float(np.min(opf[0, used] + (clipped * share - 1e-3) * opf[0, 4 + used]))
     if int(data.max()) < lowest:
         return None
     slot_colour = np.zeros(4, np.int64)  # the colour of each levels slot (X-Trans: 3)
@@ -760,11 +762,11 @@ def _clipped_green(data, cmap, lines):
     return (near, rows) if rows.any() else None
 
 
-def _start(data, cfa: CFA, ops, opf, levels):
+def _start(data, cfa: CFA, ops, opf, levels, clipped: float = HIGHLIGHT_CLIPPED):
     """What the pre-passes share: the checked mosaic (C-contiguous), ``ops``/``opf`` as
     arrays, the clip levels ``g`` (float32), the block side b, the whole blocks Hb ×
-    Wb, and the clip codes (:func:`_clip_codes`; None where the mosaic holds no whole
-    block or no site reaches its code)."""
+    Wb, and the clip codes (:func:`_clip_codes` at ``clipped``; None where the mosaic
+    holds no whole block or no site reaches its code)."""
     ops = np.asarray(ops, dtype=np.int64)
     if ops.tolist() not in ([OP_LEVELS], [OP_LEVELS, OP_WB]):
         raise ValueError("the highlight pre-pass takes levels, then white balance, only")
@@ -774,7 +776,7 @@ def _start(data, cfa: CFA, ops, opf, levels):
     hb, wb = h // b, w // b
     data = np.ascontiguousarray(data)
     opf = np.asarray(opf, dtype=np.float64)
-    codes = _clip_codes(data, cfa, ops, opf, g) if hb and wb else None
+    codes = _clip_codes(data, cfa, ops, opf, g, clipped) if hb and wb else None
     return data, ops, opf, g, b, hb, wb, codes
 
 
@@ -928,16 +930,17 @@ def reconstruct_mosaic(
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _unclip(raw, out, codes, b, hb, wb, tiles, scale, dn, threads):
-    """``unclip``'s raised sites into ``out`` (DN, rounded; it already holds every site,
-    scaled by ``scale`` about its black level), in the n tiles listed in ``tiles`` (n,
-    2) of the Hb × Wb whole b × b blocks. ``codes``: (cmap, slots, table, level) of
-    :func:`_clip_codes`, the sites' values read from ``table`` (a row per levels slot);
-    ``dn``: (black, span, applied) of :func:`_dn_numbers`. In each block the colours
-    with a site at or above ``level`` clipped; each of their sites at or above it
-    takes max(its value, T), T the largest value of the block's sites of the colours
-    that did not clip (of all, where all did); sites beyond the last whole block row
-    or column go with that block. Returns the largest code a raised value needs,
-    unscaled: above 65535, the caller writes again with a scale that fits it."""
+    """``unclip``'s raised sites into ``out`` (DN, rounded; it already holds every site, scaled
+    by ``scale`` about its black level), in the n tiles listed in ``tiles`` (n, 2) of
+    the Hb × Wb whole b × b blocks. ``codes``: (cmap, slots, table, level) of
+    :func:`_clip_codes` (at ``HIGHLIGHT_UNCLIP_CLIPPED``), the sites' values read from
+    ``table`` (a row per levels slot); ``dn``: (black, span, applied) of
+    :func:`_dn_numbers`. In each block the colours with a site at or above ``level``
+    clipped; each of their sites at or above it takes max(its value, T), T the largest
+    value of the block's sites of the colours that did not clip (of all, where all did);
+    sites beyond the last whole block row or column go with that block. Returns the
+    largest code a raised value needs, unscaled: above 65535, the caller writes again
+    with a scale that fits it."""
     cmap, slots, table, level = codes
     black, span, applied = dn
     h, w = raw.shape
@@ -1004,7 +1007,9 @@ def unclip_mosaic(
     site finds that); else a new mosaic (DN) and ``opf`` with the levels' span scaled
     where raised values needed more codes than 65535.
     """
-    data, ops, opf, _, b, hb, wb, codes = _start(data, cfa, ops, opf, levels)
+    data, ops, opf, _, b, hb, wb, codes = _start(
+        data, cfa, ops, opf, levels, HIGHLIGHT_UNCLIP_CLIPPED
+    )
     if codes is None:
         return data, opf
     slots, lines = codes[1], codes[4]

@@ -84,6 +84,12 @@ RGB_HIGHLIGHT_MODES = ("blend",)
 #: ``reconstruct``: a site is clipped at this share of its colour's clip level (the
 #: white-balance gain: white = 1 before it).
 HIGHLIGHT_CLIPPED = 0.99
+#: ``unclip``: a site is clipped at this share of its colour's clip level. Lower than
+#: ``reconstruct``'s: a camera's codec can spread a saturated colour around its level
+#: (the GoPro HERO6 crop of tests/data/highlights: ±150 DN, about ±4 %), and a block
+#: whose green saturated below 0.99 of its level kept it while red and blue were
+#: raised: 0.39 % of its white pixels magenta at 0.99, none at 0.95.
+HIGHLIGHT_UNCLIP_CLIPPED = 0.95
 #: ``reconstruct``: half-widths (in blocks) of the boxes whose normalised sum carries
 #: the hue of unclipped blocks into clipped ones, nearest first; the largest bounds
 #: how far a region's border reaches into it. Each box's mean counts this much less
@@ -428,7 +434,7 @@ class RawDenoiseStage(Stage):
         "profiled",
         _choice(RAW_DENOISE_METHODS),
         "profiled: variance-stabilised two-pass DCT shrinkage (rawsim.denoise.profiled); "
-        "learned: a network refines that (rawsim.denoise.learned; Bayer only)",
+        "learned: a network refines that (rawsim.denoise.learned; Bayer and X-Trans)",
     )
     strength: float = _param(
         1.0, _number(0.05, 10.0), "scales the noise σ the method removes (1 = the model's)"
@@ -443,8 +449,9 @@ class RawDenoiseStage(Stage):
     def resolve(self, raw: RawImage, config: IspConfig, info: dict) -> None:
         """``info["noise_model"]``: the raw's noise model (:mod:`rawsim.denoise.noise_model`),
         its source said, and its warnings in ``info["warnings"]``; ``info["raw_denoise"]``:
-        the method both backends run (``learned`` has weights for Bayer mosaics only:
-        other CFAs get ``profiled``, warned)."""
+        the method both backends run (``learned`` has weights for Bayer and X-Trans
+        mosaics: other CFAs get ``profiled``, warned)."""
+        from rawsim.denoise.layout import weights_kind
         from rawsim.denoise.noise_model import noise_model_for
 
         given = None if self.noise_profile == "auto" else self.noise_profile
@@ -452,11 +459,11 @@ class RawDenoiseStage(Stage):
         info["noise_model"] = model.to_dict()
         info["warnings"].extend(model.warnings)
         info["raw_denoise"] = self.method
-        if self.method == "learned" and not raw.cfa.is_bayer:
+        if self.method == "learned" and weights_kind(raw.cfa) is None:
             info["raw_denoise"] = "profiled"
             info["warnings"].append(
-                f"--denoise learned has weights for Bayer mosaics only; this {raw.cfa.name} "
-                "mosaic is denoised with --denoise profiled"
+                f"--denoise learned has weights for Bayer and X-Trans mosaics only; this "
+                f"{raw.cfa.name} mosaic is denoised with --denoise profiled"
             )
 
 

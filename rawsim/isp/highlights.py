@@ -14,8 +14,8 @@ lightness and the unclipped image's hue, with the chroma scaled to the clipped
 chroma's size, where any channel exceeds the least level — dcraw's ``-H 2``.
 
 ``unclip`` (:func:`unclip_highlights`) keeps values above white (LibRaw's ``-H 1``),
-but a clipped value (``HIGHLIGHT_CLIPPED`` of its colour's level or above) is only a
-lower bound: clipped light is never darker in one colour than the colours beside it
+but a clipped value (``HIGHLIGHT_UNCLIP_CLIPPED`` of its colour's level or above) is
+only a lower bound: clipped light is never darker in one colour than the colours beside it
 measured. On a mosaic, before the demosaic (the demosaic would otherwise pull a
 clipped green's interpolated value at red and blue sites below its level, so that
 green is not raised and the pixel turns magenta), it is read in b × b blocks that
@@ -57,6 +57,7 @@ from rawsim.isp.config import (
     HIGHLIGHT_SCALE_WEIGHT,
     HIGHLIGHT_SCALES,
     HIGHLIGHT_TRANSFORM,
+    HIGHLIGHT_UNCLIP_CLIPPED,
     HIGHLIGHT_WHITE_MARGIN,
     highlight_block,
 )
@@ -118,8 +119,8 @@ def unclip_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> torch.
     linear, colour c clipping at ``levels[c]`` (R, G, B). Returns the same shape; no
     value is lowered, none is clipped.
 
-    A clipped value (a site ≥ ``HIGHLIGHT_CLIPPED`` of its colour's level) is only a
-    lower bound. The mosaic is read in b × b blocks that hold every colour
+    A clipped value (a site ≥ ``HIGHLIGHT_UNCLIP_CLIPPED`` of its colour's level) is
+    only a lower bound. The mosaic is read in b × b blocks that hold every colour
     (:func:`highlight_block`: 2 for Bayer, 3 for X-Trans; rows and columns beyond the
     whole blocks take the last block's decision, as :func:`reconstruct_highlights`
     does); on RGB a pixel is the block. In each block, the colours that clipped (any
@@ -138,14 +139,14 @@ def unclip_highlights(x: torch.Tensor, levels, cfa: CFA | None = None) -> torch.
     hb, wb = h // b, w // b
     if hb == 0 or wb == 0:
         return x
-    _, clipped, peaks = _blocks(x, g, cmap, b, hb, wb)
+    _, clipped, peaks = _blocks(x, g, cmap, b, hb, wb, HIGHLIGHT_UNCLIP_CLIPPED)
     # T: the largest value of the colours that did not clip; of all where all did
     every = clipped.all(1, keepdim=True)
     top = torch.where(clipped & ~every, -torch.inf, peaks).amax(1, keepdim=True)
     if cmap is None:
         return torch.where(clipped, torch.maximum(x, top), x)
     index = cmap.expand(x.shape[0], 1, h, w)
-    level = (HIGHLIGHT_CLIPPED * g)[cmap]
+    level = (HIGHLIGHT_UNCLIP_CLIPPED * g)[cmap]
     clip_site = (_grow(clipped.to(x.dtype), b, h, w).gather(1, index) > 0) & (x >= level)
     return torch.where(clip_site, torch.maximum(x, _grow(top, b, h, w)), x)
 
@@ -262,11 +263,11 @@ def colour_map(cfa: CFA, h: int, w: int, device) -> torch.Tensor:
     return tile.repeat(-(-h // ph), -(-w // pw))[:h, :w].reshape(1, 1, h, w)
 
 
-def _blocks(x, g, cmap, b, hb, wb):
+def _blocks(x, g, cmap, b, hb, wb, clipped: float = HIGHLIGHT_CLIPPED):
     """Per block (B, 3, Hb, Wb): each colour's mean, whether it clipped (a site ≥
-    ``HIGHLIGHT_CLIPPED`` × its level), and its largest value; on RGB (``cmap`` None)
-    the pixel's."""
-    level = (HIGHLIGHT_CLIPPED * g).reshape(1, 3, 1, 1)
+    ``clipped`` × its level), and its largest value; on RGB (``cmap`` None) the
+    pixel's."""
+    level = (clipped * g).reshape(1, 3, 1, 1)
     if cmap is None:
         return x, x >= level, x
     n = x.shape[0]
