@@ -173,8 +173,9 @@ def unprocess_spectral(
     metadata)``.
 
     Args:
-        spectra: (H, W, N) float32 (any strides; H and W even): reflectance, or
-            radiance with ``kind="radiance"``.
+        spectra: (H, W, N) float32 (any strides), finite and ≥ 0: reflectance, or
+            radiance with ``kind="radiance"``; an odd last row or column is left out,
+            as the command leaves it.
         wavelengths: (N,) nm, increasing, spanning 400–700.
         sensor: an :class:`~rawsim.sensors.RGBSensor` whose profile's camera has
             spectral sensitivities (measured or estimated: :mod:`rawsim.cameras.spectra`).
@@ -195,7 +196,7 @@ def unprocess_spectral(
         neutral and the XYZ → camera matrices fitted for A and D65 (a DNG's
         ColorMatrix1 and 2), as the sidecar's.
     """
-    from rawsim.io.spectral import KINDS
+    from rawsim.io.spectral import KINDS, SpectralScene, checked
     from rawsim.spectral import render
 
     scene = np.asarray(spectra)
@@ -205,6 +206,9 @@ def unprocess_spectral(
     if nm.shape != (scene.shape[2],):
         raise ParameterError(f"need one wavelength per band: {nm.shape[0]} for {scene.shape[2]}")
     check_choice("kind", kind, KINDS)
+    size = (scene.shape[1], scene.shape[0])
+    given_scene = SpectralScene(scene, nm, kind, illuminant, "array", size)
+    scene = checked("spectra", given_scene).spectra  # NaN, negative values, size: refused
     carried = illuminant if isinstance(illuminant, np.ndarray) else None
     given = None if carried is not None else illuminant
     curves = render.curves_for(sensor.profile)

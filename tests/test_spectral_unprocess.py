@@ -540,3 +540,8 @@ def test_the_python_api_gives_the_cli_capture(tmp_path):
     assert meta["spectral"]["color_matrix_2"] == side["color_matrix_2"]
     with pytest.raises(rawsim.ParameterError, match="one wavelength per band"):
         rawsim.unprocess_spectral(spectra, nm[:-1], sensor, seed)
+    for value, why in ((np.nan, "NaN or infinite"), (-0.5, "negative values")):
+        bad = spectra.copy()
+        bad[3, 4, 10] = value
+        with pytest.raises(rawsim.RawsimError, match=f"spectra: 1 pixel\\(s\\) hold {why}"):
+            rawsim.unprocess_spectral(bad, nm, sensor, seed, iso=800)

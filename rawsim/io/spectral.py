@@ -119,7 +119,7 @@ def read_spectral(path: str | Path) -> SpectralScene:
         scene = _read_npz(path)
     else:
         scene = _read_exr(path)
-    return _checked(path, scene)
+    return checked(path, scene)
 
 
 def _read_npz(path: Path) -> SpectralScene:
@@ -276,8 +276,10 @@ def _read_exr(path: Path) -> SpectralScene:
     )
 
 
-def _checked(path: Path, scene: SpectralScene) -> SpectralScene:
-    """The scene's values checked, float32 and cropped to an even size."""
+def checked(path: Path | str, scene: SpectralScene) -> SpectralScene:
+    """The scene's values checked (its kind, wavelengths and size; no NaN, infinite or
+    negative value, in the spectra or the light), float32 and cropped to an even size;
+    errors name ``path`` (a file, or what the Python API was given)."""
     if scene.kind not in KINDS:
         raise UnsupportedInputError(
             f"{path}: unknown kind {scene.kind!r}: give one of {', '.join(KINDS)}"
