@@ -15,7 +15,8 @@ clean render:
 * ``bm3d``: the ``bm3d`` package (PyPI; a benchmark anchor only, not a dependency
   of rawsim, whose licence is not for shipping: ``pip install bm3d``) on each CFA
   plane after the same generalised Anscombe transform, with the same true
-  parameters and the same unbiased inverse;
+  parameters and the same unbiased inverse (an X-Trans mosaic is one plane, its
+  colour pattern taken out first as ``profiled`` takes it out);
 * ``bilateral``: rawsim's ``denoise`` stage on the mosaic planes, its range σ
   swept over 1, 2 and 3 × the noise σ at mid-grey and the best kept per image;
 * ``libraw -n T``: LibRaw's wavelet denoise (``dcraw_emu -n T``), T swept over
@@ -127,10 +128,13 @@ def learned(raw) -> np.ndarray:
 
 
 def bm3d_planes(raw) -> np.ndarray:
+    """BM3D on each CFA plane after the transform (a one-plane mosaic such as X-Trans:
+    with its colour pattern taken out first and put back after, as ``profiled`` does,
+    so that BM3D does not keep the pattern as detail, and the noise with it)."""
     import bm3d
     import torch
 
-    from rawsim.denoise.profiled import forward_vst, inverse_vst
+    from rawsim.denoise.profiled import colour_modulation, forward_vst, inverse_vst
 
     gain, offset = model_of(raw)
     x = normalised(raw)
@@ -139,8 +143,9 @@ def bm3d_planes(raw) -> np.ndarray:
     for oy, ox in offsets:
         plane = x[oy::step, ox::step]
         c = raw.cfa.color_at(int(oy), int(ox))
-        v = forward_vst(torch.from_numpy(plane), gain[c], offset[c]).numpy()
-        d = bm3d.bm3d(v, 1.0)
+        v = forward_vst(torch.from_numpy(plane), gain[c], offset[c])
+        pattern = 0.0 if raw.cfa.is_bayer else colour_modulation(v, raw.cfa).numpy()
+        d = bm3d.bm3d(v.numpy() - pattern, 1.0) + pattern
         out[oy::step, ox::step] = inverse_vst(torch.from_numpy(d), gain[c], offset[c]).numpy()
     return as_dn(raw, out)
 
