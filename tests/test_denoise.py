@@ -71,6 +71,11 @@ def test_the_noise_model_is_taken_in_order(tmp_path):
     assert tag.a[1] == pytest.approx(a, rel=1e-9) and tag.b[1] == pytest.approx(b, rel=1e-9)
     real = noise_model_for(read_raw(MLV))  # a Canon 60D: no profile, no tag
     assert real.source == "estimate" and real.a[1] > 0 and real.b[1] > 0
+    # the camera database's model is named beside the estimate, and taken when asked
+    assert "camera database's estimated model for the Canon EOS 60D" in real.detail
+    assert "(--noise-profile canon_eos_60d takes it)" in real.detail
+    database = noise_model_for(read_raw(MLV), "canon_eos_60d")
+    assert database.source == "profile" and f"K {database.a[1]:.4g} DN/e-" in real.detail
 
 
 def test_large_raws_are_estimated_on_a_centred_crop_of_whole_periods():
@@ -391,40 +396,70 @@ print((resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) * 1024 - 2 *
 
 
 # ------------------------------------------------------------------ learned
-def test_the_weights_load_from_the_package_and_are_not_pickle():
+@pytest.mark.parametrize("kind", ["bayer", "xtrans"])
+def test_the_weights_load_from_the_package_and_are_not_pickle(kind):
     from importlib import resources
 
-    from rawsim.denoise.learned import WEIGHTS, RefineNet, load_network
+    from rawsim.denoise.learned import INPUTS, WEIGHTS, RefineNet, load_network
 
-    path = resources.files("rawsim.denoise") / "weights" / WEIGHTS
+    path = resources.files("rawsim.denoise") / "weights" / WEIGHTS[kind]
     data = path.read_bytes()
     assert len(data) < 10 * 2**20
     header = json.loads(data[8 : 8 + int.from_bytes(data[:8], "little")])  # safetensors
-    net = load_network()
+    net = load_network(kind)
     assert set(header) - {"__metadata__"} == set(net.state_dict())
+    assert net.head[0].in_channels == INPUTS[kind]
     assert sum(p.numel() for p in net.parameters()) == sum(
-        p.numel() for p in RefineNet().parameters()
+        p.numel() for p in RefineNet(inputs=INPUTS[kind]).parameters()
     )
 
 
-def test_learned_tiles_give_the_whole_images_result(monkeypatch):
+def test_which_weights_serve_a_cfa_and_how_its_blocks_are_packed():
+    from rawsim.denoise.layout import BLOCK_SITES, packing, weights_kind
+    from rawsim.denoise.learned import plane_maps, site_inputs
+
+    assert weights_kind(CFA("GRBG")) == "bayer" and packing(CFA("GRBG"))[0] == (0, 1)
+    xtrans = CFA("XTRANS")
+    assert weights_kind(xtrans) == "xtrans" and packing(xtrans) == BLOCK_SITES
+    assert weights_kind(CFA("GRG/BGB/GRG")) is None
+    # an X-Trans block's colours follow the pattern, one packed period every 3 pixels
+    colours = np.array(xtrans.colors).reshape(6, 6)
+    maps = plane_maps(xtrans, colours, slice(1, 5), slice(2, 9))
+    for k, (r, c) in enumerate(BLOCK_SITES):
+        for i, y in enumerate(range(1, 5)):
+            for j, x in enumerate(range(2, 9)):
+                assert maps[k, i, j] == xtrans.color_at(2 * y + r, 2 * x + c)
+    g, o, onehot = site_inputs(xtrans, [1.0, 2.0, 3.0], [0.1, 0.2, 0.3], slice(0, 3), slice(0, 3))
+    assert onehot.shape == (12, 3, 3) and np.all(onehot.reshape(4, 3, 3, 3).sum(1) == 1)
+    expected = np.float32([1.0, 2.0, 3.0])[plane_maps(xtrans, colours, slice(0, 3), slice(0, 3))]
+    np.testing.assert_array_equal(g, expected)
+    g, o, onehot = site_inputs(
+        CFA("RGGB"), [1.0, 2.0, 3.0], [0.1, 0.2, 0.3], slice(0, 3), slice(0, 3)
+    )
+    assert onehot is None and g.ravel().tolist() == [1.0, 2.0, 2.0, 3.0]
+
+
+@pytest.mark.parametrize("pattern", ["RGGB", "XTRANS"])
+def test_learned_tiles_give_the_whole_images_result(monkeypatch, pattern):
     import rawsim.denoise.learned as learned
 
     rng = np.random.default_rng(2)
     noisy = torch.from_numpy(rng.random((1, 4, 300, 270), dtype=np.float32) * 0.3)
     estimate = noisy + 0.01
+    cfa = CFA(pattern)
     with torch.no_grad():
-        tiled = learned.refine(noisy, estimate, [2e-3] * 4, [2e-5] * 4)
+        tiled = learned.refine(noisy, estimate, cfa, [2e-3] * 3, [2e-5] * 3)
         monkeypatch.setattr(learned, "TILE", 4096)
-        whole = learned.refine(noisy, estimate, [2e-3] * 4, [2e-5] * 4)
+        whole = learned.refine(noisy, estimate, cfa, [2e-3] * 3, [2e-5] * 3)
     assert float((tiled - estimate).abs().max()) > 1e-3  # the network does something
     torch.testing.assert_close(tiled, whole, atol=1e-5, rtol=0)
 
 
-def test_learned_engine_equals_torch_and_beats_profiled(tmp_path):
+@pytest.mark.parametrize(("profile", "iso"), [("nikon_d850", 25600), ("fujifilm_xt3", 12800)])
+def test_learned_engine_equals_torch_and_beats_profiled(tmp_path, profile, iso):
     from rawsim.denoise.learned import learned_denoise, refine_mosaic
 
-    noisy, clean = _pair(tmp_path, load_profile("nikon_d850"), 25600)
+    noisy, clean = _pair(tmp_path, load_profile(profile), iso)
     gain, offset = _model(noisy)
     black = float(np.mean(noisy.black_level))
     estimate = denoise_mosaic(noisy.data, noisy.cfa, black, noisy.white_level, gain, offset)
@@ -439,12 +474,18 @@ def test_learned_engine_equals_torch_and_beats_profiled(tmp_path):
     assert gained > 0.2, gained
 
 
-def test_learned_on_x_trans_falls_back_to_profiled_with_a_warning(tmp_path):
+def test_learned_runs_on_x_trans_and_falls_back_only_where_no_weights_serve(tmp_path):
     from rawsim.pipelines.process import describe
 
     noisy, _ = _pair(tmp_path, load_profile("fujifilm_xt3"), 3200)
     config = IspConfig.default().override(denoise="learned")
-    assert any("--denoise profiled" in w for w in describe(noisy, config)["warnings"])
+    info = describe(noisy, config)
+    assert info["raw_denoise"] == "learned"
+    assert not any("--denoise profiled" in w for w in info["warnings"])
+    odd = replace(noisy, cfa=CFA("GRG/BGB/GRG"), black_level=float(np.mean(noisy.black_level)))
+    info = describe(odd, config)
+    assert info["raw_denoise"] == "profiled"
+    assert any("--denoise profiled" in w and "GRG/BGB/GRG" in w for w in info["warnings"])
 
 
 @pytest.mark.slow

@@ -15,6 +15,15 @@
    gives no line, the read noise alone is taken from the flattest blocks (the
    model is then signal-independent, and said so).
 
+The camera database's model for the raw's camera (:mod:`rawsim.cameras`; noise
+estimated from the pixel size for most cameras) is not taken by default: it is
+named beside the estimate (:func:`database_note`), and ``--noise-profile "MAKE
+MODEL"`` takes it. On the real raws of four older cameras (Canon EOS D30, PowerShot
+S40 and G2, Nikon D1), the database's gain was 0.05–0.25 × the raw's own fit, that
+is a full well of 228 000 e⁻ for the D30's 10.5 µm pixels and 40 000 e⁻ for the
+S40's 3.4 µm ones, where their fits give 32 000 and 6 400: the pixel-size law was
+fitted on modern sensors.
+
 A profile's figures are the affine variance of its noise model at the ISO
 (:meth:`~rawsim.noise.spec.NoiseLevels.affine_variance`: gain K, read, row and
 quantisation variance), in the profile's DN; a raw from the same camera has the
@@ -25,7 +34,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -93,7 +102,27 @@ def noise_model_for(raw: RawImage, profile: str | Path | None = None) -> NoiseMo
     tag = dng_noise_profile(raw)
     if tag is not None:
         return tag
-    return estimate(raw)
+    model = estimate(raw)
+    note = database_note(raw)
+    return model if note is None else replace(model, detail=f"{model.detail}; {note}")
+
+
+def database_note(raw: RawImage) -> str | None:
+    """What the camera database's model for ``raw``'s camera gives (gain K and read σ
+    at the raw's ISO, its kind) and how to take it instead, or None where the database
+    does not hold the camera or the raw records no ISO."""
+    from rawsim.cameras import find_camera
+
+    cam = find_camera(raw.make, raw.model)
+    if cam is None or not float(raw.iso or 0) > 0:
+        return None
+    name = cam.bundled or cam.name
+    model = _from_profile(raw, name, "profile")
+    return (
+        f"the camera database's {cam.noise_kind} model for the {cam.label} gives K "
+        f"{model.a[1]:.4g} DN/e-, read σ {math.sqrt(model.b[1]):.4g} DN "
+        f"(--noise-profile {name} takes it)"
+    )
 
 
 def camera_profile(raw: RawImage) -> str | None:
