@@ -182,13 +182,19 @@ def render(raw, data: np.ndarray | None = None) -> np.ndarray:
 
 def libraw_render(path: Path, threshold: float) -> np.ndarray:
     """LibRaw's render (``dcraw_emu``: camera white balance, sRGB, 16 bits, no
-    auto-brightening), with its wavelet denoise at ``threshold`` (0: none). A
-    separate process: rawpy's ``noise_thr`` corrupts the heap on these DNGs here."""
+    auto-brightening; AHD, or bilinear for an X-Trans mosaic smaller than its 3-pass
+    interpolation takes, as :func:`libraw_dng_render`), with its wavelet denoise at
+    ``threshold`` (0: none). A separate process: rawpy's ``noise_thr`` corrupts the
+    heap on these DNGs here."""
     import tifffile
 
+    raw = read_raw(path)
+    small_xtrans = raw.cfa.period == (6, 6) and min(raw.data.shape) < 512
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.tiff"
         cmd = ["dcraw_emu", "-w", "-6", "-W", "-T", "-Z", str(out), str(path)]
+        if small_xtrans:
+            cmd[1:1] = ["-q", "0"]
         if threshold:
             cmd[1:1] = ["-n", f"{threshold:g}"]
         subprocess.run(cmd, check=True, capture_output=True)

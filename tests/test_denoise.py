@@ -475,15 +475,15 @@ def test_learned_engine_equals_torch_and_beats_profiled(tmp_path, profile, iso):
 
 
 def test_learned_runs_on_x_trans_and_falls_back_only_where_no_weights_serve(tmp_path):
-    from rawsim.pipelines.process import describe
+    from rawsim.isp.config import resolve
 
     noisy, _ = _pair(tmp_path, load_profile("fujifilm_xt3"), 3200)
     config = IspConfig.default().override(denoise="learned")
-    info = describe(noisy, config)
+    info = resolve(config, noisy).info
     assert info["raw_denoise"] == "learned"
     assert not any("--denoise profiled" in w for w in info["warnings"])
     odd = replace(noisy, cfa=CFA("GRG/BGB/GRG"), black_level=float(np.mean(noisy.black_level)))
-    info = describe(odd, config)
+    info = resolve(config, odd).info
     assert info["raw_denoise"] == "profiled"
     assert any("--denoise profiled" in w and "GRG/BGB/GRG" in w for w in info["warnings"])
 

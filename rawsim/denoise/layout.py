@@ -1,6 +1,7 @@
-"""How the profiled denoiser reads a mosaic, torch-free (shared by the torch reference,
-:mod:`rawsim.denoise.profiled`, and the compiled engine, :mod:`rawsim.engine.denoise`):
-its planes, their colour mix, and the patch geometry."""
+"""How the denoisers read a mosaic, torch-free: the profiled one's planes, their colour
+mix and the patch geometry (shared by the torch reference, :mod:`rawsim.denoise.profiled`,
+and the compiled engine, :mod:`rawsim.engine.denoise`), and the learned one's packing and
+which weights serve a CFA (:mod:`rawsim.denoise.learned`)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ CHUNK = 64
 #: The first pass's hard threshold, in σ (chosen on photos outside the Kodak set:
 #: benchmarks/bench_denoise.py --tune).
 THRESHOLD = 2.5
+#: The sites of a 2 × 2 block, in the order of a non-Bayer mosaic's packed planes.
+BLOCK_SITES = ((0, 0), (0, 1), (1, 0), (1, 1))
 _R2 = 1 / math.sqrt(2.0)
 #: Bayer planes (R, G, G, B) → their mean, (R + B) − (G + G), R − B, G − G; orthonormal.
 BAYER_MIX = (
@@ -58,3 +61,24 @@ def modulation_pads(cfa: CFA) -> tuple[int, int, int, int]:
     (rows i − ph // 2 to i − ph // 2 + ph − 1, likewise columns)."""
     ph, pw = cfa.period
     return ph // 2, ph - 1 - ph // 2, pw // 2, pw - 1 - pw // 2
+
+
+def weights_kind(cfa: CFA) -> str | None:
+    """The key of :data:`rawsim.denoise.learned.WEIGHTS` that serves mosaics of ``cfa``:
+    ``bayer``, ``xtrans`` (any 6 × 6 pattern, X-Trans at any phase), or None (none do)."""
+    if cfa.is_bayer:
+        return "bayer"
+    return "xtrans" if cfa.period == (6, 6) else None
+
+
+def packing(cfa: CFA) -> tuple[tuple[int, int], ...]:
+    """(row, col) in its 2 × 2 block of each packed plane's site: a Bayer mosaic's R, Gr,
+    Gb and B (:attr:`CFA.packed_sites`), else :data:`BLOCK_SITES`."""
+    return cfa.packed_sites if cfa.is_bayer else BLOCK_SITES
+
+
+def pack(mosaic: np.ndarray, cfa: CFA) -> np.ndarray:
+    """A (H, W) mosaic's packed planes (4, H // 2, W // 2) (:func:`packing`); an odd
+    last row or column is left out."""
+    h, w = mosaic.shape[0] // 2, mosaic.shape[1] // 2
+    return np.stack([mosaic[r::2, c::2][:h, :w] for r, c in packing(cfa)])

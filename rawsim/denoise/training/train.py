@@ -1,17 +1,20 @@
 """Train :class:`rawsim.denoise.learned.RefineNet` on pairs rawsim makes, and write its weights.
 
-1. **Pairs.** ``rawsim unprocess --randomize --clean --format npz --wb-inverse safe``
-   (the shipped weights' inverse white balance, the default when they were made) turns each
+One set of weights per kind of mosaic (``--kind bayer|xtrans``, :data:`PROFILES`):
+
+1. **Pairs.** ``rawsim unprocess --randomize --clean --format npz`` turns each
    photo of ``--images`` (default: the photos vendored in tests/data: srgb,
-   srgb16 and exr, none from the Kodak set) into a noisy Bayer capture and its
-   noise-free twin, for every profile of :data:`PROFILES` and seed of
+   srgb16 and exr, none from the Kodak set) into a noisy capture and its
+   noise-free twin, for every profile of the kind's mix and seed of
    :data:`SEEDS`, at an ISO drawn log-uniformly from the profile's range cut to
    :data:`ISO_RANGE`, with the randomised ISP (colour matrix, white balance,
-   brightness, noise levels per file).
+   brightness, noise levels per file). The Bayer pairs take ``--wb-inverse safe``,
+   the inverse white balance of their time, so that they remake the shipped weights.
 2. **Estimates.** The compiled profiled denoiser (:func:`rawsim.engine.denoise.
    denoise_mosaic`) denoises each noisy capture with the noise model its DNG
    NoiseProfile would carry (the sidecar's).
-3. **Training.** Random 64×64 crops of packed planes, batches of 16, Adam
+3. **Training.** Random 64×64 crops of packed planes (:func:`rawsim.denoise.
+   learned.pack`), batches of 16, Adam
    (learning rate 1e-3, cosine decay to 1e-5), mean squared error in units of
    the model's σ at 10 % of white. Torch's generator is seeded with
    :data:`TRAIN_SEED`; a checkpoint (``checkpoint.pt`` in ``--work``) is written
@@ -21,6 +24,8 @@ The weights are written as safetensors to ``--out``.
 
     python -m rawsim.denoise.training.train --work /tmp/train --steps 6000 \\
         --out rawsim/denoise/weights/refine_bayer.safetensors
+    python -m rawsim.denoise.training.train --kind xtrans --work /tmp/train-xtrans \\
+        --out rawsim/denoise/weights/refine_xtrans.safetensors
 """
 
 from __future__ import annotations
@@ -37,32 +42,55 @@ import torch
 
 from rawsim.cameras.profiles import load_profile
 from rawsim.cfa import CFA
-from rawsim.denoise.learned import RefineNet, network_input
+from rawsim.denoise.layout import pack
+from rawsim.denoise.learned import (
+    INPUTS,
+    RefineNet,
+    network_input,
+    noise_scale,
+    site_inputs,
+)
 from rawsim.engine.denoise import denoise_mosaic
 
 ROOT = Path(__file__).resolve().parents[3]
-#: The Bayer profiles of the mix (the D800E's single ISO and the X-T3's X-Trans left out).
-PROFILES = (
-    "canon_eos_5d_mark_iv",
-    "canon_eos_700d",
-    "canon_eos_70d",
-    "nikon_d850",
-    "oppo_reno10x",
-    "sony_a7s2",
-    "sony_imx686",
-)
+#: The profiles of each kind's mix. Bayer: every bundled Bayer profile with more than one
+#: ISO (the D800E has one). X-Trans: the bundled X-T3 and six database X-Trans cameras,
+#: 12- and 14-bit, the pattern at three phases (X-T3's, X-Pro2's, XQ2's).
+PROFILES = {
+    "bayer": (
+        "canon_eos_5d_mark_iv",
+        "canon_eos_700d",
+        "canon_eos_70d",
+        "nikon_d850",
+        "oppo_reno10x",
+        "sony_a7s2",
+        "sony_imx686",
+    ),
+    "xtrans": (
+        "fujifilm_xt3",
+        "fujifilm_x_pro1",
+        "fujifilm_x_pro2",
+        "fujifilm_x_pro3",
+        "fujifilm_x100v",
+        "fujifilm_xq2",
+        "fujifilm_x_s20",
+    ),
+}
 SEEDS = (11, 12, 13, 14)
 ISO_RANGE = (200.0, 51200.0)
 TRAIN_SEED = 7
 CROP, BATCH = 64, 16
+#: The npz members of a pair.
+KEYS = ("mosaic", "clean")
 
 
 def default_images() -> list[Path]:
     return [ROOT / "tests" / "data" / d for d in ("srgb", "srgb16", "exr")]
 
 
-def make_pairs(images: list[Path], work: Path, profiles=PROFILES, seeds=SEEDS) -> None:
-    """Unprocess every photo for every profile and seed into ``work/pairs``."""
+def make_pairs(images: list[Path], work: Path, profiles, seeds=SEEDS, safe_wb=True) -> None:
+    """Unprocess every photo for every profile and seed into ``work/pairs``
+    (``safe_wb``: Brooks's inverse white balance, as the shipped Bayer weights had)."""
     for profile in profiles:
         lo, hi = load_profile(profile).iso_range
         iso = (max(lo, ISO_RANGE[0]), min(hi, ISO_RANGE[1]))
@@ -73,15 +101,16 @@ def make_pairs(images: list[Path], work: Path, profiles=PROFILES, seeds=SEEDS) -
             cmd = ["rawsim", "unprocess", *map(str, images), "-o", str(out), "--profile", profile]
             cmd += ["--iso-range", f"{iso[0]:g}", f"{iso[1]:g}", "--randomize", "--clean"]
             cmd += ["--format", "npz", "--seed", str(seed), "-q"]
-            # The shipped weights were trained on pairs made with Brooks's inverse white
-            # balance, unprocess's default until stop 57: kept, so this remakes them.
-            cmd += ["--wb-inverse", "safe"]
+            # The shipped Bayer weights were trained on pairs made with Brooks's inverse
+            # white balance, unprocess's default until stop 57: kept, so this remakes them.
+            cmd += ["--wb-inverse", "safe"] if safe_wb else []
             subprocess.run(cmd, check=True)
 
 
 def load_pairs(work: Path) -> list[dict]:
-    """Every pair as packed planes (4, h, w) float32, white = 1: noisy, profiled
-    estimate and clean, with the per-plane noise model."""
+    """Every pair as packed planes (4, h, w) float32, white = 1 (:func:`rawsim.denoise.
+    learned.packing`): noisy, profiled estimate and clean, with the CFA and the noise
+    model per colour."""
     pairs = []
     for npz in sorted((work / "pairs").rglob("*.npz")):
         meta = json.loads(npz.with_suffix(".json").read_text())
@@ -89,28 +118,27 @@ def load_pairs(work: Path) -> list[dict]:
         cfa = CFA(meta["cfa_pattern"])
         black, white = float(np.mean(meta["black_level"])), float(meta["white_level"])
         gain, offset = meta["noise"]["noise_profile"]
-        noisy, clean = z["mosaic"], z["clean"]
-        est = denoise_mosaic(cfa.unpack_array(noisy), cfa, black, white, [gain] * 3, [offset] * 3)
-        estimate = cfa.pack_array(est)
-        span = white - black
-
-        def to(a, black=black, span=span):
-            return torch.from_numpy((a.astype(np.float32) - black) / span)
-
+        # npz layout auto: Bayer captures are stored packed (4, h, w), others as the
+        # mosaic (1, H, W)
+        noisy, clean = (cfa.unpack_array(z[k]) if cfa.is_bayer else z[k][0] for k in KEYS)
+        estimate = denoise_mosaic(noisy, cfa, black, white, [gain] * 3, [offset] * 3)
+        pair = {
+            k: torch.from_numpy((pack(a, cfa).astype(np.float32) - black) / (white - black))
+            for k, a in (("noisy", noisy), ("estimate", estimate), ("clean", clean))
+        }
         pairs.append(
             {
-                "noisy": to(noisy),
-                "estimate": to(estimate),
-                "clean": to(clean),
-                "gain": [gain] * 4,
-                "offset": [offset] * 4,
+                **pair,
+                "cfa": cfa,
+                "gain": [gain] * 3,
+                "offset": [offset] * 3,
             }
         )
     return pairs
 
 
 def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(input (B, 12, 64, 64), target residual, scale (B, 1, 1, 1)) in noise units."""
+    """(input (B, 12 or 24, 64, 64), target residual, scale (B,)) in noise units."""
     areas = torch.tensor(
         [p["noisy"].shape[1] * p["noisy"].shape[2] for p in pairs], dtype=torch.float
     )
@@ -121,9 +149,13 @@ def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Te
         h, w = p["noisy"].shape[1:]
         y0 = int(torch.randint(0, h - CROP + 1, (1,), generator=g)) // 2 * 2
         x0 = int(torch.randint(0, w - CROP + 1, (1,), generator=g)) // 2 * 2
-        cut = (slice(None), slice(y0, y0 + CROP), slice(x0, x0 + CROP))
-        x, scale = network_input(
-            p["noisy"][cut][None], p["estimate"][cut][None], p["gain"], p["offset"]
+        rows, cols = slice(y0, y0 + CROP), slice(x0, x0 + CROP)
+        cut = (slice(None), rows, cols)
+        scale = noise_scale(p["cfa"], p["gain"], p["offset"])
+        gain, offset, colours = site_inputs(p["cfa"], p["gain"], p["offset"], rows, cols)
+        colours = None if colours is None else torch.from_numpy(colours)[None]
+        x = network_input(
+            p["noisy"][cut][None], p["estimate"][cut][None], gain, offset, scale, colours
         )
         xs.append(x)
         ys.append((p["clean"][cut] - p["estimate"][cut])[None] / scale)
@@ -131,10 +163,10 @@ def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Te
     return torch.cat(xs), torch.cat(ys), torch.tensor(scales)
 
 
-def train(pairs: list[dict], work: Path, steps: int, minutes: float) -> RefineNet:
+def train(pairs: list[dict], work: Path, steps: int, minutes: float, inputs: int) -> RefineNet:
     torch.manual_seed(TRAIN_SEED)
     g = torch.Generator().manual_seed(TRAIN_SEED)
-    net = RefineNet()
+    net = RefineNet(inputs=inputs)
     opt = torch.optim.Adam(net.parameters(), lr=1e-3)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=1e-5)
     start, ckpt = 0, work / "checkpoint.pt"
@@ -182,15 +214,18 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=6000)
     ap.add_argument("--minutes", type=float, default=0, help="stop (resumably) after this long")
     ap.add_argument("--out", type=Path, help="write the weights here (safetensors)")
-    ap.add_argument("--profiles", default=",".join(PROFILES), help="the profile mix")
+    ap.add_argument("--kind", choices=sorted(PROFILES), default="bayer", help="the mosaics served")
+    ap.add_argument("--profiles", help="the profile mix (default: the kind's, PROFILES)")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="unprocess seeds")
     args = ap.parse_args(argv)
     began = time.monotonic()
     seeds = [int(v) for v in args.seeds.split(",")]
-    make_pairs(args.images or default_images(), args.work, args.profiles.split(","), seeds)
+    profiles = args.profiles.split(",") if args.profiles else PROFILES[args.kind]
+    images = args.images or default_images()
+    make_pairs(images, args.work, profiles, seeds, safe_wb=args.kind == "bayer")
     pairs = load_pairs(args.work)
     print(f"{len(pairs)} pairs in {time.monotonic() - began:.0f} s", flush=True)
-    net = train(pairs, args.work, args.steps, args.minutes)
+    net = train(pairs, args.work, args.steps, args.minutes, INPUTS[args.kind])
     if args.out:
         from safetensors.torch import save_file
 
