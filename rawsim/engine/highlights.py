@@ -365,6 +365,7 @@ def _estimates(
     level,
     sats,
     slot,
+    sat_slot,
     tiles,
     hb,
     wb,
@@ -383,7 +384,8 @@ def _estimates(
     """Each clipped block's hue into ``shares`` (n, 3, TILE, TILE) and the least level
     its clipped colours allow into ``lows`` (n, TILE, TILE), for the n tiles listed in
     ``tiles`` (those that hold clipped sites; see :func:`_site_value`) of the Hb × Wb
-    blocks; ``sats``/``slot``: the fields' tables (:func:`_tile_sats`, :func:`_box`);
+    blocks; ``slot``: each tile's index in ``means`` and ``flags``; ``sats``/``sat_slot``:
+    the fields' tables and each tile's index there (:func:`_tile_sats`, :func:`_box`);
     ``level``: each colour's clip threshold (``HIGHLIGHT_CLIPPED`` × its level),
     ``margin``: ``HIGHLIGHT_WHITE_MARGIN``,
     ``prior``: ``HIGHLIGHT_HUE_PRIOR``, ``reach``: ``HIGHLIGHT_HUE_REACH``,
@@ -415,7 +417,7 @@ def _estimates(
                             low = max(low, _mean(means, slot, c, y, j) / third)
                         lows[n, y - y0, j - x0] = low
                         continue
-                    _scale_sums(sats, slot, y, j, hb, wb, scales, lam, acc, box, 0, 4)
+                    _scale_sums(sats, sat_slot, y, j, hb, wb, scales, lam, acc, box, 0, 4)
                     blown = f == 3 or f >= 5  # two colours clipped
                     for c in range(3):
                         hue[c] = np.float32(acc[c] / acc[3]) if acc[3] > 0 else third
@@ -434,7 +436,7 @@ def _estimates(
                     if blown and acc[3] > 0 and hue[1] <= min(hue[0], hue[2]):
                         # least green: a purple mixed from a border that disagrees?
                         kappa = kappa * _agreement(
-                            sats, slot, y, j, hb, wb, scales, lam, acc, box, spread_limit
+                            sats, sat_slot, y, j, hb, wb, scales, lam, acc, box, spread_limit
                         )
                     trust = np.float32(1.0)
                     if f == 1 or f == 2 or f == 4:  # one colour clipped: test the hue
@@ -648,6 +650,49 @@ def _write(raw, out, site, scale, black, span, applied, threads):
                                 out[y, x] = np.uint16(min(max(np.rint(dn), 0.0), 65535.0))
             tops[n] = top
     return tops.max()
+
+
+def _bordered(flags, clipped, slot, hb: int, wb: int, border: int) -> np.ndarray:
+    """(Th, Tw) bool: the tiles that may hold a border block (:func:`_tile_sats`), those
+    with a clipped block within ``border`` blocks of theirs (``border`` < ``TILE``, so
+    of their own or their eight neighbours'); the others' tables would be zeros. From
+    the extent of each clipped tile's clipped blocks (``flags``, ``slot`` as
+    :func:`_blocks` gives them; blocks beyond Hb × Wb are not read)."""
+    t = TILE
+    th, tw = clipped.shape
+    at = np.argwhere(clipped)
+    inside = ((at[:, :1] * t + np.arange(t)) < hb)[:, :, None] & (
+        (at[:, 1:] * t + np.arange(t)) < wb
+    )[:, None, :]
+    hit = (flags[slot[at[:, 0], at[:, 1]]] != 0) & inside  # (m, TILE, TILE)
+    rows, cols = hit.any(2), hit.any(1)
+    some = rows.any(1)
+    far = np.iinfo(np.int64).max // 4
+    extent = np.full((4, th + 2, tw + 2), far, np.int64)  # first row, -last row, same cols
+    extent[:, at[:, 0] + 1, at[:, 1] + 1] = np.where(
+        some,
+        np.stack(
+            [
+                at[:, 0] * t + rows.argmax(1),
+                -(at[:, 0] * t + t - 1 - rows[:, ::-1].argmax(1)),
+                at[:, 1] * t + cols.argmax(1),
+                -(at[:, 1] * t + t - 1 - cols[:, ::-1].argmax(1)),
+            ]
+        ),
+        far,
+    )
+    ti, tj = np.meshgrid(np.arange(th), np.arange(tw), indexing="ij")
+    out = np.zeros((th, tw), bool)
+    for dy in range(3):
+        for dx in range(3):
+            first_r, last_r, first_c, last_c = extent[:, dy : dy + th, dx : dx + tw]
+            out |= (
+                (first_r <= ti * t + t - 1 + border)
+                & (-last_r >= ti * t - border)
+                & (first_c <= tj * t + t - 1 + border)
+                & (-last_c >= tj * t - border)
+            )
+    return out
 
 
 def _around(tiles: np.ndarray) -> np.ndarray:
@@ -872,8 +917,12 @@ def reconstruct_mosaic(
     means = np.empty((len(listed), 3, t, t), np.float32)
     flags = np.empty((len(listed), t, t), np.uint8)
     _blocks(data, cmap, slots, table, level, b, listed, hb, wb, means, flags, threads)
+    # tables only where a border block may lie: elsewhere they would be zeros
+    bordered = _tile_list(_bordered(flags, clipped, slot, hb, wb, HIGHLIGHT_BORDER) & (slot >= 0))
+    sat_slot = np.full(clipped.shape, -1, np.int64)
+    sat_slot[bordered[:, 0], bordered[:, 1]] = np.arange(len(bordered))
     sats = _tile_sats(
-        means, flags, slot, g, listed, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
+        means, flags, slot, g, bordered, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
     )
     tiles = _tile_list(clipped)
     shares = np.zeros((len(tiles), 3, t, t), np.float32)
@@ -884,6 +933,7 @@ def reconstruct_mosaic(
         level,
         sats,
         slot,
+        sat_slot,
         tiles,
         hb,
         wb,
