@@ -1123,3 +1123,34 @@ def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inve
         assert np.abs(error).max() < 1.5, error
     else:
         assert error[1] < -4.0, error
+
+
+def test_hue_tables_only_for_tiles_a_border_can_reach():
+    """The engine builds border tables only for tiles with a clipped block within
+    HIGHLIGHT_BORDER blocks: a clipped block mid-tile, or that many blocks inside its
+    tile's edge, needs its own tile's alone; one nearer the edge also the neighbour
+    across it, and one at a corner the three tiles around it."""
+    from rawsim.engine.highlights import TILE, _bordered
+    from rawsim.isp.config import HIGHLIGHT_BORDER as B
+
+    hb = wb = 3 * TILE
+    clipped = np.zeros((3, 3), np.uint8)
+    clipped[1, 1] = 1
+    slot = np.full((3, 3), -1, np.int64)
+    slot[1, 1] = 0
+
+    def tables(i, j):
+        flags = np.zeros((1, TILE, TILE), np.uint8)
+        flags[0, i, j] = 2
+        return _bordered(flags, clipped, slot, hb, wb, B).astype(int)
+
+    alone = np.zeros((3, 3), int)
+    alone[1, 1] = 1
+    assert np.array_equal(tables(TILE // 2, TILE // 2), alone)
+    assert np.array_equal(tables(TILE // 2, B), alone)  # its border stops short of the edge
+    left = alone.copy()
+    left[1, 0] = 1
+    assert np.array_equal(tables(TILE // 2, B - 1), left)
+    corner = alone.copy()
+    corner[2, 1] = corner[1, 2] = corner[2, 2] = 1
+    assert np.array_equal(tables(TILE - 1, TILE - 1), corner)
