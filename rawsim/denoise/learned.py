@@ -95,10 +95,9 @@ class RefineNet(nn.Module):
 
 
 def period_values(cfa: CFA, values) -> list[float]:
-    """Per-colour ``values`` (R, G, B) at each site of one period: the packed planes'
-    order for Bayer (one period is one packed pixel), else row-major."""
-    sites = cfa.packed_sites if cfa.is_bayer else cfa.phase_sites
-    return [values[cfa.color_at(*site)] for site in sites]
+    """Per-colour ``values`` (R, G, B) at each site of one period, in the order of
+    :attr:`CFA.phase_sites` (for Bayer, the packed planes')."""
+    return [values[cfa.color_at(*site)] for site in cfa.phase_sites]
 
 
 def noise_scale(cfa: CFA, gain, offset) -> float:

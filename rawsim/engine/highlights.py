@@ -667,30 +667,32 @@ def _bordered(flags, clipped, slot, hb: int, wb: int, border: int) -> np.ndarray
     hit = (flags[slot[at[:, 0], at[:, 1]]] != 0) & inside  # (m, TILE, TILE)
     rows, cols = hit.any(2), hit.any(1)
     some = rows.any(1)
+    # each tile's first and last clipped block row and column, padded by a tile of
+    # none (first beyond every tile, last before every one) on each side
     far = np.iinfo(np.int64).max // 4
-    extent = np.full((4, th + 2, tw + 2), far, np.int64)  # first row, -last row, same cols
-    extent[:, at[:, 0] + 1, at[:, 1] + 1] = np.where(
-        some,
-        np.stack(
-            [
-                at[:, 0] * t + rows.argmax(1),
-                -(at[:, 0] * t + t - 1 - rows[:, ::-1].argmax(1)),
-                at[:, 1] * t + cols.argmax(1),
-                -(at[:, 1] * t + t - 1 - cols[:, ::-1].argmax(1)),
-            ]
-        ),
-        far,
+    first = np.full((2, th + 2, tw + 2), far, np.int64)
+    last = np.full((2, th + 2, tw + 2), -far, np.int64)
+    at0, at1 = at[:, 0] * t, at[:, 1] * t
+    first[:, at[:, 0] + 1, at[:, 1] + 1] = np.where(
+        some, np.stack([at0 + rows.argmax(1), at1 + cols.argmax(1)]), far
     )
-    ti, tj = np.meshgrid(np.arange(th), np.arange(tw), indexing="ij")
+    last[:, at[:, 0] + 1, at[:, 1] + 1] = np.where(
+        some,
+        np.stack([at0 + t - 1 - rows[:, ::-1].argmax(1), at1 + t - 1 - cols[:, ::-1].argmax(1)]),
+        -far,
+    )
+    ti, tj = np.meshgrid(np.arange(th) * t, np.arange(tw) * t, indexing="ij")  # first blocks
     out = np.zeros((th, tw), bool)
     for dy in range(3):
         for dx in range(3):
-            first_r, last_r, first_c, last_c = extent[:, dy : dy + th, dx : dx + tw]
+            (first_r, first_c), (last_r, last_c) = (
+                a[:, dy : dy + th, dx : dx + tw] for a in (first, last)
+            )
             out |= (
-                (first_r <= ti * t + t - 1 + border)
-                & (-last_r >= ti * t - border)
-                & (first_c <= tj * t + t - 1 + border)
-                & (-last_c >= tj * t - border)
+                (first_r <= ti + t - 1 + border)
+                & (last_r >= ti - border)
+                & (first_c <= tj + t - 1 + border)
+                & (last_c >= tj - border)
             )
     return out
 
@@ -980,9 +982,9 @@ def reconstruct_mosaic(
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _unclip(raw, out, codes, b, hb, wb, tiles, scale, dn, threads):
-    """``unclip``'s raised sites into ``out`` (DN, rounded; it already holds every site, scaled
-    by ``scale`` about its black level), in the n tiles listed in ``tiles`` (n, 2) of
-    the Hb × Wb whole b × b blocks. ``codes``: (cmap, slots, table, level) of
+    """``unclip``'s raised sites into ``out`` (DN, rounded; it already holds every site,
+    scaled by ``scale`` about its black level), in the n tiles listed in ``tiles`` (n,
+    2) of the Hb × Wb whole b × b blocks. ``codes``: (cmap, slots, table, level) of
     :func:`_clip_codes` (at ``HIGHLIGHT_UNCLIP_CLIPPED``), the sites' values read from
     ``table`` (a row per levels slot); ``dn``: (black, span, applied) of
     :func:`_dn_numbers`. In each block the colours with a site at or above ``level``

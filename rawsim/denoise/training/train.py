@@ -14,7 +14,7 @@ One set of weights per kind of mosaic (``--kind bayer|xtrans``, :data:`PROFILES`
    denoise_mosaic`) denoises each noisy capture with the noise model its DNG
    NoiseProfile would carry (the sidecar's).
 3. **Training.** Random 64×64 crops of packed planes (:func:`rawsim.denoise.
-   learned.pack`), batches of 16, Adam
+   layout.pack`), batches of 16, Adam
    (learning rate 1e-3, cosine decay to 1e-5), mean squared error in units of
    the model's σ at 10 % of white. Torch's generator is seeded with
    :data:`TRAIN_SEED`; a checkpoint (``checkpoint.pt`` in ``--work``) is written
@@ -109,8 +109,9 @@ def make_pairs(images: list[Path], work: Path, profiles, seeds=SEEDS, safe_wb=Tr
 
 def load_pairs(work: Path) -> list[dict]:
     """Every pair as packed planes (4, h, w) float32, white = 1 (:func:`rawsim.denoise.
-    learned.packing`): noisy, profiled estimate and clean, with the CFA and the noise
-    model per colour."""
+    layout.pack`): noisy, profiled estimate and clean, with the CFA, the noise model per
+    colour and the scale of the network's inputs (:func:`~rawsim.denoise.learned.
+    noise_scale`)."""
     pairs = []
     for npz in sorted((work / "pairs").rglob("*.npz")):
         meta = json.loads(npz.with_suffix(".json").read_text())
@@ -132,6 +133,7 @@ def load_pairs(work: Path) -> list[dict]:
                 "cfa": cfa,
                 "gain": [gain] * 3,
                 "offset": [offset] * 3,
+                "scale": noise_scale(cfa, [gain] * 3, [offset] * 3),
             }
         )
     return pairs
@@ -151,7 +153,7 @@ def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Te
         x0 = int(torch.randint(0, w - CROP + 1, (1,), generator=g)) // 2 * 2
         rows, cols = slice(y0, y0 + CROP), slice(x0, x0 + CROP)
         cut = (slice(None), rows, cols)
-        scale = noise_scale(p["cfa"], p["gain"], p["offset"])
+        scale = p["scale"]
         gain, offset, colours = site_inputs(p["cfa"], p["gain"], p["offset"], rows, cols)
         colours = None if colours is None else torch.from_numpy(colours)[None]
         x = network_input(
