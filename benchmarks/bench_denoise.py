@@ -40,6 +40,7 @@ mosaic, on this machine (printed first).
     python benchmarks/bench_denoise.py --images /path/to/kodak
     python benchmarks/bench_denoise.py --tune                # the threshold, on other photos
     python benchmarks/bench_denoise.py --dng                 # --format dng through LibRaw
+    python benchmarks/bench_denoise.py --images DIR --profiles sony_imx686:physics --isos 3200
 
 ``--tune`` sweeps the first pass's threshold on the vendored photos of
 tests/data/srgb (not Kodak), so that the table's photos play no part in choosing it.
@@ -70,8 +71,11 @@ OTHER = HERE / "tests" / "data" / "srgb"
 
 
 def unprocess(images: Path, out: Path, profile: str, iso: int) -> list[tuple[Path, Path]]:
-    """(noisy, clean) DNG pairs of every photo in ``images``."""
-    cmd = ["rawsim", "unprocess", str(images), "-o", str(out), "--profile", profile]
+    """(noisy, clean) DNG pairs of every photo in ``images``; ``profile`` is a name, or
+    ``NAME:NOISE`` with unprocess's ``--noise`` model (default Poisson-Gaussian)."""
+    name, _, noise = profile.partition(":")
+    cmd = ["rawsim", "unprocess", str(images), "-o", str(out), "--profile", name]
+    cmd += ["--noise", noise or "poisson-gaussian"]
     cmd += ["--iso", str(iso), "--clean", "--seed", "1", "-q"]
     subprocess.run(cmd, check=True)
     return [
@@ -546,7 +550,7 @@ def dng_out(images: Path, profiles: list[str], isos: list[int]) -> None:
 
     print("--format dng through LibRaw: render PSNR gain over the noisy DNG (dB), mean (worst)")
     for profile in profiles:
-        low, high = load_profile(profile).iso_range
+        low, high = load_profile(profile.partition(":")[0]).iso_range
         for iso in [i for i in isos if low <= i <= high]:
             with tempfile.TemporaryDirectory() as tmp:
                 pairs = unprocess(images, Path(tmp) / "raw", profile, iso)
@@ -572,7 +576,11 @@ def dng_out(images: Path, profiles: list[str], isos: list[int]) -> None:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--images", type=Path, default=KODAK, help="folder of photos")
-    ap.add_argument("--profiles", default="nikon_d850,sony_a7s2")
+    ap.add_argument(
+        "--profiles",
+        default="nikon_d850,sony_a7s2",
+        help="profile names, each NAME or NAME:NOISE (unprocess --noise, e.g. sony_imx686:physics)",
+    )
     ap.add_argument("--isos", default="1600,6400,25600")
     ap.add_argument("--libraw-thresholds", default="50,100,200,400,800")
     ap.add_argument("--tune", action="store_true", help="sweep the threshold on non-Kodak photos")
