@@ -54,8 +54,9 @@ from rawsim.engine.denoise import denoise_mosaic
 ROOT = Path(__file__).resolve().parents[3]
 #: The profiles of each kind's mix. Bayer: every bundled Bayer profile with more than one
 #: ISO (the D800E has one), and four database cameras of other sensor sizes and bit
-#: depths (full frame, Micro Four Thirds, 1 inch). X-Trans: the bundled X-T3 and six database X-Trans cameras,
-#: 12- and 14-bit, the pattern at three phases (X-T3's, X-Pro2's, XQ2's).
+#: depths (full frame, Micro Four Thirds, 1 inch). X-Trans: the bundled X-T3 and six
+#: database X-Trans cameras, 12- and 14-bit, the pattern at three phases (X-T3's,
+#: X-Pro2's, XQ2's).
 PROFILES = {
     "bayer": (
         "canon_eos_5d_mark_iv",
