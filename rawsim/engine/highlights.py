@@ -759,18 +759,18 @@ def _clip_codes(data, cfa: CFA, ops, opf, g, clipped: float = HIGHLIGHT_CLIPPED)
 def _green_near(raw, lines, threads):
     """(H, W) uint8, 1 within 1 px (3 × 3, inside the image) of a site at or above its
     code in ``lines`` (:func:`_clip_codes`), and (H,) uint8, whether each row has any.
-    One comparison per site finds the rows that hold such a site, and keeps each such
-    row's hits spread a column either way; a row beside any ORs those of its (up to)
-    three neighbours, so no site is compared twice."""
+    One comparison per site finds the rows that hold such a site; only the rows
+    beside them are marked (each ORs its three source rows' hits, then spreads them
+    a column either way)."""
     h, w = raw.shape
     ph = lines.shape[0]
     near = np.zeros((h, w), np.uint8)
-    spread = np.empty((h, w), np.uint8)  # written and read only where hits[y]
     hits, rows = np.zeros(h, np.uint8), np.zeros(h, np.uint8)
     band = 64
     for step in range(2):
         counter = np.zeros(1, np.int64)  # the next band of rows (rawsim.engine.tiles)
         for _ in prange(threads):
+            hit = np.empty(w, np.uint8)
             while True:
                 k = next_tile(counter)
                 if k * band >= h:
@@ -781,24 +781,19 @@ def _green_near(raw, lines, threads):
                         for x in range(w):
                             any_ |= np.int32(src[x]) >= line[x]
                         hits[y] = any_
-                        if any_:
-                            out = spread[y]
-                            for x in range(w):
-                                out[x] = (
-                                    (np.int32(src[x]) >= line[x])
-                                    | (np.int32(src[max(x - 1, 0)]) >= line[max(x - 1, 0)])
-                                    | (np.int32(src[min(x + 1, w - 1)]) >= line[min(x + 1, w - 1)])
-                                )
                         continue
                     y0, y1 = max(0, y - 1), min(h, y + 2)
                     if not hits[y0:y1].any():
                         continue
-                    row = near[y]
+                    for x in range(w):
+                        hit[x] = 0
                     for yy in range(y0, y1):
-                        if hits[yy]:
-                            src = spread[yy]
-                            for x in range(w):
-                                row[x] |= src[x]
+                        line, src = lines[yy % ph], raw[yy]
+                        for x in range(w):
+                            hit[x] |= np.int32(src[x]) >= line[x]
+                    row = near[y]
+                    for x in range(w):
+                        row[x] = hit[x] | hit[max(x - 1, 0)] | hit[min(x + 1, w - 1)]
                     rows[y] = 1
     return near, rows
 
