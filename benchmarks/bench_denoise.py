@@ -184,20 +184,26 @@ def render(raw, data: np.ndarray | None = None) -> np.ndarray:
     return samples.astype(np.float64) / 65535
 
 
+def libraw_bilinear(period: tuple[int, int], shape: tuple[int, ...]) -> bool:
+    """Whether LibRaw must take its bilinear demosaic for a mosaic of ``period`` and
+    ``shape``: an X-Trans one smaller than its 3-pass interpolation takes (it writes
+    nothing for the 256-pixel Kodak crops)."""
+    return tuple(period) == (6, 6) and min(shape) < 512
+
+
 def libraw_render(path: Path, threshold: float) -> np.ndarray:
     """LibRaw's render (``dcraw_emu``: camera white balance, sRGB, 16 bits, no
-    auto-brightening; AHD, or bilinear for an X-Trans mosaic smaller than its 3-pass
-    interpolation takes, as :func:`libraw_dng_render`), with its wavelet denoise at
-    ``threshold`` (0: none). A separate process: rawpy's ``noise_thr`` corrupts the
-    heap on these DNGs here."""
+    auto-brightening; AHD, or bilinear where :func:`libraw_bilinear` says so), with its
+    wavelet denoise at ``threshold`` (0: none). A separate process: rawpy's
+    ``noise_thr`` corrupts the heap on these DNGs here."""
     import tifffile
 
     raw = read_raw(path)
-    small_xtrans = raw.cfa.period == (6, 6) and min(raw.data.shape) < 512
+    bilinear = libraw_bilinear(raw.cfa.period, raw.data.shape)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.tiff"
         cmd = ["dcraw_emu", "-w", "-6", "-W", "-T", "-Z", str(out), str(path)]
-        if small_xtrans:
+        if bilinear:
             cmd[1:1] = ["-q", "0"]
         if threshold:
             cmd[1:1] = ["-n", f"{threshold:g}"]
@@ -525,14 +531,12 @@ def speed(profile: str = "nikon_d850", repeats: int = 3) -> None:
 
 def libraw_dng_render(path: Path) -> np.ndarray:
     """LibRaw's render through rawpy: camera white balance, sRGB, 16 bits, no
-    auto-brightening; AHD, or for an X-Trans mosaic smaller than LibRaw's 3-pass
-    interpolation takes (it fails on the 256-pixel Kodak crops, as ``dcraw_emu``
-    does), its bilinear one."""
+    auto-brightening; AHD, or bilinear where :func:`libraw_bilinear` says so."""
     import rawpy
 
     with rawpy.imread(str(path)) as raw:
         algorithm = rawpy.DemosaicAlgorithm.AHD
-        if raw.raw_pattern.shape == (6, 6) and min(raw.raw_image.shape) < 512:
+        if libraw_bilinear(raw.raw_pattern.shape, raw.raw_image.shape):
             algorithm = rawpy.DemosaicAlgorithm.LINEAR
         rgb = raw.postprocess(
             demosaic_algorithm=algorithm, use_camera_wb=True, no_auto_bright=True, output_bps=16
@@ -599,6 +603,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     print("\n".join(describe()), flush=True)
     profiles = args.profiles.split(",")
+    given = "--profiles" in (argv if argv is not None else sys.argv)  # else the mode's own
     isos = [int(v) for v in args.isos.split(",")]
     if args.tune:
         tune(profiles, isos)
@@ -607,13 +612,11 @@ def main(argv=None) -> None:
         figures(args.figures)
         return
     if args.speed:
-        given = "--profiles" in (argv if argv is not None else sys.argv)
         for profile in profiles if given else ["nikon_d850"]:
             print(profile)
             speed(profile)
         return
     if args.dng:
-        given = "--profiles" in (argv if argv is not None else sys.argv)
         dng_out(args.images, profiles if given else ["nikon_d850", "fujifilm_xt3"], isos)
         return
     thresholds = [float(v) for v in args.libraw_thresholds.split(",")]

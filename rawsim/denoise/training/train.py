@@ -135,11 +135,11 @@ def load_pairs(work: Path) -> list[dict]:
         z = np.load(npz)
         cfa = CFA(meta["cfa_pattern"])
         black, white = float(np.mean(meta["black_level"])), float(meta["white_level"])
-        gain, offset = meta["noise"]["noise_profile"]
+        gain, offset = ([v] * 3 for v in meta["noise"]["noise_profile"])  # per colour
         # npz layout auto: Bayer captures are stored packed (4, h, w), others as the
         # mosaic (1, H, W)
         noisy, clean = (cfa.unpack_array(z[k]) if cfa.is_bayer else z[k][0] for k in KEYS)
-        estimate = denoise_mosaic(noisy, cfa, black, white, [gain] * 3, [offset] * 3)
+        estimate = denoise_mosaic(noisy, cfa, black, white, gain, offset)
         pair = {
             k: torch.from_numpy((pack(a, cfa).astype(np.float32) - black) / (white - black)).to(
                 dtype
@@ -154,21 +154,21 @@ def load_pairs(work: Path) -> list[dict]:
             {
                 **pair,
                 "cfa": cfa,
-                "gain": [gain] * 3,
-                "offset": [offset] * 3,
-                "scale": noise_scale(cfa, [gain] * 3, [offset] * 3),
+                "gain": gain,
+                "offset": offset,
+                "scale": noise_scale(cfa, gain, offset),
             }
         )
     return pairs
 
 
-def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(input (B, 12 or 24, 64, 64), target residual, scale (B,)) in noise units."""
+def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """(input (B, 12 or 24, 64, 64), target residual (B, 4, 64, 64)) in noise units."""
     areas = torch.tensor(
         [p["noisy"].shape[1] * p["noisy"].shape[2] for p in pairs], dtype=torch.float
     )
     picks = torch.multinomial(areas, BATCH, replacement=True, generator=g)
-    xs, ys, scales = [], [], []
+    xs, ys = [], []
     for i in picks.tolist():
         p = pairs[i]
         h, w = p["noisy"].shape[1:]
@@ -182,8 +182,7 @@ def batch(pairs: list[dict], g: torch.Generator) -> tuple[torch.Tensor, torch.Te
         noisy, estimate = (p[k][cut][None].float() for k in ("noisy", "estimate"))
         xs.append(network_input(noisy, estimate, gain, offset, scale, colours))
         ys.append((p["clean"][cut][None] - estimate) / scale)
-        scales.append(scale)
-    return torch.cat(xs), torch.cat(ys), torch.tensor(scales)
+    return torch.cat(xs), torch.cat(ys)
 
 
 def train(pairs: list[dict], work: Path, steps: int, minutes: float, inputs: int) -> RefineNet:
@@ -203,7 +202,7 @@ def train(pairs: list[dict], work: Path, steps: int, minutes: float, inputs: int
         print(f"resumed at step {start}", flush=True)
     began, running = time.monotonic(), None
     for step in range(start, steps):
-        x, y, _ = batch(pairs, g)
+        x, y = batch(pairs, g)
         loss = torch.nn.functional.mse_loss(net(x), y)
         opt.zero_grad()
         loss.backward()
