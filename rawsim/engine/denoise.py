@@ -416,17 +416,54 @@ def colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threa
     colour over the (ph, pw) box from ``top`` rows above and ``left`` columns left
     of it, less the mean of all sites there, the mosaic mirrored at its edges
     (:func:`_reflect`). Bands of rows go to the threads as they finish one: each
-    forms its rows' sums along rows (float64), then adds ``ph`` of them."""
+    forms its rows' sums along rows (float64, each colour's masked values added in
+    column order), then adds ``ph`` of them. The per-site lookups of a row phase,
+    and how many sites of each colour a row's ``pw`` columns hold (the mirror at the
+    edges breaks the period), are tables made once, so the loops run without
+    branches or divisions of indices."""
     h, w = raw.shape
     ph, pw = colors.shape
     band = 32
+    n = w + pw - 1
+    xs = np.empty(n, np.int64)  # the mirrored column of each padded column
+    for xx in range(n):
+        xs[xx] = _reflect(xx - left, w)
+    # per row phase and padded column: colour, black, span, gain and offset
+    kind = np.empty((ph, n), np.int64)
+    lows = np.empty((ph, n), np.float32)
+    spans = np.empty((ph, n), np.float32)
+    gains = np.empty((ph, n), np.float32)
+    offsets = np.empty((ph, n), np.float32)
+    for sy in range(ph):
+        for xx in range(n):
+            sx = xs[xx] % pw
+            col = colors[sy, sx]
+            kind[sy, xx] = col
+            lows[sy, xx], spans[sy, xx] = black[sy, sx], span[sy, sx]
+            gains[sy, xx], offsets[sy, xx] = gain[col], offset[col]
+    counts = np.zeros((ph, 3, w), np.float64)  # each colour's sites in a row's pw columns
+    for sy in range(ph):
+        for x in range(w):
+            for d in range(pw):
+                counts[sy, kind[sy, x + d], x] += 1.0
+    full = np.zeros((3, w), np.float64)  # those of a box of ph unmirrored rows
+    for sy in range(ph):
+        for c in range(3):
+            for x in range(w):
+                full[c, x] += counts[sy, c, x]
+    own_row = np.empty((ph, w), np.int64)  # the colour of each output site
+    for sy in range(ph):
+        for x in range(w):
+            own_row[sy, x] = colors[sy, x % pw]
+    whole = np.float64(ph * pw)
     counter = np.zeros(1, np.int64)  # the next band (rawsim.engine.tiles)
     for _ in prange(threads):
         rows = band + ph - 1
         sums = np.empty((rows, 4, w), np.float64)  # R, G, B, all: sums along a row
-        counts = np.empty((rows, 3, w), np.float64)
-        line = np.empty(w + pw - 1, np.float32)
-        kind = np.empty(w + pw - 1, np.int64)
+        line = np.empty(n, np.float32)
+        masked = np.empty((4, n), np.float64)  # a row's values, each colour's alone
+        totals = np.empty((4, w), np.float64)
+        phases = np.empty(rows, np.int64)  # the row phase of each of a band's rows
         while True:
             k = next_tile(counter)
             y0 = k * band
@@ -435,41 +472,43 @@ def colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threa
             y1 = min(h, y0 + band)
             for rr in range(y1 - y0 + ph - 1):
                 src = _reflect(y0 - top + rr, h)
-                for xx in range(w + pw - 1):
-                    x = _reflect(xx - left, w)
-                    sy, sx = src % ph, x % pw
-                    col = colors[sy, sx]
-                    v = (np.float32(raw[src, x]) - black[sy, sx]) / span[sy, sx]
-                    line[xx] = _forward_vst(v, gain[col], offset[col])
-                    kind[xx] = col
-                for x in range(w):
-                    s0 = s1 = s2 = s3 = 0.0
-                    n0 = n1 = n2 = 0.0
+                sy = src % ph
+                phases[rr] = sy
+                for xx in range(n):  # the gather apart, so the transform vectorises
+                    line[xx] = np.float32(raw[src, xs[xx]])
+                for xx in range(n):
+                    v = (line[xx] - lows[sy, xx]) / spans[sy, xx]
+                    value = np.float64(_forward_vst(v, gains[sy, xx], offsets[sy, xx]))
+                    col = kind[sy, xx]
+                    masked[0, xx] = value if col == 0 else 0.0
+                    masked[1, xx] = value if col == 1 else 0.0
+                    masked[2, xx] = value if col == 2 else 0.0
+                    masked[3, xx] = value
+                for c in range(4):
+                    for x in range(w):
+                        sums[rr, c, x] = 0.0
                     for d in range(pw):
-                        value = np.float64(line[x + d])
-                        s3 += value
-                        col = kind[x + d]
-                        if col == 0:
-                            s0 += value
-                            n0 += 1.0
-                        elif col == 1:
-                            s1 += value
-                            n1 += 1.0
-                        else:
-                            s2 += value
-                            n2 += 1.0
-                    sums[rr, 0, x], sums[rr, 1, x], sums[rr, 2, x] = s0, s1, s2
-                    sums[rr, 3, x] = s3
-                    counts[rr, 0, x], counts[rr, 1, x], counts[rr, 2, x] = n0, n1, n2
+                        for x in range(w):
+                            sums[rr, c, x] += masked[c, x + d]
             for y in range(y0, y1):
-                for x in range(w):
-                    col = colors[y % ph, x % pw]
-                    own, n, everything = 0.0, 0.0, 0.0
+                for c in range(4):
+                    for x in range(w):
+                        totals[c, x] = 0.0
                     for d in range(ph):
-                        own += sums[y - y0 + d, col, x]
-                        n += counts[y - y0 + d, col, x]
-                        everything += sums[y - y0 + d, 3, x]
-                    out[y, x] = np.float32(own / n - everything / (ph * pw))
+                        for x in range(w):
+                            totals[c, x] += sums[y - y0 + d, c, x]
+                sy = y % ph
+                if top <= y < h - (ph - 1 - top):  # its box's rows are ph unmirrored ones
+                    for x in range(w):
+                        col = own_row[sy, x]
+                        out[y, x] = np.float32(totals[col, x] / full[col, x] - totals[3, x] / whole)
+                    continue
+                for x in range(w):
+                    col = own_row[sy, x]
+                    many = 0.0
+                    for d in range(ph):
+                        many += counts[phases[y - y0 + d], col, x]
+                    out[y, x] = np.float32(totals[col, x] / many - totals[3, x] / whole)
 
 
 def _pattern(raw, cfa: CFA, black, span, gain, offset) -> np.ndarray:
