@@ -464,6 +464,7 @@ def colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threa
         masked = np.empty((4, n), np.float64)  # a row's values, each colour's alone
         totals = np.empty((4, w), np.float64)
         phases = np.empty(rows, np.int64)  # the row phase of each of a band's rows
+        edge = np.empty((3, w), np.float64)
         while True:
             k = next_tile(counter)
             y0 = k * band
@@ -497,18 +498,19 @@ def colour_pattern(raw, colors, black, span, gain, offset, top, left, out, threa
                     for d in range(ph):
                         for x in range(w):
                             totals[c, x] += sums[y - y0 + d, c, x]
+                box = full  # each colour's sites in the box: ph unmirrored rows' ...
+                if not top <= y < h - (ph - 1 - top):  # ... else the mirrored rows'
+                    box = edge
+                    for c in range(3):
+                        for x in range(w):
+                            edge[c, x] = 0.0
+                        for d in range(ph):
+                            for x in range(w):
+                                edge[c, x] += counts[phases[y - y0 + d], c, x]
                 sy = y % ph
-                if top <= y < h - (ph - 1 - top):  # its box's rows are ph unmirrored ones
-                    for x in range(w):
-                        col = own_row[sy, x]
-                        out[y, x] = np.float32(totals[col, x] / full[col, x] - totals[3, x] / whole)
-                    continue
                 for x in range(w):
                     col = own_row[sy, x]
-                    many = 0.0
-                    for d in range(ph):
-                        many += counts[phases[y - y0 + d], col, x]
-                    out[y, x] = np.float32(totals[col, x] / many - totals[3, x] / whole)
+                    out[y, x] = np.float32(totals[col, x] / box[col, x] - totals[3, x] / whole)
 
 
 def _pattern(raw, cfa: CFA, black, span, gain, offset) -> np.ndarray:
