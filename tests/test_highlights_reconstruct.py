@@ -1089,6 +1089,62 @@ def test_engine_pre_pass_has_one_signature_for_any_number_of_clipped_tiles():
     assert signatures[1] == signatures[0]
 
 
+@pytest.mark.parametrize("cfa", ["RGGB", "XTRANS"])
+def test_engine_guard_pixels_are_every_pixel_beside_a_clipped_green_site(cfa):
+    """The magenta guard's pixels that the pre-pass marks (only in the tiles that hold a
+    clipped site, and the sites beyond the last whole block) are those within 1 px of
+    a green site at or above its clip code, found here by a plain 3 × 3 dilation: on
+    spots in many tiles, at tile edges and in the last odd row and column. Marks kept
+    for the next file (``unmark``) give the same pixels, and go back to zeros."""
+    import numba
+
+    from rawsim.engine import highlights as eh
+    from rawsim.engine.highlights import TILE, new_marks, reconstruct_mosaic, unmark
+    from rawsim.pipelines.process import engine_plan
+
+    raw = synthetic_raw(cfa, h=2 * TILE * 3 + 1, w=2 * TILE * 4 + 1)
+    calm = (516 + (raw.data.astype(np.int64) - 516) // 3).astype(np.uint16)  # none clips
+    plan = engine_plan(raw, override(default_config(), highlights="reconstruct"), "tiff")
+    _, gains, at = plan.highlights
+    ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
+    data = calm.copy()
+    rng = np.random.default_rng(5)
+    for y, x in rng.integers(0, data.shape, size=(40, 2)):
+        data[y : y + rng.integers(1, 5), x : x + rng.integers(1, 5)] = 16383
+    data[-1, 3], data[5, -1], data[-1, -1] = 16383, 16383, 16383  # beyond the last blocks
+    data[2 * TILE - 1 : 2 * TILE + 1, 2 * TILE - 1 : 2 * TILE + 1] = 16383  # four tiles meet
+    # one thread takes the tiles in order: the next tile's rows must not see this one's
+    # last row (a green site 2 px left of the next tile)
+    data[4 * TILE - 1, 4 * TILE - 3 : 4 * TILE - 1] = 16383
+    data[2 * TILE + 9, 4 * TILE + 20 : 4 * TILE + 22] = 16383
+    cmap, lines = eh._start(data, raw.cfa, ops, numbers, gains)[-1][::4]
+    h, w = data.shape
+    ph, pw = cmap.shape
+    green = np.tile(cmap, (-(-h // ph), -(-w // pw)))[:h, :w] == 1
+    hit = green & (data >= np.tile(lines, (-(-h // ph), 1))[:h])
+    padded = np.pad(hit, 1)
+    want = np.zeros_like(hit)
+    for dy in range(3):
+        for dx in range(3):
+            want |= padded[dy : dy + h, dx : dx + w]
+    assert 50 < hit.sum() and want[-1].any() and want[:, -1].any()
+    marks = new_marks(data.shape)
+    threads = numba.get_num_threads()
+    for n in (1, threads, threads):
+        numba.set_num_threads(n)
+        try:
+            _, _, (near, rows) = reconstruct_mosaic(
+                data, raw.cfa, ops, numbers, gains, guard=True, marks=marks
+            )
+        finally:
+            numba.set_num_threads(threads)
+        assert near is marks[0]
+        assert np.array_equal(near.astype(bool), want)
+        assert np.array_equal(rows.astype(bool), want.any(1))
+        unmark(marks)
+        assert not marks[0].any() and not marks[1].any()
+
+
 @pytest.mark.parametrize("wb_inverse", ["exact", "safe"])
 def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inverse):
     """Kodak's kodim20 (a crop, 57 % of it a cream sky whose channels average

@@ -167,13 +167,17 @@ def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, threads)
     Border blocks lie within ``border`` blocks of a clipped one but not next to one; the
     fields are zero elsewhere."""
     t = TILE
-    sats = np.zeros((tiles.shape[0], t + 1, t + 1, FIELDS), np.float64)
+    # a table's first row and column are zeros; the rest is written where a box may
+    # read it (the tile's blocks inside the image): no pass to zero it first
+    sats = np.empty((tiles.shape[0], t + 1, t + 1, FIELDS), np.float64)
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
     for _ in prange(threads):  # each thread takes items while any are left
         while True:
             k = next_tile(counter)
             if k >= tiles.shape[0]:
                 break
+            sats[k, 0, :, :] = 0.0
+            sats[k, :, 0, :] = 0.0
             i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
             i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
             # Clipped blocks within 1 and within ``border`` columns, for the tile's rows and
@@ -582,21 +586,25 @@ def _copy(raw, out, slots, black, scale, threads):
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _apply(patch, data, threads):
+def _apply(patch, data, tiles, b, hb, wb, threads):
     """Every nonzero site of ``patch`` into ``data`` (the rebuilt codes: never 0), and
-    ``patch`` back to zeros."""
+    ``patch`` back to zeros, read where sites are rebuilt: the tiles listed in
+    ``tiles`` (n, 2) of the Hb × Wb whole b × b blocks and the sites beyond the last
+    whole block row and column (:func:`_tile_sites`)."""
     h, w = data.shape
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
     for _ in prange(threads):  # each thread takes items while any are left
         while True:
-            y = next_tile(counter)
-            if y >= h:
+            k = next_tile(counter)
+            if k >= tiles.shape[0] + 2:
                 break
-            row = patch[y]
-            for x in range(w):
-                if row[x]:
-                    data[y, x] = row[x]
-                    row[x] = 0
+            y0, y1, x0, x1 = _tile_sites(tiles, k, b, hb, wb, h, w)
+            for y in range(y0, y1):
+                row = patch[y]
+                for x in range(x0, x1):
+                    if row[x]:
+                        data[y, x] = row[x]
+                        row[x] = 0
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -755,58 +763,86 @@ def _clip_codes(data, cfa: CFA, ops, opf, g, clipped: float = HIGHLIGHT_CLIPPED)
     return cmap, slots, table, level, lines
 
 
+@njit(inline="always", **_JIT)
+def _tile_sites(tiles, k, b, hb, wb, h, w):
+    """The sites (y0, y1, x0, x1) of item ``k``: the whole blocks of tile ``tiles[k]``
+    (k < n, the tiles listed), the sites below the last whole block row (k = n), or
+    those right of the last whole block column (k = n + 1)."""
+    t = TILE
+    n = tiles.shape[0]
+    if k == n:
+        return hb * b, h, 0, w
+    if k == n + 1:
+        return 0, hb * b, wb * b, w
+    i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
+    return i0 * b, min(i0 + t, hb) * b, j0 * b, min(j0 + t, wb) * b
+
+
 @njit(parallel=True, nogil=True, **_JIT)
-def _green_near(raw, lines, threads):
-    """(H, W) uint8, 1 within 1 px (3 × 3, inside the image) of a site at or above its
-    code in ``lines`` (:func:`_clip_codes`), and (H,) uint8, whether each row has any.
-    One comparison per site finds the rows that hold such a site; only the rows
-    beside them are marked (each ORs its three source rows' hits, then spreads them
-    a column either way)."""
+def _green_near(raw, lines, tiles, b, hb, wb, near, rows, threads):
+    """Marks 1 in ``near`` (H, W) uint8 within 1 px (3 × 3, inside the image) of each
+    site at or above its code in ``lines`` (:func:`_clip_codes`), and in ``rows`` (H,)
+    uint8 the rows that have any mark; both zeros before. Read only in the tiles listed
+    in ``tiles`` (n, 2; those with a clipped site, :func:`_clipped_tiles`) and the sites
+    beyond the last whole block row and column: no site elsewhere reaches its code.
+    Each tile's sites mark the pixels around them, 1 px into the next tiles: a byte
+    may be written by two threads, always 1."""
     h, w = raw.shape
     ph = lines.shape[0]
-    near = np.zeros((h, w), np.uint8)
-    hits, rows = np.zeros(h, np.uint8), np.zeros(h, np.uint8)
-    band = 64
-    for step in range(2):
-        counter = np.zeros(1, np.int64)  # the next band of rows (rawsim.engine.tiles)
-        for _ in prange(threads):
-            hit = np.empty(w, np.uint8)
-            while True:
-                k = next_tile(counter)
-                if k * band >= h:
-                    break
-                for y in range(k * band, min(h, k * band + band)):
-                    if step == 0:
-                        line, src, any_ = lines[y % ph], raw[y], np.uint8(0)
-                        for x in range(w):
-                            any_ |= np.int32(src[x]) >= line[x]
-                        hits[y] = any_
-                        continue
-                    y0, y1 = max(0, y - 1), min(h, y + 2)
-                    if not hits[y0:y1].any():
-                        continue
-                    for x in range(w):
-                        hit[x] = 0
-                    for yy in range(y0, y1):
-                        line, src = lines[yy % ph], raw[yy]
-                        for x in range(w):
-                            hit[x] |= np.int32(src[x]) >= line[x]
-                    row = near[y]
-                    for x in range(w):
-                        row[x] = hit[x] | hit[max(x - 1, 0)] | hit[min(x + 1, w - 1)]
-                    rows[y] = 1
-    return near, rows
+    counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
+    for _ in prange(threads):  # each thread takes items while any are left
+        hit = np.zeros(w + 4, np.uint8)
+        while True:
+            k = next_tile(counter)
+            if k >= tiles.shape[0] + 2:
+                break
+            y0, y1, x0, x1 = _tile_sites(tiles, k, b, hb, wb, h, w)
+            xa, xb = max(x0 - 1, 0), min(x1 + 1, w)
+            for y in range(y0, y1):
+                line, src = lines[y % ph], raw[y]
+                # hit[x + 2]: whether site x reached its code; none beyond the tile's
+                hit[x0], hit[x0 + 1], hit[x1 + 2], hit[x1 + 3] = 0, 0, 0, 0
+                any_ = np.uint8(0)
+                for x in range(x0, x1):
+                    v = np.uint8(np.int32(src[x]) >= line[x])
+                    hit[x + 2] = v
+                    any_ |= v
+                if not any_:
+                    continue
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    rows[yy] = 1
+                    row = near[yy]
+                    for x in range(xa, xb):
+                        if hit[x + 1] | hit[x + 2] | hit[x + 3]:  # sites x − 1, x, x + 1
+                            row[x] = 1
 
 
-def _clipped_green(data, cmap, lines):
+def _clipped_green(data, cmap, lines, tiles, b: int, hb: int, wb: int, marks=None):
     """The magenta guard's pixels (:mod:`rawsim.engine.magenta_guard`) from the clip
     codes ``lines`` of every site: (H, W) uint8, 1 within 1 px of a green site at or
-    above its code, and (H,) uint8, whether each row has any; or None where none is."""
-    w = data.shape[1]
+    above its code, and (H,) uint8, whether each row has any (into ``marks``, zeros of
+    those shapes, where given; :func:`unmark` makes them zeros again); or None where
+    none is. ``tiles``: the tiles with a clipped site (:func:`_tile_list` of
+    :func:`_clipped_tiles`), of b × b blocks, Hb × Wb whole."""
+    h, w = data.shape
     green = lines.copy()
     green[np.tile(cmap, (1, -(-w // cmap.shape[1])))[:, :w] != 1] = 65536  # others never
-    near, rows = _green_near(data, green, numba.get_num_threads())
+    near, rows = new_marks(data.shape) if marks is None else marks
+    _green_near(data, green, tiles, b, hb, wb, near, rows, numba.get_num_threads())
     return (near, rows) if rows.any() else None
+
+
+def new_marks(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Zeros for the magenta guard's pixels of an (H, W) mosaic: (H, W) and (H,) uint8.
+    A batch keeps them (:func:`unmark`): new ones cost a page fault per 4 KiB marked."""
+    return np.zeros(shape, np.uint8), np.zeros(shape[0], np.uint8)
+
+
+def unmark(marks: tuple[np.ndarray, np.ndarray]) -> None:
+    """The guard's pixels ``marks`` (:func:`new_marks`) back to zeros: the rows marked."""
+    near, rows = marks
+    near[rows.view(bool)] = 0
+    rows.fill(0)
 
 
 def _start(data, cfa: CFA, ops, opf, levels, clipped: float = HIGHLIGHT_CLIPPED):
@@ -835,7 +871,7 @@ def _dn_numbers(ops, opf):
     return black, span, applied
 
 
-def _rewrite(data, out, opf, slots, black, span, write, patch=None):
+def _rewrite(data, out, opf, slots, black, span, write, where, patch=None):
     """``data`` into ``out`` (a new array where None; ``data`` itself: rebuilt in place)
     with the rebuilt sites that ``write(out, scale)`` writes (over every site, copied
     scaled by ``scale`` about its black level; it returns the largest code a rebuilt
@@ -846,12 +882,13 @@ def _rewrite(data, out, opf, slots, black, span, write, patch=None):
 
     In place, the rebuilt sites go to ``patch`` first (zeros of ``data``'s shape, left
     zeros again; a new one where None), then onto ``data`` once every fit has read the
-    sites as they were: no copy of the mosaic (48 MB for 24 MP)."""
+    sites as they were: no copy of the mosaic (48 MB for 24 MP). ``where``: (tiles, b,
+    Hb, Wb), where ``write`` writes (:func:`_apply`)."""
     threads = numba.get_num_threads()
     if out is data:
         patch = np.zeros(data.shape, data.dtype) if patch is None else patch
         if write(patch, np.float32(1.0)) <= 65535.0:
-            _apply(patch, data, threads)
+            _apply(patch, data, *where, threads)
             return data, opf
         patch.fill(0)
         out = np.empty_like(data)  # codes run out: scaled, into a copy
@@ -886,13 +923,15 @@ def reconstruct_mosaic(
     out=None,
     guard=False,
     patch=None,
+    marks=None,
 ) -> tuple[np.ndarray, np.ndarray, tuple | None]:
     """The (H, W) uint16 mosaic ``data`` of ``cfa`` with its clipped highlights rebuilt
     (into ``out``, uint16 of its shape, where given: ``data`` itself rebuilds it in
     place, through ``patch``, zeros of its shape left zeros, where given; see
     :func:`_rewrite`), the op numbers ``opf`` to read it with; and where ``guard``, the
     magenta guard's pixels, read with the same clip codes
-    (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`), else None.
+    (:mod:`rawsim.engine.magenta_guard`; :func:`_clipped_green`, into ``marks`` where
+    given), else None.
 
     ``ops``/``opf``: the mosaic ops before the highlight stage, levels then white
     balance (:func:`rawsim.engine.process._mosaic_value`); ``levels``: where each
@@ -905,13 +944,14 @@ def reconstruct_mosaic(
     if codes is None:
         return data, opf, None
     cmap, slots, table, level, lines = codes
-    # the guard's pixels also where no whole block clipped (the rows and columns
-    # beyond the last whole block)
-    near = _clipped_green(data, cmap, lines) if guard else None
     t = TILE
     threads = numba.get_num_threads()
     clipped = _clipped_tiles(data, lines, b, hb, wb, threads)
-    if not clipped.any():
+    tiles = _tile_list(clipped)
+    # the guard's pixels also where no whole block clipped (the rows and columns
+    # beyond the last whole block)
+    near = _clipped_green(data, cmap, lines, tiles, b, hb, wb, marks) if guard else None
+    if not len(tiles):
         return data, opf, near
     listed = _tile_list(_around(clipped))  # the tiles read
     slot = np.full(clipped.shape, -1, np.int64)
@@ -926,7 +966,6 @@ def reconstruct_mosaic(
     sats = _tile_sats(
         means, flags, slot, g, bordered, hb, wb, HIGHLIGHT_BORDER, HIGHLIGHT_BORDER_POWER, threads
     )
-    tiles = _tile_list(clipped)
     shares = np.zeros((len(tiles), 3, t, t), np.float32)
     lows = np.zeros((len(tiles), t, t), np.float32)
     _estimates(
@@ -976,7 +1015,7 @@ def reconstruct_mosaic(
     def write(out, scale):
         return _write(data, out, site, scale, black, span, applied, threads)
 
-    out, opf = _rewrite(data, out, opf, slots, black, span, write, patch)
+    out, opf = _rewrite(data, out, opf, slots, black, span, write, (tiles, b, hb, wb), patch)
     return out, opf, near
 
 
@@ -1075,4 +1114,4 @@ def unclip_mosaic(
     def write(out, scale):
         return _unclip(data, out, codes[:4], b, hb, wb, tiles, scale, dn, threads)
 
-    return _rewrite(data, out, opf, slots, *dn[:2], write, patch)
+    return _rewrite(data, out, opf, slots, *dn[:2], write, (tiles, b, hb, wb), patch)

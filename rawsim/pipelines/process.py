@@ -468,6 +468,9 @@ _spare = Spare()
 #: Zeros the size of a batch's raw, through which ``reconstruct`` and ``unclip`` rebuild
 #: its mosaic in place (they leave it zeros), for the next file's.
 _patches = Spare()
+#: Zeros for the magenta guard's pixels of a batch's raw (``reconstruct``), left zeros
+#: again after its render, for the next file's.
+_marks = Spare()
 
 
 def _zeros(data: np.ndarray) -> np.ndarray:
@@ -501,8 +504,9 @@ def engine_render(
     """
     if plan.denoise is not None:
         raw, plan = denoised(raw, plan), replace(plan, denoise=None)
+    marks = None
     if plan.highlights is not None:
-        from rawsim.engine.highlights import reconstruct_mosaic, unclip_mosaic
+        from rawsim.engine.highlights import new_marks, reconstruct_mosaic, unclip_mosaic
 
         mode, levels, at = plan.highlights
         ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
@@ -510,8 +514,11 @@ def engine_render(
         out, patch = (raw.data, _zeros(raw.data)) if reuse else (None, None)
         if mode == "reconstruct":
             guard = plan.guard is not None
+            if guard and reuse:  # the guard's pixels marked in zeros kept, as the patch
+                shape = raw.data.shape
+                marks = _marks.take((shape, "marks"), lambda: new_marks(shape))
             data, numbers, near = reconstruct_mosaic(
-                raw.data, raw.cfa, ops, numbers, levels, out=out, guard=guard, patch=patch
+                raw.data, raw.cfa, ops, numbers, levels, out, guard, patch, marks
             )
         else:
             data, numbers = unclip_mosaic(
@@ -531,7 +538,13 @@ def engine_render(
             raw.data, raw.cfa.colors, plan.pre_ops, plan.pre_f, plan.tca
         )
         raw, plan = replace(raw, data=data), replace(plan, pre_ops=ops, pre_f=numbers, tca=None)
-    return _kernels(raw, plan, fmt, bits, tile, reuse)
+    samples = _kernels(raw, plan, fmt, bits, tile, reuse)
+    if marks is not None:
+        from rawsim.engine.highlights import unmark
+
+        unmark(marks)
+        _marks.keep((raw.data.shape, "marks"), marks)
+    return samples
 
 
 def denoised(raw: RawImage, plan: EnginePlan) -> RawImage:
