@@ -159,14 +159,15 @@ def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, thre
 
 @njit(parallel=True, nogil=True, **_JIT)
 def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, sats, threads):
-    """Summed-area tables into ``sats`` (n, TILE + 1, TILE + 1, FIELDS) float64 of each listed tile
-    (``tiles``: (n, 2) tile rows and columns; means and flags as :func:`_blocks` gives
-    them for these tiles, ``slot`` each tile's index in them): the border blocks' hue
-    fields (weight × share of R, G, B; weight; weight × each share squared, for the
-    border's spread of hue), read over each block's 3 × 3 blocks and weighted by their
-    brightness to ``power`` (float32 products, as the reference forms them).
-    Border blocks lie within ``border`` blocks of a clipped one but not next to one; the
-    fields are zero elsewhere."""
+    """Summed-area tables of each listed tile into ``sats`` (n, TILE + 1, TILE + 1,
+    FIELDS) float64 (``tiles``: (n, 2) tile rows and columns; means and flags as
+    :func:`_blocks` gives them for these tiles, ``slot`` each tile's index in them):
+    the border blocks' hue fields (weight × share of R, G, B; weight; weight × each
+    share squared, for the border's spread of hue), read over each block's 3 × 3
+    blocks and weighted by their brightness to ``power`` (float32 products, as the
+    reference forms them). Border blocks lie within ``border`` blocks of a clipped one
+    but not next to one; the fields are zero elsewhere. Entries of blocks beyond the
+    image (a tile at the last row or column) are left as they were: no box reads them."""
     t = TILE
     # a table's first row and column are zeros; the rest is written where a box may
     # read it (the tile's blocks inside the image): no pass to zero it first
