@@ -126,13 +126,27 @@ for i in range(6):
 
 def timed(cmd: list[str], env=None) -> tuple[float, float]:
     """Wall seconds and peak RSS (GB) of one fresh process."""
+    wall, peak, _ = timed_cpu(cmd, env)
+    return wall, peak
+
+
+def timed_cpu(cmd: list[str], env=None) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (GB) and CPU seconds (user + system, every thread) of one
+    fresh process."""
     t = time.perf_counter()
-    _, _, peak = child(cmd, env)
-    return time.perf_counter() - t, peak
+    _, _, usage = run_child(cmd, env)
+    cpu = usage.ru_utime + usage.ru_stime
+    return time.perf_counter() - t, usage.ru_maxrss / 1024**2, cpu
 
 
 def child(cmd: list[str], env=None) -> tuple[str, str, float]:
     """Run ``cmd``; return stdout, stderr and its own peak RSS in GB (from ``wait4``)."""
+    stdout, stderr, usage = run_child(cmd, env)
+    return stdout, stderr, usage.ru_maxrss / 1024**2
+
+
+def run_child(cmd: list[str], env=None) -> tuple[str, str, os.struct_rusage]:
+    """Run ``cmd``; return stdout, stderr and its own resource usage (from ``wait4``)."""
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True, env=env)
         _, status, usage = os.wait4(proc.pid, 0)
@@ -141,7 +155,7 @@ def child(cmd: list[str], env=None) -> tuple[str, str, float]:
         stdout, stderr = out.read(), err.read()
     if proc.returncode:
         raise subprocess.CalledProcessError(proc.returncode, cmd, stdout, stderr)
-    return stdout, stderr, usage.ru_maxrss / 1024**2
+    return stdout, stderr, usage
 
 
 #: ``--io``'s DNG: the photo this many stops brighter, so that 1–2 % of its sites clip
@@ -533,6 +547,7 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
         "dcraw_emu 8, two at a time": dcraw_pairs,
     }
     times: dict[str, list[float]] = {name: [] for name in runs}
+    cpus: dict[str, list[float]] = {name: [] for name in runs}
     for _ in range(rounds):
         for name, cmd in runs.items():
             shutil.rmtree(out, ignore_errors=True)
@@ -542,9 +557,12 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
             if not name.startswith("floor"):
                 out.mkdir()
             command = cmd()
-            times[name].append(timed(command)[0])
+            wall, _, cpu = timed_cpu(command)
+            times[name].append(wall)
+            cpus[name].append(cpu)
     shutil.rmtree(out, ignore_errors=True)
     med = {name: statistics.median(t) for name, t in times.items()}
+    cpu = {name: statistics.median(t) for name, t in cpus.items()}
     ours, theirs = (med["rawsim 4"] - med["rawsim 1"]) / 3, (med["floor 4"] - med["floor 1"]) / 3
     print(f"I/O floor and batches, 24 MP 14-bit DNG, {os.cpu_count()} cores, {rounds} rounds:")
     clip = (med["rawsim 4 --highlights clip"] - med["rawsim 1 --highlights clip"]) / 3
@@ -560,6 +578,15 @@ def io_floor(tmp: Path, dng: Path, rounds: int) -> None:
     print(
         f"  the default / --demosaic wcd --highlights clip (the default demosaic): "
         f"{ours / clip:.2f}× (target ≤ 1.3×)"
+    )
+    # CPU seconds swing less than wall seconds where other machines share the cores
+    margin = {name: (cpu[f"{name} 4"] - cpu[f"{name} 1"]) / 3 for name in ("floor", "rawsim")}
+    margin["clip"] = (cpu["rawsim 4 --highlights clip"] - cpu["rawsim 1 --highlights clip"]) / 3
+    print(
+        f"  CPU seconds per file (user + system, every thread; marginal as above): rawsim "
+        f"(defaults) {margin['rawsim']:.3f}, with --highlights clip {margin['clip']:.3f} "
+        f"({margin['rawsim'] / margin['clip']:.2f}×), floor {margin['floor']:.3f} "
+        f"({margin['rawsim'] / margin['floor']:.2f}×)"
     )
     print(
         f"  one file, fresh process: rawsim {med['rawsim 1']:.3f} s = steady per file + "
