@@ -1142,6 +1142,68 @@ def test_engine_guard_pixels_are_every_pixel_beside_a_clipped_green_site(cfa):
         assert not marks[0].any() and not marks[1].any()
 
 
+@pytest.mark.parametrize("cfa", ["RGGB", "XTRANS"])
+def test_engine_block_means_beside_a_clipped_tile_are_those_the_border_reads(cfa):
+    """The pre-pass reads a tile's block means and flags (``_blocks``) in the tiles that
+    hold a clipped site and their eight neighbours. A neighbour's flags are zeros, and
+    only its blocks within ``HIGHLIGHT_BORDER`` + 1 of a clipped tile are read (a border
+    block's 3 × 3), so only those are written: there they equal a full pass's, the rest
+    are left as they were. Spots in some tiles, at tile edges and corners."""
+    import numba
+
+    from rawsim.engine import highlights as eh
+    from rawsim.engine.highlights import TILE
+    from rawsim.isp.config import HIGHLIGHT_BORDER, highlight_block
+    from rawsim.pipelines.process import engine_plan
+
+    raw = synthetic_raw(cfa)
+    b = highlight_block(raw.cfa.colors, raw.cfa.period)
+    raw = synthetic_raw(cfa, h=b * TILE * 5 + 1, w=b * TILE * 6 + 1)
+    plan = engine_plan(raw, override(default_config(), highlights="reconstruct"), "tiff")
+    _, gains, at = plan.highlights
+    ops, numbers = plan.pre_ops[:at], plan.pre_f[:at]
+    data = (516 + (raw.data.astype(np.int64) - 516) // 3).astype(np.uint16)  # none clips
+    edge = b * TILE
+    for y, x in [(edge * 2 + 7, edge * 2 + 9), (edge - 1, 3 * edge - 1), (4 * edge + 5, edge)]:
+        data[y : y + 2, x : x + 2] = 16383  # inside a tile, at a corner, at an edge
+    d, _, _, _, b, hb, wb, (cmap, slots, table, level, lines) = eh._start(
+        data, raw.cfa, ops, numbers, gains
+    )
+    threads = numba.get_num_threads()
+    clipped = eh._clipped_tiles(d, lines, b, hb, wb, threads)
+    listed = eh._tile_list(eh._around(clipped))
+    assert 2 <= clipped.sum() < len(listed) < clipped.size
+
+    def blocks(marked):
+        means = np.full((len(listed), 3, TILE, TILE), np.nan, np.float32)
+        flags = np.full((len(listed), TILE, TILE), 255, np.uint8)
+        src = (d, cmap, slots, table, level, b)
+        eh._blocks(src, listed, marked, HIGHLIGHT_BORDER + 1, hb, wb, means, flags, threads)
+        return means, flags
+
+    full_means, full_flags = blocks(np.ones_like(clipped))
+    means, flags = blocks(clipped)
+    reach = HIGHLIGHT_BORDER + 1
+    inside = np.kron(clipped, np.ones((TILE, TILE), np.uint8))[:hb, :wb]
+    near = (
+        torch.nn.functional.max_pool2d(
+            torch.from_numpy(inside)[None, None].float(), 2 * reach + 1, 1, reach
+        )[0, 0].numpy()
+        > 0
+    )
+    left = 0
+    for k, (ti, tj) in enumerate(listed):
+        rows, cols = slice(ti * TILE, (ti + 1) * TILE), slice(tj * TILE, (tj + 1) * TILE)
+        here = near[rows, cols]  # the tile's blocks in the image
+        h, w = here.shape
+        assert np.array_equal(flags[k, :h, :w], full_flags[k, :h, :w])
+        assert not clipped[ti, tj] or full_flags[k, :h, :w].any()
+        assert clipped[ti, tj] or not full_flags[k, :h, :w].any()
+        assert np.array_equal(means[k, :, :h, :w][:, here], full_means[k, :, :h, :w][:, here])
+        left += np.isnan(means[k, 0, :h, :w]).sum()
+    assert left > 0  # the blocks no border reads were not computed
+
+
 @pytest.mark.parametrize("wb_inverse", ["exact", "safe"])
 def test_the_default_round_trip_keeps_a_near_white_sky_its_hue(tmp_path, wb_inverse):
     """Kodak's kodim20 (a crop, 57 % of it a cream sky whose channels average

@@ -114,47 +114,99 @@ def _clipped_tiles(raw, lines, b, hb, wb, threads):
     return tiles
 
 
+@njit(inline="always", **_JIT)
+def _block_row(src, i, ja, jb, k, i0, j0, out):
+    """:func:`_blocks` for blocks [ja, jb) of block row ``i`` of tile ``k`` (its first
+    block (i0, j0)): ``src`` (raw, cmap, slots, table, level, b) and ``out`` (means,
+    flags, then scratch of a tile row: sums, counts, flags) as it takes them."""
+    raw, cmap, slots, table, level, b = src
+    means, flags, sums, n, f = out
+    ph, pw = cmap.shape
+    sums[:] = 0.0
+    n[:] = 0.0
+    f[:] = 0
+    for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
+        p = y % ph
+        q, j, bq = (ja * b) % pw, ja - j0, 0  # x % pw, the block column in the tile, x % b
+        for x in range(ja * b, jb * b):
+            c = cmap[p, q]
+            v = table[slots[p, q], raw[y, x]]
+            sums[c, j] += v
+            n[c, j] += 1
+            if v >= level[c]:
+                f[j] |= 1 << c
+            q = q + 1 if q + 1 < pw else 0
+            bq += 1
+            if bq == b:
+                bq, j = 0, j + 1
+    for j in range(ja - j0, jb - j0):
+        for c in range(3):
+            means[k, c, i - i0, j] = sums[c, j] / n[c, j]
+        flags[k, i - i0, j] = f[j]
+
+
+@njit(inline="always", **_JIT)
+def _marked(clipped, ti, tj):
+    """Whether ``clipped`` (Th, Tw) marks tile (ti, tj); False beyond it."""
+    th, tw = clipped.shape
+    return 0 <= ti < th and 0 <= tj < tw and clipped[ti, tj] != 0
+
+
 @njit(parallel=True, nogil=True, **_JIT)
-def _blocks(raw, cmap, slots, table, level, b, tiles, hb, wb, means, flags, threads):
+def _blocks(src, tiles, clipped, reach, hb, wb, means, flags, threads):
     """Each whole b × b block's colour means (n, 3, TILE, TILE) and clip flags (n, TILE,
     TILE; bit c: colour c has a site ≥ ``level[c]``) in the n tiles listed in
-    ``tiles`` (n, 2) of the Hb × Wb blocks, the sites' values read from ``table``
-    (:func:`~rawsim.engine.process.mosaic_table`, a row per levels slot)."""
+    ``tiles`` (n, 2) of the Hb × Wb blocks; ``src``: (raw, cmap, slots, table, level, b),
+    the sites' values read from ``table`` (:func:`~rawsim.engine.process.mosaic_table`,
+    a row per levels slot).
+
+    A tile that ``clipped`` (Th, Tw) does not mark holds no clipped site: its flags are
+    zeros, and its means are read only within ``reach`` blocks of a clipped tile (a
+    border block's 3 × 3, :func:`_tile_sats`), so only those are written: the rows
+    along an edge it shares with a clipped tile, and the ends of rows beside one (or
+    near a clipped corner)."""
     t = TILE
-    ph, pw = cmap.shape
     counter = np.zeros(1, np.int64)  # the next item (rawsim.engine.tiles)
     for _ in prange(threads):  # each thread takes items while any are left
-        sums = np.zeros((3, t), np.float32)
-        n = np.zeros((3, t), np.float32)
-        f = np.zeros(t, np.uint8)
+        out = (
+            means,
+            flags,
+            np.zeros((3, t), np.float32),
+            np.zeros((3, t), np.float32),
+            np.zeros(t, np.uint8),
+        )
         while True:
             k = next_tile(counter)
             if k >= tiles.shape[0]:
                 break
-            i0, j0 = tiles[k, 0] * t, tiles[k, 1] * t
-            j1 = min(j0 + t, wb)
-            for i in range(i0, min(i0 + t, hb)):
-                sums[:] = 0.0
-                n[:] = 0.0
-                f[:] = 0
-                for y in range(i * b, i * b + b):  # a row at a time, each block's sites in order
-                    p = y % ph
-                    q, j, bq = (j0 * b) % pw, 0, 0  # x % pw, the block column in the tile, x % b
-                    for x in range(j0 * b, j1 * b):
-                        c = cmap[p, q]
-                        v = table[slots[p, q], raw[y, x]]
-                        sums[c, j] += v
-                        n[c, j] += 1
-                        if v >= level[c]:
-                            f[j] |= 1 << c
-                        q = q + 1 if q + 1 < pw else 0
-                        bq += 1
-                        if bq == b:
-                            bq, j = 0, j + 1
-                for j in range(j1 - j0):
-                    for c in range(3):
-                        means[k, c, i - i0, j] = sums[c, j] / n[c, j]
-                    flags[k, i - i0, j] = f[j]
+            ti, tj = tiles[k, 0], tiles[k, 1]
+            i0, j0 = ti * t, tj * t
+            i1, j1 = min(i0 + t, hb), min(j0 + t, wb)
+            whole = clipped[ti, tj] != 0
+            if not whole:
+                flags[k] = 0
+            for i in range(i0, i1):
+                # the blocks [j0, left) and [right, j1) of this row
+                left, right = j1, j1
+                if not whole:
+                    top, bottom = i < i0 + reach, i >= i0 + t - reach
+                    row = (top and _marked(clipped, ti - 1, tj)) or (
+                        bottom and _marked(clipped, ti + 1, tj)
+                    )
+                    near = np.zeros(2, np.bool_)  # a clipped tile to the left, to the right
+                    for s, dj in enumerate((-1, 1)):
+                        near[s] = (
+                            _marked(clipped, ti, tj + dj)
+                            or (top and _marked(clipped, ti - 1, tj + dj))
+                            or (bottom and _marked(clipped, ti + 1, tj + dj))
+                        )
+                    if not row:
+                        left = min(j0 + reach, j1) if near[0] else j0
+                        right = max(j1 - reach, left) if near[1] else j1
+                if left > j0:
+                    _block_row(src, i, j0, left, k, i0, j0, out)
+                if right < j1:
+                    _block_row(src, i, right, j1, k, i0, j0, out)
 
 
 @njit(parallel=True, nogil=True, **_JIT)
@@ -974,7 +1026,9 @@ def reconstruct_mosaic(
     slot[listed[:, 0], listed[:, 1]] = np.arange(len(listed))
     means = np.empty((len(listed), 3, t, t), np.float32)
     flags = np.empty((len(listed), t, t), np.uint8)
-    _blocks(data, cmap, slots, table, level, b, listed, hb, wb, means, flags, threads)
+    reach = HIGHLIGHT_BORDER + 1  # a border block's 3 × 3 means
+    src = (data, cmap, slots, table, level, b)
+    _blocks(src, listed, clipped, reach, hb, wb, means, flags, threads)
     # tables only where a border block may lie: elsewhere they would be zeros
     bordered = _tile_list(_bordered(flags, clipped, slot, hb, wb, HIGHLIGHT_BORDER) & (slot >= 0))
     sat_slot = np.full(clipped.shape, -1, np.int64)
