@@ -210,9 +210,11 @@ def _blocks(src, tiles, clipped, reach, hb, wb, means, flags, threads):
 
 
 @njit(parallel=True, nogil=True, **_JIT)
-def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, sats, threads):
+def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, fields, sats, threads):
     """Summed-area tables of each listed tile into ``sats`` (n, TILE + 1, TILE + 1,
-    FIELDS) float64 (``tiles``: (n, 2) tile rows and columns; means and flags as
+    FIELDS) float64, of its first ``fields`` fields (the others are left as they were;
+    the squared shares are read only where two colours clipped: :func:`_agreement`)
+    (``tiles``: (n, 2) tile rows and columns; means and flags as
     :func:`_blocks` gives them for these tiles, ``slot`` each tile's index in them):
     the border blocks' hue fields (weight × share of R, G, B; weight; weight × each
     share squared, for the border's spread of hue), read over each block's 3 × 3
@@ -294,7 +296,7 @@ def _tile_sats(means, flags, slot, clips, tiles, hb, wb, border, power, sats, th
                                 field[4 + c] = np.float64(bright * (share * share))
                             field[3] = np.float64(bright)
                     li, lj = i - i0 + 1, j - j0 + 1
-                    for f in range(FIELDS):
+                    for f in range(fields):
                         sat[li, lj, f] = (
                             field[f]
                             + sat[li - 1, lj, f]
@@ -712,6 +714,17 @@ def _write(raw, out, site, scale, black, span, applied, threads):
     return tops.max()
 
 
+def _clipped_flags(flags, slot, tiles, hb: int, wb: int) -> np.ndarray:
+    """(m, TILE, TILE) uint8: the clip flags of the m tiles ``tiles`` (m, 2) (``flags``,
+    ``slot`` as :func:`_blocks` gives them), zeros for blocks beyond Hb × Wb (which it
+    leaves unwritten)."""
+    t = TILE
+    inside = ((tiles[:, :1] * t + np.arange(t)) < hb)[:, :, None] & (
+        (tiles[:, 1:] * t + np.arange(t)) < wb
+    )[:, None, :]
+    return np.where(inside, flags[slot[tiles[:, 0], tiles[:, 1]]], 0)
+
+
 def _bordered(flags, clipped, slot, hb: int, wb: int, border: int) -> np.ndarray:
     """(Th, Tw) bool: the tiles that may hold a border block (:func:`_tile_sats`), those
     with a clipped block within ``border`` blocks of theirs (``border`` < ``TILE``, so
@@ -721,10 +734,7 @@ def _bordered(flags, clipped, slot, hb: int, wb: int, border: int) -> np.ndarray
     t = TILE
     th, tw = clipped.shape
     at = np.argwhere(clipped)
-    inside = ((at[:, :1] * t + np.arange(t)) < hb)[:, :, None] & (
-        (at[:, 1:] * t + np.arange(t)) < wb
-    )[:, None, :]
-    hit = (flags[slot[at[:, 0], at[:, 1]]] != 0) & inside  # (m, TILE, TILE)
+    hit = _clipped_flags(flags, slot, at, hb, wb) != 0  # (m, TILE, TILE)
     rows, cols = hit.any(2), hit.any(1)
     some = rows.any(1)
     # each tile's first and last clipped block row and column, padded by a tile of
@@ -1034,6 +1044,9 @@ def reconstruct_mosaic(
     sat_slot = np.full(clipped.shape, -1, np.int64)
     sat_slot[bordered[:, 0], bordered[:, 1]] = np.arange(len(bordered))
     sats = _tables(len(bordered))
+    # the squared shares' tables only where a block has two colours clipped (_agreement)
+    kept = _clipped_flags(flags, slot, tiles, hb, wb)
+    blown = bool(((kept == 3) | (kept == 5) | (kept == 6)).any())
     _tile_sats(
         means,
         flags,
@@ -1044,6 +1057,7 @@ def reconstruct_mosaic(
         wb,
         HIGHLIGHT_BORDER,
         HIGHLIGHT_BORDER_POWER,
+        FIELDS if blown else 4,
         sats,
         threads,
     )
