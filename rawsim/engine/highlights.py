@@ -152,6 +152,17 @@ def _marked(clipped, ti, tj):
     return 0 <= ti < th and 0 <= tj < tw and clipped[ti, tj] != 0
 
 
+@njit(inline="always", **_JIT)
+def _beside(clipped, ti, tj, top, bottom):
+    """Whether a row of tile (ti, tj ± 1) lies near a clipped tile at its side (ti, tj),
+    or, where the row is near its ``top`` or ``bottom``, at the corner above or below."""
+    return (
+        _marked(clipped, ti, tj)
+        or (top and _marked(clipped, ti - 1, tj))
+        or (bottom and _marked(clipped, ti + 1, tj))
+    )
+
+
 @njit(parallel=True, nogil=True, **_JIT)
 def _blocks(src, tiles, clipped, reach, hb, wb, means, flags, threads):
     """Each whole b × b block's colour means (n, 3, TILE, TILE) and clip flags (n, TILE,
@@ -193,16 +204,11 @@ def _blocks(src, tiles, clipped, reach, hb, wb, means, flags, threads):
                     row = (top and _marked(clipped, ti - 1, tj)) or (
                         bottom and _marked(clipped, ti + 1, tj)
                     )
-                    near = np.zeros(2, np.bool_)  # a clipped tile to the left, to the right
-                    for s, dj in enumerate((-1, 1)):
-                        near[s] = (
-                            _marked(clipped, ti, tj + dj)
-                            or (top and _marked(clipped, ti - 1, tj + dj))
-                            or (bottom and _marked(clipped, ti + 1, tj + dj))
-                        )
                     if not row:
-                        left = min(j0 + reach, j1) if near[0] else j0
-                        right = max(j1 - reach, left) if near[1] else j1
+                        near = _beside(clipped, ti, tj - 1, top, bottom)
+                        left = min(j0 + reach, j1) if near else j0
+                        near = _beside(clipped, ti, tj + 1, top, bottom)
+                        right = max(j1 - reach, left) if near else j1
                 if left > j0:
                     _block_row(src, i, j0, left, k, i0, j0, out)
                 if right < j1:
