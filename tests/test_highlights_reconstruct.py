@@ -1248,16 +1248,13 @@ def test_hue_tables_only_for_tiles_a_border_can_reach():
     from rawsim.engine.highlights import TILE, _bordered
     from rawsim.isp.config import HIGHLIGHT_BORDER as B
 
-    hb = wb = 3 * TILE
     clipped = np.zeros((3, 3), np.uint8)
     clipped[1, 1] = 1
-    slot = np.full((3, 3), -1, np.int64)
-    slot[1, 1] = 0
 
     def tables(i, j):
-        flags = np.zeros((1, TILE, TILE), np.uint8)
-        flags[0, i, j] = 2
-        return _bordered(flags, clipped, slot, hb, wb, B).astype(int)
+        kept = np.zeros((1, TILE, TILE), np.uint8)  # the clipped tile's flags
+        kept[0, i, j] = 2
+        return _bordered(kept, clipped, B).astype(int)
 
     alone = np.zeros((3, 3), int)
     alone[1, 1] = 1

@@ -731,16 +731,17 @@ def _clipped_flags(flags, slot, tiles, hb: int, wb: int) -> np.ndarray:
     return np.where(inside, flags[slot[tiles[:, 0], tiles[:, 1]]], 0)
 
 
-def _bordered(flags, clipped, slot, hb: int, wb: int, border: int) -> np.ndarray:
+def _bordered(kept, clipped, border: int) -> np.ndarray:
     """(Th, Tw) bool: the tiles that may hold a border block (:func:`_tile_sats`), those
     with a clipped block within ``border`` blocks of theirs (``border`` < ``TILE``, so
     of their own or their eight neighbours'); the others' tables would be zeros. From
-    the extent of each clipped tile's clipped blocks (``flags``, ``slot`` as
-    :func:`_blocks` gives them; blocks beyond Hb × Wb are not read)."""
+    the extent of each clipped tile's clipped blocks: ``kept`` (m, TILE, TILE), the
+    flags of the m tiles ``clipped`` (Th, Tw) marks, in :func:`_tile_list`'s order
+    (:func:`_clipped_flags`)."""
     t = TILE
     th, tw = clipped.shape
     at = np.argwhere(clipped)
-    hit = _clipped_flags(flags, slot, at, hb, wb) != 0  # (m, TILE, TILE)
+    hit = kept != 0  # (m, TILE, TILE)
     rows, cols = hit.any(2), hit.any(1)
     some = rows.any(1)
     # each tile's first and last clipped block row and column, padded by a tile of
@@ -1045,13 +1046,13 @@ def reconstruct_mosaic(
     reach = HIGHLIGHT_BORDER + 1  # a border block's 3 × 3 means
     src = (data, cmap, slots, table, level, b)
     _blocks(src, listed, clipped, reach, hb, wb, means, flags, threads)
+    kept = _clipped_flags(flags, slot, tiles, hb, wb)
     # tables only where a border block may lie: elsewhere they would be zeros
-    bordered = _tile_list(_bordered(flags, clipped, slot, hb, wb, HIGHLIGHT_BORDER) & (slot >= 0))
+    bordered = _tile_list(_bordered(kept, clipped, HIGHLIGHT_BORDER) & (slot >= 0))
     sat_slot = np.full(clipped.shape, -1, np.int64)
     sat_slot[bordered[:, 0], bordered[:, 1]] = np.arange(len(bordered))
     sats = _tables(len(bordered))
     # the squared shares' tables only where a block has two colours clipped (_agreement)
-    kept = _clipped_flags(flags, slot, tiles, hb, wb)
     blown = bool(((kept == 3) | (kept == 5) | (kept == 6)).any())
     _tile_sats(
         means,
