@@ -154,8 +154,10 @@ def _marked(clipped, ti, tj):
 
 @njit(inline="always", **_JIT)
 def _beside(clipped, ti, tj, top, bottom):
-    """Whether a row of tile (ti, tj ± 1) lies near a clipped tile at its side (ti, tj),
-    or, where the row is near its ``top`` or ``bottom``, at the corner above or below."""
+    """Whether a row lies near clipped tile (ti, tj), or, where the row is near its
+    tile's ``top`` or ``bottom``, near the one above or below (ti ± 1, tj): for a row
+    of tile (ti, tj ± 1), a clipped tile at its side or corner; of tile (ti, tj)
+    itself, unmarked, one across its top or bottom edge."""
     return (
         _marked(clipped, ti, tj)
         or (top and _marked(clipped, ti - 1, tj))
@@ -201,10 +203,7 @@ def _blocks(src, tiles, clipped, reach, hb, wb, means, flags, threads):
                 left, right = j1, j1
                 if not whole:
                     top, bottom = i < i0 + reach, i >= i0 + t - reach
-                    row = (top and _marked(clipped, ti - 1, tj)) or (
-                        bottom and _marked(clipped, ti + 1, tj)
-                    )
-                    if not row:
+                    if not _beside(clipped, ti, tj, top, bottom):  # not the whole row
                         near = _beside(clipped, ti, tj - 1, top, bottom)
                         left = min(j0 + reach, j1) if near else j0
                         near = _beside(clipped, ti, tj + 1, top, bottom)
